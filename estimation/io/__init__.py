@@ -1,0 +1,1 @@
+"""Readers and writers of recording and result files."""

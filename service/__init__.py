@@ -1,0 +1,1 @@
+"""bonefit REST service: uploads, a job queue, progress and results over HTTP."""
