@@ -1,0 +1,942 @@
+"""Readers of 6-DOF sensor recordings: bonefit sensor CSV, tracker ASCII and NPZ.
+
+Every reader returns a :class:`~estimation.recording.SensorRecording` in metres with unit
+scalar-first quaternions (sensor → source frame) and NaN for dropped samples, and raises
+:class:`~estimation.errors.InputError` naming the line, column, field or sensor at fault.
+The formats are described in ``docs/skeleton-io.md``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import math
+import os
+import zipfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
+from ..model import SEGMENTS
+from ..recording import SensorRecording
+
+PathLike = str | os.PathLike[str]
+
+UNITS: Final[dict[str, float]] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+"""Length units accepted by the readers and their size in metres."""
+
+FORMATS: Final[tuple[str, ...]] = ("csv", "tracker", "npz")
+"""Recording formats ``read_recording`` understands (besides ``"auto"``)."""
+
+COMPONENTS: Final[tuple[str, ...]] = ("x", "y", "z", "qw", "qx", "qy", "qz")
+"""Per-sensor columns of the sensor CSV, in the order they are stored."""
+
+QUATERNION_TOLERANCE: Final[float] = 0.05
+"""A quaternion whose norm differs from 1 by more than this is rejected as not a rotation
+(wrong column order, angles in quaternion columns); closer ones are normalised."""
+
+MAX_BODY_EXTENT_M: Final[float] = 20.0
+"""Median per-frame spread of the sensors above which positions cannot be in the declared
+units (a body spans about 2 m; millimetres read as metres give about 1700)."""
+
+MIN_BODY_EXTENT_M: Final[float] = 0.02
+"""Median per-frame spread (with three sensors or more) below which positions cannot be in
+the declared units (metres read as millimetres)."""
+
+_EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def example_path(name: str = "walk.csv") -> Path:
+    """Path of a bundled example recording.
+
+    Parameters
+    ----------
+    name : str
+        File name inside ``estimation/examples`` (default the 15-sensor walk).
+
+    Returns
+    -------
+    Path
+    """
+    path = _EXAMPLES / name
+    if not path.is_file():
+        raise InputError(f"no bundled example {name!r}", field="example")
+    return path
+
+
+def unit_scale(units: str) -> float:
+    """Metres per file unit for ``units`` (``m``, ``cm``, ``mm`` or ``in``)."""
+    key = units.strip().lower()
+    if key not in UNITS:
+        raise InputError(f"unknown units {units!r}; use one of {', '.join(UNITS)}",
+                         field="units")
+    return UNITS[key]
+
+
+def parse_stations(spec: str | Mapping[Any, Any] | PathLike) -> dict[int, str]:
+    """Station-number → segment mapping of a tracker recording.
+
+    Parameters
+    ----------
+    spec : str, mapping or path
+        ``"1=pelvis,2=chest,..."``, a mapping ``{1: "pelvis", ...}`` (keys may be strings of
+        digits), or the path of a JSON file holding such a mapping.
+
+    Returns
+    -------
+    dict of int to str
+
+    Raises
+    ------
+    InputError
+        On a malformed entry, an unknown segment or a segment given twice.
+    """
+    items: list[tuple[Any, Any]]
+    if isinstance(spec, Mapping):
+        items = list(spec.items())
+    else:
+        text = os.fspath(spec).strip()
+        path = Path(text)
+        if text.endswith(".json") or ("=" not in text and path.is_file()):
+            try:
+                loaded = json.loads(path.read_text(encoding="utf-8"))
+            except FileNotFoundError:
+                raise InputError(f"stations file {text} not found", field="stations") from None
+            except (OSError, ValueError) as exc:
+                raise InputError(f"cannot read stations file {text}: {exc}",
+                                 field="stations") from None
+            if not isinstance(loaded, dict):
+                raise InputError("stations JSON must be an object {\"1\": \"pelvis\", ...}",
+                                 field="stations")
+            items = list(loaded.items())
+        else:
+            items = []
+            for part in text.split(","):
+                if not part.strip():
+                    continue
+                key, sep, value = part.partition("=")
+                if not sep:
+                    raise InputError(f"stations entry {part.strip()!r} is not NUMBER=SEGMENT",
+                                     field="stations")
+                items.append((key.strip(), value.strip()))
+    mapping: dict[int, str] = {}
+    for key, value in items:
+        try:
+            number = int(key)
+        except (TypeError, ValueError):
+            raise InputError(f"station {key!r} is not a number", field="stations") from None
+        if value not in SEGMENTS:
+            raise InputError(f"station {number} maps to unknown segment {value!r}; "
+                             f"segments are {', '.join(SEGMENTS)}", field="stations")
+        if value in mapping.values():
+            raise InputError(f"segment {value!r} is given to two stations", field="stations")
+        mapping[number] = str(value)
+    if not mapping:
+        raise InputError("stations mapping is empty", field="stations")
+    return mapping
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _open_text(path: PathLike) -> io.TextIOWrapper:
+    try:
+        # undecodable bytes become U+FFFD and then fail as a named column or number
+        return open(path, encoding="utf-8-sig", errors="replace", newline="")
+    except IsADirectoryError:
+        raise InputError(f"{os.fspath(path)} is a directory, not a recording",
+                         field="input") from None
+    except PermissionError:
+        raise InputError(f"cannot read {os.fspath(path)}: permission denied",
+                         field="input") from None
+
+
+def _metadata(line: str) -> tuple[str, str] | None:
+    """``# key: value`` comment → (key, value); None for other comments."""
+    body = line.lstrip("#").strip()
+    key, sep, value = body.partition(":")
+    if not sep:
+        key, sep, value = body.partition("=")
+    if not sep:
+        return None
+    key = key.strip().lower()
+    if key in ("units", "fps", "stations"):
+        return key, value.strip()
+    return None
+
+
+def _parse_fps(value: Any, field: str = "fps") -> float:
+    try:
+        fps = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"fps must be a number, got {value!r}", field=field) from None
+    if not (math.isfinite(fps) and fps > 0):
+        raise InputError(f"fps must be positive, got {value!r}", field=field)
+    return fps
+
+
+def _normalise_quaternions(quats: NDArray[np.float64], sensors: tuple[str, ...],
+                           lines: NDArray[np.int64] | None) -> NDArray[np.float64]:
+    """Unit quaternions; InputError naming the sample whose norm is far from 1."""
+    norm = np.linalg.norm(quats, axis=-1)
+    bad = np.isfinite(norm) & (np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
+    if bad.any():
+        frame, s = (int(i) for i in np.argwhere(bad)[0])
+        where = f"line {int(lines[frame])}" if lines is not None else f"frame {frame}"
+        raise InputError(
+            f"quaternion of sensor {sensors[s]!r} at {where} has norm {norm[frame, s]:.4g}, "
+            f"not 1 (expected scalar-first w, x, y, z)",
+            sensor=sensors[s], line=int(lines[frame]) if lines is not None else None)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(quats / norm[..., None], dtype=float)
+
+
+def _check_recording(rec: SensorRecording, units: str) -> SensorRecording:
+    """All-NaN sensors and positions whose size does not fit the declared units."""
+    valid = rec.valid()
+    for s, name in enumerate(rec.sensors):
+        if not valid[:, s].any():
+            raise InputError(f"sensor {name!r} has no valid sample (all values missing)",
+                             sensor=name)
+    if rec.n_frames == 0:
+        raise InputError("the recording has no frames", field="frames")
+    pos = np.where(valid[..., None], rec.positions, np.nan)
+    counts = valid.sum(axis=1)
+    rows = counts >= 2
+    if rows.any():
+        with np.errstate(invalid="ignore"):
+            extent = np.linalg.norm(np.nanmax(pos[rows], axis=1) - np.nanmin(pos[rows], axis=1),
+                                    axis=-1)
+        spread = float(np.median(extent))
+        if spread > MAX_BODY_EXTENT_M:
+            raise InputError(
+                f"sensors are {spread:.3g} m apart if positions are in {units}: a body is about "
+                f"2 m; give the file's units (units=mm/cm/in, --units)", field="units")
+        if np.median(counts[rows]) >= 3 and spread < MIN_BODY_EXTENT_M:
+            raise InputError(
+                f"sensors are only {spread * 1000:.3g} mm apart if positions are in {units}; "
+                f"give the file's units (units=m/cm, --units)", field="units")
+    return rec
+
+
+def _time_from_fps(n_frames: int, fps: float) -> NDArray[np.float64]:
+    return np.arange(n_frames, dtype=float) / fps
+
+
+def _fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
+    if time.size < 2:
+        raise InputError("one frame only: give fps to set the frame rate", field="fps")
+    steps = np.diff(time)
+    step = float(np.median(steps))
+    if not step > 0:
+        raise InputError("time does not increase; give fps instead", field="time", line=line)
+    if np.all(np.abs(steps - step) <= 0.05 * step):
+        # regular sampling: the overall span is immune to the rounding of single stamps
+        rate = float((time.size - 1) / (time[-1] - time[0]))
+        # stamps printed to a few decimals: snap to the whole rate they were made from
+        return float(round(rate)) if abs(rate - round(rate)) < 1e-4 * rate else rate
+    return 1.0 / step
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+def _parse_csv_header(header: list[str], line: int) -> tuple[int | None, list[str],
+                                                              NDArray[np.int64]]:
+    """Time column, sensor names and (S, 7) column indices of a sensor-CSV header."""
+    time_col: int | None = None
+    seen: dict[str, int] = {}
+    columns: dict[str, dict[str, int]] = {}
+    for col, raw in enumerate(header):
+        name = raw.strip().lower()
+        if name in seen:
+            raise InputError(f"column {raw.strip()!r} appears twice (columns {seen[name] + 1} "
+                             f"and {col + 1})", line=line, column=col + 1, field=raw.strip())
+        seen[name] = col
+        if name in ("time", "t", "time_s"):
+            time_col = col
+            continue
+        segment, dot, comp = name.rpartition(".")
+        if not dot or segment not in SEGMENTS or comp not in COMPONENTS:
+            why = (f"unknown segment {segment!r}" if dot and comp in COMPONENTS
+                   else "expected time or <segment>.<x|y|z|qw|qx|qy|qz>")
+            raise InputError(f"unknown column {_short(raw.strip())} (column {col + 1}): {why}",
+                             line=line, column=col + 1, field=raw.strip())
+        columns.setdefault(segment, {})[comp] = col
+    if not columns:
+        raise InputError("the header names no sensor columns", line=line, field="header")
+    sensors = list(columns)
+    index = np.empty((len(sensors), len(COMPONENTS)), dtype=np.int64)
+    for s, segment in enumerate(sensors):
+        missing = [c for c in COMPONENTS if c not in columns[segment]]
+        if missing:
+            cols = ", ".join(f"{segment}.{c}" for c in missing)
+            raise InputError(f"sensor {segment!r} lacks column(s) {cols}", sensor=segment,
+                             line=line, field=f"{segment}.{missing[0]}")
+        index[s] = [columns[segment][c] for c in COMPONENTS]
+    return time_col, sensors, index
+
+
+def _csv_rows(handle: io.TextIOWrapper) -> Iterator[tuple[int, list[str]]]:
+    """(line number, cells) of the non-empty rows, metadata comments excluded."""
+    reader = csv.reader(handle)
+    start = 1
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InputError(f"unreadable CSV at line {reader.line_num}: {exc}",
+                             line=reader.line_num) from None
+        line = start
+        start = reader.line_num + 1
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        yield line, row
+
+
+def _short(text: str, limit: int = 40) -> str:
+    """``repr`` of a file snippet, cut so that binary junk cannot flood an error line."""
+    return repr(text if len(text) <= limit else text[:limit] + "…")
+
+
+def _cell(text: str) -> float:
+    text = text.strip()
+    if not text:
+        return math.nan
+    return float(text)
+
+
+def read_sensor_csv(path: PathLike, *, units: str | None = None,
+                    fps: float | None = None) -> SensorRecording:
+    """Read a bonefit sensor CSV.
+
+    Parameters
+    ----------
+    path : path
+        Text file whose header is ``time,<segment>.x,<segment>.y,<segment>.z,<segment>.qw,
+        <segment>.qx,<segment>.qy,<segment>.qz,...`` for any subset of the 15 segments, in any
+        column order. Lines starting with ``#`` are comments; ``# units: mm`` and ``# fps: 60``
+        before the header set defaults for the parameters below.
+    units : {"m", "cm", "mm", "in"}, optional
+        Units of the positions (default metres).
+    fps : float, optional
+        Frame rate, Hz. Required if there is no ``time`` column; otherwise overrides the rate
+        measured from the median time step.
+
+    Returns
+    -------
+    SensorRecording
+        Sensors in header order. A sample (one sensor, one frame) with an empty or NaN cell is
+        dropped: all seven of its values become NaN.
+
+    Raises
+    ------
+    InputError
+        Unknown or duplicate column, missing component, malformed number (with line and
+        column), time missing or not increasing, non-unit quaternion, all-NaN sensor, positions
+        whose size does not fit ``units``.
+    """
+    meta: dict[str, str] = {}
+    with _open_text(path) as handle:
+        rows = _csv_rows(handle)
+        header: list[str] | None = None
+        header_line = 0
+        for line, row in rows:
+            if row[0].lstrip().startswith("#"):
+                found = _metadata(",".join(row))
+                if found:
+                    meta[found[0]] = found[1]
+                continue
+            header, header_line = row, line
+            break
+        if header is None:
+            raise InputError(f"{os.fspath(path)} is empty: no header line", line=1,
+                             field="header")
+        time_col, sensors, index = _parse_csv_header(header, header_line)
+        n_cols = len(header)
+        data: list[list[float]] = []
+        lines: list[int] = []
+        for line, row in rows:
+            if row[0].lstrip().startswith("#"):
+                continue
+            if len(row) != n_cols:
+                raise InputError(f"line {line} has {len(row)} cells, the header has {n_cols}",
+                                 line=line, column=min(len(row), n_cols) + 1)
+            try:
+                try:
+                    data.append(list(map(float, row)))
+                except ValueError:  # empty cells (dropped samples) or a bad number
+                    data.append([_cell(c) for c in row])
+            except ValueError:
+                for col, cell in enumerate(row):
+                    try:
+                        _cell(cell)
+                    except ValueError:
+                        name = header[col].strip()
+                        raise InputError(f"malformed number {_short(cell.strip())} at line {line}, "
+                                         f"column {col + 1} ({name})", line=line,
+                                         column=col + 1, field=name) from None
+                raise
+            lines.append(line)
+    if not data:
+        raise InputError("the recording has no frames", field="frames", line=header_line + 1)
+    units = units if units is not None else meta.get("units", "m")
+    scale = unit_scale(units)
+    table = np.asarray(data, dtype=float)
+    line_arr = np.asarray(lines, dtype=np.int64)
+    values = table[:, index]  # (F, S, 7)
+    values[~np.isfinite(values).all(axis=-1)] = np.nan
+    positions = values[..., :3] * scale
+    quats = _normalise_quaternions(values[..., 3:], tuple(sensors), line_arr)
+
+    if fps is None and "fps" in meta:
+        fps = _parse_fps(meta["fps"])
+    if time_col is not None:
+        time = table[:, time_col]
+        bad = ~np.isfinite(time)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"time is missing at line {lines[i]}", line=lines[i],
+                             column=time_col + 1, field="time")
+        steps = np.diff(time)
+        if (steps <= 0).any():
+            i = int(np.argmax(steps <= 0)) + 1
+            raise InputError(f"time does not increase at line {lines[i]}", line=lines[i],
+                             column=time_col + 1, field="time")
+        rate = _parse_fps(fps) if fps is not None else _fps_from_time(time)
+    elif fps is not None:
+        rate = _parse_fps(fps)
+        time = _time_from_fps(len(data), rate)
+    else:
+        raise InputError("no time column: give fps (frame rate, Hz)", field="fps")
+    rec = SensorRecording(tuple(sensors), positions, quats, rate, np.asarray(time, dtype=float))
+    return _check_recording(rec, units)
+
+
+def write_sensor_csv(recording: SensorRecording, path: PathLike, *, units: str = "m",
+                     decimals: int = 6) -> None:
+    """Write ``recording`` as a bonefit sensor CSV (dropped samples as empty cells).
+
+    Parameters
+    ----------
+    recording : SensorRecording
+    path : path
+    units : {"m", "cm", "mm", "in"}
+        Units of the written positions; recorded in a ``# units:`` comment.
+    decimals : int
+        Decimal places of positions (in ``units``) and quaternion components.
+    """
+    scale = unit_scale(units)
+    header = ["time"] + [f"{s}.{c}" for s in recording.sensors for c in COMPONENTS]
+    values = np.concatenate([recording.positions / scale, recording.quaternions], axis=-1)
+    table = np.concatenate([recording.time[:, None],
+                            values.reshape(recording.n_frames, -1)], axis=1)
+    out = io.StringIO()
+    out.write(f"# units: {units}\n")
+    out.write(",".join(header) + "\n")
+    fmt = f"{{:.{decimals}f}}"
+    for row in table:
+        out.write(",".join("" if not math.isfinite(v) else fmt.format(v) for v in row) + "\n")
+    Path(path).write_text(out.getvalue(), encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- tracker ASCII
+
+
+def _tracker_records(handle: io.TextIOWrapper, meta: dict[str, str]
+                     ) -> Iterator[tuple[int, list[str]]]:
+    for line, text in enumerate(handle, 1):
+        stripped = text.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            found = _metadata(stripped)
+            if found:
+                meta[found[0]] = found[1]
+            continue
+        yield line, stripped.replace(",", " ").split()
+
+
+class _StationCycle:
+    """Splits a stream of station numbers into frames.
+
+    Trackers report their stations in a fixed order each frame (the order of the first
+    cycle); a frame ends when a station does not come later in that order than the previous
+    record, so a station missing from a frame leaves a gap instead of shifting the rest.
+    """
+
+    def __init__(self) -> None:
+        self.rank: dict[int, float] = {}
+        self.last: int | None = None
+
+    def starts_frame(self, number: int) -> bool:
+        if self.last is None:
+            self.rank[number] = 0.0
+            new = True
+        elif number not in self.rank:
+            # first seen (first cycle, or a station missing from it): it follows the previous
+            self.rank[number] = self.rank[self.last] + 0.5 ** len(self.rank)
+            new = False
+        else:
+            new = self.rank[number] <= self.rank[self.last]
+        self.last = number
+        return new
+
+
+def _station(token: str, line: int) -> int:
+    try:
+        return int(float(token))
+    except ValueError:
+        raise InputError(f"malformed station number {token!r} at line {line}, column 1",
+                         line=line, column=1, field="station") from None
+
+
+def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | None = None,
+                       units: str | None = None, fps: float | None = None) -> SensorRecording:
+    """Read a Polhemus LIBERTY/PATRIOT or Ascension trakSTAR style ASCII export.
+
+    Parameters
+    ----------
+    path : path
+        Whitespace-separated records, one per station per frame:
+        ``station x y z azimuth elevation roll`` (angles in degrees, sensor → source rotation
+        R = Rz(azimuth)·Ry(elevation)·Rx(roll)) or ``station x y z qw qx qy qz``. A frame is a
+        cycle of stations: it ends when a station repeats. Lines starting with ``#`` are
+        comments; ``# units: cm``, ``# fps: 240`` and ``# stations: 1=pelvis,...`` set
+        defaults for the parameters below.
+    stations : mapping or str
+        Station number → segment name (``{1: "pelvis", ...}`` or ``"1=pelvis,2=chest"``).
+        Required (here or in the file); every station in the file must be mapped.
+    units : {"in", "cm", "mm", "m"}, optional
+        Units of the positions; default inches (the trackers' factory setting).
+    fps : float
+        Frame rate, Hz (the files carry no time). Required: LIBERTY runs at 240 Hz, PATRIOT at
+        60 Hz, trakSTAR at 80 Hz by default, and the rate depends on the station count.
+
+    Returns
+    -------
+    SensorRecording
+        Sensors in station-number order; a station absent from a frame is a dropped sample.
+
+    Raises
+    ------
+    InputError
+        Unmapped station, unknown segment, malformed number (line and column), records of
+        mixed length, missing fps, non-unit quaternion, all-NaN sensor, implausible units.
+    """
+    meta: dict[str, str] = {}
+    frames: list[dict[int, list[float]]] = []
+    frame_lines: list[int] = []
+    current: dict[int, list[float]] = {}
+    width: int | None = None
+    cycle = _StationCycle()
+    with _open_text(path) as handle:
+        for line, tokens in _tracker_records(handle, meta):
+            if len(tokens) not in (7, 8):
+                raise InputError(
+                    f"line {line} has {len(tokens)} fields; expected 'station x y z azimuth "
+                    f"elevation roll' (7) or 'station x y z qw qx qy qz' (8)", line=line)
+            if width is None:
+                width = len(tokens)
+            elif len(tokens) != width:
+                raise InputError(f"line {line} has {len(tokens)} fields, earlier records have "
+                                 f"{width}", line=line)
+            number = _station(tokens[0], line)
+            values: list[float] = []
+            for col, tok in enumerate(tokens[1:], 2):
+                try:
+                    values.append(float(tok))
+                except ValueError:
+                    raise InputError(f"malformed number {_short(tok)} at line {line}, column {col}",
+                                     line=line, column=col) from None
+            if cycle.starts_frame(number):
+                if current:
+                    frames.append(current)
+                current = {}
+                frame_lines.append(line)
+            current[number] = values
+    if current:
+        frames.append(current)
+    if not frames or width is None:
+        raise InputError(f"{os.fspath(path)} holds no tracker records", field="frames")
+
+    if stations is None:
+        if "stations" not in meta:
+            raise InputError("tracker files need a stations mapping (station number → "
+                             "segment), e.g. stations='1=pelvis,2=chest'", field="stations")
+        stations = meta["stations"]
+    mapping = parse_stations(stations)
+    numbers = sorted({n for frame in frames for n in frame})
+    for number in numbers:
+        if number not in mapping:
+            line = next(frame_lines[i] for i, f in enumerate(frames) if number in f)
+            raise InputError(f"station {number} (first frame at line {line}) is not in the "
+                             f"stations mapping {_format_stations(mapping)}",
+                             field="stations", line=line)
+    order = sorted(mapping)
+    for number in order:
+        if number not in numbers:
+            raise InputError(f"station {number} ({mapping[number]}) has no records",
+                             sensor=mapping[number])
+    sensors = tuple(mapping[n] for n in order)
+    n_frames = len(frames)
+    table = np.full((n_frames, len(order), width - 1), np.nan)
+    for i, frame in enumerate(frames):
+        for s, number in enumerate(order):
+            if number in frame:
+                table[i, s] = frame[number]
+    table[~np.isfinite(table).all(axis=-1)] = np.nan
+
+    units = units if units is not None else meta.get("units", "in")
+    scale = unit_scale(units)
+    if fps is None:
+        if "fps" not in meta:
+            raise InputError("tracker files carry no time: give fps (LIBERTY 240, PATRIOT 60, "
+                             "trakSTAR 80 Hz by default)", field="fps")
+        fps = _parse_fps(meta["fps"])
+    rate = _parse_fps(fps)
+    positions = table[..., :3] * scale
+    line_arr = np.asarray(frame_lines, dtype=np.int64)
+    if width == 8:
+        quats = _normalise_quaternions(table[..., 3:], sensors, line_arr)
+    else:
+        angles = table[..., 3:].reshape(-1, 3)
+        ok = np.isfinite(angles).all(axis=-1)
+        xyzw = np.full((angles.shape[0], 4), np.nan)
+        if ok.any():
+            xyzw[ok] = Rotation.from_euler("ZYX", angles[ok], degrees=True).as_quat()
+        quats = xyzw[:, [3, 0, 1, 2]].reshape(n_frames, len(order), 4)
+    rec = SensorRecording(sensors, positions, quats, rate, _time_from_fps(n_frames, rate))
+    return _check_recording(rec, units)
+
+
+def _format_stations(mapping: Mapping[int, str]) -> str:
+    return ",".join(f"{k}={v}" for k, v in sorted(mapping.items()))
+
+
+# --------------------------------------------------------------------------- NPZ
+
+
+def read_sensor_npz(path: PathLike, *, units: str | None = None,
+                    fps: float | None = None) -> SensorRecording:
+    """Read a recording saved with ``numpy.savez``.
+
+    Parameters
+    ----------
+    path : path
+        Archive with ``positions`` (F, S, 3), ``quaternions`` (F, S, 4) scalar-first,
+        ``sensors`` (S,) strings and ``fps`` (scalar); optionally ``time`` (F,) seconds and
+        ``units`` (string). Loaded with ``allow_pickle=False``: object arrays are refused.
+    units : {"m", "cm", "mm", "in"}, optional
+        Overrides the archive's ``units`` (default metres).
+    fps : float, optional
+        Overrides the archive's ``fps``.
+
+    Returns
+    -------
+    SensorRecording
+
+    Raises
+    ------
+    InputError
+        Missing array, wrong shape, unknown sensor name, non-unit quaternion, all-NaN sensor.
+    """
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise InputError(f"cannot read {os.fspath(path)} as NPZ: {exc}", field="input") from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise InputError(f"{os.fspath(path)} is a single .npy array, not an NPZ archive",
+                         field="input")
+    with archive:
+        def get(key: str) -> NDArray[Any]:
+            if key not in archive.files:
+                raise InputError(f"NPZ archive lacks the array {key!r} (has "
+                                 f"{', '.join(archive.files)})", field=key)
+            try:
+                return np.asarray(archive[key])
+            except ValueError as exc:  # object arrays with allow_pickle=False
+                raise InputError(f"array {key!r}: {exc}", field=key) from None
+
+        try:
+            positions = np.array(get("positions"), dtype=float)
+            quats = np.array(get("quaternions"), dtype=float)
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"positions/quaternions must be numeric: {exc}",
+                             field="positions") from None
+        names = get("sensors")
+        if names.dtype.kind not in "US":
+            raise InputError("sensors must be an array of strings", field="sensors")
+        sensors = tuple(str(s) for s in names.reshape(-1))
+        if fps is None:
+            fps = _parse_fps(get("fps").reshape(-1)[0] if get("fps").size else None)
+        time = np.array(archive["time"], dtype=float) if "time" in archive.files else None
+        if units is None and "units" in archive.files:
+            units = str(get("units").reshape(-1)[0])
+    for name in sensors:
+        if name not in SEGMENTS:
+            raise InputError(f"unknown sensor {name!r}; segments are {', '.join(SEGMENTS)}",
+                             sensor=name, field="sensors")
+    if positions.ndim != 3 or positions.shape[-1] != 3:
+        raise InputError(f"positions must have shape (F, S, 3), got {positions.shape}",
+                         field="positions")
+    if quats.shape != (*positions.shape[:2], 4):
+        raise InputError(f"quaternions must have shape {(*positions.shape[:2], 4)}, "
+                         f"got {quats.shape}", field="quaternions")
+    units = units or "m"
+    rate = _parse_fps(fps)
+    values = np.concatenate([positions * unit_scale(units), quats], axis=-1)
+    values[~np.isfinite(values).all(axis=-1)] = np.nan
+    quats_n = _normalise_quaternions(values[..., 3:], sensors, None)
+    if time is None:
+        time = _time_from_fps(positions.shape[0], rate)
+    rec = SensorRecording(sensors, values[..., :3], quats_n, rate, time)
+    return _check_recording(rec, units)
+
+
+def write_sensor_npz(recording: SensorRecording, path: PathLike) -> None:
+    """Save ``recording`` as an NPZ archive readable by :func:`read_sensor_npz` (metres)."""
+    np.savez_compressed(path, positions=recording.positions,
+                        quaternions=recording.quaternions,
+                        sensors=np.array(recording.sensors, dtype=str),
+                        fps=np.float64(recording.fps), time=recording.time,
+                        units=np.str_("m"))
+
+
+# --------------------------------------------------------------------------- dispatch
+
+
+def detect_format(path: PathLike) -> str:
+    """Format of a recording file: ``"csv"``, ``"tracker"`` or ``"npz"``.
+
+    By content first (a ZIP archive is NPZ; a first data line of 7 or 8 numbers without
+    commas is tracker ASCII; a header with ``<segment>.<component>`` columns is CSV), then by
+    extension (``.npz``, ``.csv``; ``.txt``/``.dat``/``.asc`` are tracker files).
+
+    Raises
+    ------
+    InputError
+        When neither says what the file is.
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as handle:
+            head = handle.read(65536)
+    except IsADirectoryError:
+        raise InputError(f"{p} is a directory, not a recording", field="input") from None
+    except PermissionError:
+        raise InputError(f"cannot read {p}: permission denied", field="input") from None
+    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
+        return "npz"
+    text = head.decode("utf-8", errors="replace")
+    for raw in text.splitlines():
+        line = raw.strip().lstrip("\ufeff")
+        if not line or line.startswith("#"):
+            continue
+        if "." in line and "," in line and any(c.isalpha() for c in line):
+            return "csv"
+        tokens = line.replace(",", " ").split()
+        try:
+            [float(t) for t in tokens]
+        except ValueError:
+            break
+        if "," not in line and len(tokens) in (7, 8):
+            return "tracker"
+        break
+    ext = p.suffix.lower()
+    if ext == ".npz":
+        return "npz"
+    if ext == ".csv":
+        return "csv"
+    if ext in (".txt", ".dat", ".asc", ".liberty", ".patriot"):
+        return "tracker"
+    raise InputError(f"cannot tell the format of {p.name}; give format= csv, tracker or npz",
+                     field="format")
+
+
+def _resolve_format(path: PathLike, format: str) -> str:
+    fmt = format.strip().lower()
+    if fmt == "auto":
+        return detect_format(path)
+    if fmt not in FORMATS:
+        raise InputError(f"unknown format {format!r}; use auto, {', '.join(FORMATS)}",
+                         field="format")
+    return fmt
+
+
+def read_recording(path: PathLike, *, format: str = "auto", units: str | None = None,
+                   fps: float | None = None,
+                   stations: Mapping[Any, Any] | str | None = None) -> SensorRecording:
+    """Read a sensor recording in any supported format.
+
+    Parameters
+    ----------
+    path : path
+    format : {"auto", "csv", "tracker", "npz"}
+        ``"auto"`` detects it with :func:`detect_format`.
+    units : {"m", "cm", "mm", "in"}, optional
+        Units of the file's positions; default metres (inches for tracker files).
+    fps : float, optional
+        Frame rate, Hz; required for tracker files and CSV files without a ``time`` column.
+    stations : mapping or str, optional
+        Station → segment mapping of tracker files (see :func:`parse_stations`).
+
+    Returns
+    -------
+    SensorRecording
+        Positions in metres, unit quaternions, NaN for dropped samples.
+
+    Raises
+    ------
+    InputError
+        See the format-specific readers.
+    FileNotFoundError
+        If ``path`` does not exist.
+    """
+    fmt = _resolve_format(path, format)
+    if units is not None:
+        unit_scale(units)
+    if fmt == "csv":
+        return read_sensor_csv(path, units=units, fps=fps)
+    if fmt == "tracker":
+        return read_tracker_ascii(path, stations=stations, units=units, fps=fps)
+    return read_sensor_npz(path, units=units, fps=fps)
+
+
+def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
+    """Quick summary of a recording without loading it.
+
+    Streams through the file once (counting lines) and parses only the header and the first
+    few time stamps, so it is cheap on large uploads. It does not validate the data rows.
+
+    Parameters
+    ----------
+    path : path
+    format : {"auto", "csv", "tracker", "npz"}
+
+    Returns
+    -------
+    dict
+        ``format`` (str), ``frames`` (int), ``sensors`` (list of str: segment names; for
+        tracker files the station numbers as strings unless the file names them with a
+        ``# stations:`` comment), ``fps`` (float or None when the file does not say),
+        ``units`` (str or None).
+
+    Raises
+    ------
+    InputError
+        Unreadable header or unknown format.
+    """
+    fmt = _resolve_format(path, format)
+    if fmt == "npz":
+        return _sniff_npz(path)
+    meta: dict[str, str] = {}
+    with _open_text(path) as handle:
+        if fmt == "csv":
+            return _sniff_csv(handle, meta)
+        return _sniff_tracker(handle, meta)
+
+
+def _sniff_csv(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
+    header: list[str] | None = None
+    header_line = 0
+    rows = _csv_rows(handle)
+    for line, row in rows:
+        if row[0].lstrip().startswith("#"):
+            found = _metadata(",".join(row))
+            if found:
+                meta[found[0]] = found[1]
+            continue
+        header, header_line = row, line
+        break
+    if header is None:
+        raise InputError("empty file: no header line", line=1, field="header")
+    time_col, sensors, _ = _parse_csv_header(header, header_line)
+    times: list[float] = []
+    frames = 0
+    for text in handle:
+        stripped = text.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        frames += 1
+        if time_col is not None and len(times) < 50:
+            cells = stripped.split(",")
+            with contextlib.suppress(IndexError, ValueError):
+                times.append(float(cells[time_col]))
+    fps: float | None = None
+    if "fps" in meta:
+        fps = _parse_fps(meta["fps"])
+    elif len(times) >= 2:
+        try:
+            fps = _fps_from_time(np.asarray(times, dtype=float))
+        except InputError:
+            fps = None
+    return {"format": "csv", "frames": frames, "sensors": sensors, "fps": fps,
+            "units": meta.get("units", "m")}
+
+
+def _sniff_tracker(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
+    cycle = _StationCycle()
+    order: list[int] = []
+    frames = 0
+    for line, text in enumerate(handle, 1):
+        stripped = text.lstrip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            found = _metadata(stripped.strip())
+            if found:
+                meta[found[0]] = found[1]
+            continue
+        first = stripped.split(None, 1)[0].rstrip(",")
+        number = _station(first, line)
+        if cycle.starts_frame(number):
+            frames += 1
+        if number not in order:
+            order.append(number)
+    sensors = [str(n) for n in sorted(order)]
+    if "stations" in meta:
+        try:
+            mapping = parse_stations(meta["stations"])
+            sensors = [mapping.get(n, str(n)) for n in sorted(order)]
+        except InputError:
+            pass
+    fps = _parse_fps(meta["fps"]) if "fps" in meta else None
+    return {"format": "tracker", "frames": frames, "sensors": sensors, "fps": fps,
+            "units": meta.get("units", "in")}
+
+
+def _sniff_npz(path: PathLike) -> dict[str, Any]:
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            if "positions.npy" not in names:
+                raise InputError("NPZ archive lacks the array 'positions'", field="positions")
+            with archive.open("positions.npy") as member:
+                version = np.lib.format.read_magic(member)
+                if version == (1, 0):
+                    shape, _, _ = np.lib.format.read_array_header_1_0(member)
+                else:
+                    shape, _, _ = np.lib.format.read_array_header_2_0(member)
+    except zipfile.BadZipFile as exc:
+        raise InputError(f"not an NPZ archive: {exc}", field="input") from None
+    with np.load(path, allow_pickle=False) as npz:
+        sensors = ([str(s) for s in np.asarray(npz["sensors"]).reshape(-1)]
+                   if "sensors" in npz.files else [])
+        fps = float(np.asarray(npz["fps"]).reshape(-1)[0]) if "fps" in npz.files else None
+        units = str(np.asarray(npz["units"]).reshape(-1)[0]) if "units" in npz.files else "m"
+    return {"format": "npz", "frames": int(shape[0]) if shape else 0, "sensors": sensors,
+            "fps": fps, "units": units}

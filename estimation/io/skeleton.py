@@ -1,0 +1,408 @@
+"""Writers (JSON, CSV, BVH) and a JSON reader of skeleton results.
+
+The JSON layout is a contract for scripted clients and is documented in
+``docs/skeleton-io.md``; the BVH hierarchy is rooted at the ``root`` joint with one node per
+joint, driven by the orientation of the segment that joint moves.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from ..bvh import BvhMotion, write_bvh
+from ..errors import InputError
+from ..model import JOINTS
+from ..results import JointOffset, SkeletonResult
+from .sensors import unit_scale
+
+PathLike = str | os.PathLike[str]
+
+JSON_KIND: Final[str] = "skeleton"
+
+BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = (
+    ("root", None, "pelvis"),
+    ("waist", "root", "spine"),
+    ("chest", "waist", "chest"),
+    ("neck", "chest", "head"),
+    ("l_shoulder", "chest", "l_upperarm"),
+    ("l_elbow", "l_shoulder", "l_forearm"),
+    ("l_wrist", "l_elbow", "l_hand"),
+    ("r_shoulder", "chest", "r_upperarm"),
+    ("r_elbow", "r_shoulder", "r_forearm"),
+    ("r_wrist", "r_elbow", "r_hand"),
+    ("l_hip", "root", "l_thigh"),
+    ("l_knee", "l_hip", "l_shank"),
+    ("l_ankle", "l_knee", "l_foot"),
+    ("r_hip", "root", "r_thigh"),
+    ("r_knee", "r_hip", "r_shank"),
+    ("r_ankle", "r_knee", "r_foot"),
+)
+"""BVH joints as (node, parent node, segment whose orientation drives it), parents first."""
+
+END_SITES: Final[dict[str, tuple[str, tuple[float, float, float], float]]] = {
+    "neck": ("head", (0.0, 1.0, 0.0), 0.20),
+    "l_wrist": ("l_hand", (0.0, -1.0, 0.0), 0.08),
+    "r_wrist": ("r_hand", (0.0, -1.0, 0.0), 0.08),
+    "l_ankle": ("l_foot", (0.0, 0.0, 1.0), 0.15),
+    "r_ankle": ("r_foot", (0.0, 0.0, 1.0), 0.15),
+}
+"""End sites (head top, hand, toe) as node → (segment, direction in the segment frame,
+default length in metres). The length is ``bone_lengths[segment]`` when the result has it."""
+
+ROOT_CHANNELS: Final[tuple[str, ...]] = ("Xposition", "Yposition", "Zposition",
+                                         "Zrotation", "Xrotation", "Yrotation")
+JOINT_CHANNELS: Final[tuple[str, ...]] = ("Zrotation", "Xrotation", "Yrotation")
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+def _json_safe(value: Any) -> Any:
+    """Plain JSON types: numpy scalars and arrays converted, NaN/inf → None."""
+    if isinstance(value, Mapping):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return _json_safe(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        f = float(value)
+        return f if math.isfinite(f) else None
+    if value is None or isinstance(value, str):
+        return value
+    return str(value)
+
+
+def _rows(array: NDArray[np.float64], decimals: int, name: str) -> list[list[float]]:
+    arr = np.asarray(array, dtype=float)
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name} has NaN or infinite values; the JSON contract has none",
+                         field=name)
+    rows: list[list[float]] = np.round(arr, decimals).tolist()
+    return rows
+
+
+def _ordered(keys: Mapping[str, Any], order: tuple[str, ...]) -> list[str]:
+    return [k for k in order if k in keys] + [k for k in keys if k not in order]
+
+
+def skeleton_to_dict(result: SkeletonResult, *, decimals: int = 6) -> dict[str, Any]:
+    """The JSON document of ``result`` as plain Python objects.
+
+    Parameters
+    ----------
+    result : SkeletonResult
+    decimals : int
+        Decimal places of positions (metres: 6 is a micrometre) and quaternion components
+        (``decimals + 2``).
+
+    Returns
+    -------
+    dict
+        ``kind, method, fps, frames, units, joints, offsets, bone_lengths, orientations,
+        quality, warnings, timings`` (see ``docs/skeleton-io.md``). Only JSON types; no NaN.
+
+    Raises
+    ------
+    InputError
+        If a joint trajectory or orientation holds NaN.
+    """
+    joints = {name: _rows(result.joints[name], decimals, f"joints.{name}")
+              for name in _ordered(result.joints, JOINTS)}
+    return {
+        "kind": JSON_KIND,
+        "method": result.method,
+        "fps": float(result.fps),
+        "frames": result.n_frames,
+        "units": "m",
+        "joints": joints,
+        "offsets": {name: {"sensor": off.sensor,
+                           "local": _rows(np.asarray(off.local)[None], decimals,
+                                          f"offsets.{name}")[0]}
+                    for name, off in ((n, result.offsets[n])
+                                      for n in _ordered(result.offsets, JOINTS))},
+        "bone_lengths": _json_safe(dict(result.bone_lengths)),
+        "orientations": {name: _rows(q, decimals + 2, f"orientations.{name}")
+                         for name, q in result.orientations.items()},
+        "quality": _json_safe({k: dict(v) for k, v in result.quality.items()}),
+        "warnings": [str(w) for w in result.warnings],
+        "timings": _json_safe(dict(result.timings)),
+    }
+
+
+def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
+                        decimals: int = 6, indent: int | None = None) -> None:
+    """Write ``result`` as a JSON document (the contract of ``docs/skeleton-io.md``).
+
+    Parameters
+    ----------
+    result : SkeletonResult
+    path : path or text stream
+    decimals : int
+        Decimal places of positions in metres.
+    indent : int, optional
+        Pretty-print indentation; compact by default.
+    """
+    text = json.dumps(skeleton_to_dict(result, decimals=decimals), indent=indent,
+                      allow_nan=False)
+    if isinstance(path, io.TextIOBase):
+        path.write(text)
+    else:
+        Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+def _array(value: Any, shape_tail: tuple[int, ...], field: str) -> NDArray[np.float64]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{field} must be numbers", field=field) from None
+    if arr.ndim != len(shape_tail) + 1 or arr.shape[1:] != shape_tail:
+        raise InputError(f"{field} must have shape (F, {', '.join(map(str, shape_tail))}), "
+                         f"got {arr.shape}", field=field)
+    return arr
+
+
+def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
+    """Rebuild a SkeletonResult from the JSON document of :func:`skeleton_to_dict`.
+
+    Raises
+    ------
+    InputError
+        If ``data`` is not a skeleton document or a field has the wrong shape.
+    """
+    if not isinstance(data, Mapping) or data.get("kind") != JSON_KIND:
+        raise InputError("not a bonefit skeleton document (kind must be 'skeleton')",
+                         field="kind")
+    for key in ("method", "fps", "joints", "orientations"):
+        if key not in data:
+            raise InputError(f"skeleton document lacks {key!r}", field=key)
+    if data.get("units", "m") != "m":
+        raise InputError(f"skeleton document units must be 'm', got {data['units']!r}",
+                         field="units")
+    joints = {str(k): _array(v, (3,), f"joints.{k}") for k, v in data["joints"].items()}
+    if not joints:
+        raise InputError("skeleton document has no joints", field="joints")
+    for key in ("joints", "orientations", "offsets", "bone_lengths", "quality", "timings"):
+        if not isinstance(data.get(key, {}), Mapping):
+            raise InputError(f"{key} must be an object", field=key)
+    offsets = {}
+    for k, v in dict(data.get("offsets", {})).items():
+        try:
+            local = np.asarray(v["local"], dtype=float)
+            sensor = str(v["sensor"])
+        except (TypeError, KeyError, ValueError):
+            local, sensor = np.empty(0), ""
+        if local.shape != (3,):
+            raise InputError(f"offsets.{k} must be {{\"sensor\": ..., \"local\": [x, y, z]}}",
+                             field=f"offsets.{k}")
+        offsets[str(k)] = JointOffset(sensor=sensor, local=local)
+    return SkeletonResult(
+        method=str(data["method"]),
+        fps=float(data["fps"]),
+        joints=joints,
+        offsets=offsets,
+        bone_lengths={str(k): float(v) for k, v in dict(data.get("bone_lengths", {})).items()
+                      if v is not None},
+        orientations={str(k): _array(v, (4,), f"orientations.{k}")
+                      for k, v in data["orientations"].items()},
+        quality={str(k): dict(v) for k, v in dict(data.get("quality", {})).items()},
+        warnings=tuple(str(w) for w in data.get("warnings", [])),
+        timings={str(k): float(v) for k, v in dict(data.get("timings", {})).items()
+                 if v is not None},
+    )
+
+
+def read_skeleton_json(path: PathLike) -> SkeletonResult:
+    """Read a skeleton JSON document written by :func:`write_skeleton_json`.
+
+    Raises
+    ------
+    InputError
+        On invalid JSON (with its line and column) or a document that is not a skeleton.
+    """
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"invalid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}",
+                         line=exc.lineno, column=exc.colno) from None
+    return skeleton_from_dict(data)
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+def write_skeleton_csv(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
+                       decimals: int = 6) -> None:
+    """Write the joint trajectories as CSV: ``time,<joint>.x,<joint>.y,<joint>.z,...``.
+
+    One row per frame; ``time`` = frame / fps in seconds, positions in metres, joints in
+    ``estimation.model.JOINTS`` order (others after).
+    """
+    names = _ordered(result.joints, JOINTS)
+    n = result.n_frames
+    table = np.empty((n, 1 + 3 * len(names)))
+    table[:, 0] = np.arange(n) / result.fps
+    for j, name in enumerate(names):
+        table[:, 1 + 3 * j:4 + 3 * j] = result.joints[name]
+    header = ",".join(["time"] + [f"{name}.{c}" for name in names for c in "xyz"])
+    out = io.StringIO()
+    np.savetxt(out, table, fmt=f"%.{decimals}f", delimiter=",", header=header, comments="")
+    if isinstance(path, io.TextIOBase):
+        path.write(out.getvalue())
+    else:
+        Path(path).write_text(out.getvalue(), encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- BVH
+
+
+def _rotation(result: SkeletonResult, segment: str) -> Rotation:
+    if segment not in result.orientations:
+        raise InputError(f"the result has no orientation for segment {segment!r}, needed "
+                         f"by the BVH hierarchy", field=f"orientations.{segment}")
+    q = np.asarray(result.orientations[segment], dtype=float)
+    if q.shape != (result.n_frames, 4) or not np.isfinite(q).all():
+        raise InputError(f"orientation of {segment!r} must be finite (F, 4) quaternions",
+                         field=f"orientations.{segment}")
+    return Rotation.from_quat(q, scalar_first=True)
+
+
+def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
+    if name not in result.joints:
+        raise InputError(f"the result has no joint {name!r}, needed by the BVH hierarchy",
+                         field=f"joints.{name}")
+    p = np.asarray(result.joints[name], dtype=float)
+    if not np.isfinite(p).all():
+        raise InputError(f"joint {name!r} has NaN positions", field=f"joints.{name}")
+    return p
+
+
+def _continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Intrinsic Z-X-Y angles (F, ..., 3), degrees, without jumps between frames.
+
+    Each rotation has two Z-X-Y triples, (z, x, y) and (z + 180, 180 − x, y + 180), and each
+    angle is defined modulo 360; per frame take the candidate nearest the previous frame, so
+    that BVH players interpolating channel values do not spin through wraps.
+    """
+    other = angles + np.array([180.0, 0.0, 180.0])
+    other[..., 1] = 180.0 - angles[..., 1]
+    out = np.empty_like(angles)
+    out[0] = angles[0]
+    for i in range(1, len(angles)):
+        prev = out[i - 1]
+        a = angles[i] - 360.0 * np.round((angles[i] - prev) / 360.0)
+        b = other[i] - 360.0 * np.round((other[i] - prev) / 360.0)
+        take_b = np.abs(b - prev).sum(axis=-1) < np.abs(a - prev).sum(axis=-1)
+        out[i] = np.where(take_b[..., None], b, a)
+    return out
+
+
+def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
+    """The BVH hierarchy and motion of a skeleton result.
+
+    The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
+    shoulder → elbow → wrist (hand end site) per side; ``root`` → hip → knee → ankle (toe end
+    site) per side. Each node turns with the segment it drives (root: pelvis, waist: spine,
+    chest: chest, neck: head, shoulder: upper arm, elbow: forearm, wrist: hand, hip: thigh,
+    knee: shank, ankle: foot). In the rest pose every segment frame equals the world frame;
+    a node's OFFSET is the frame mean of ``R_seg(t)ᵀ (child(t) − joint(t))``, in the parent
+    node's segment frame. Rotation channels hold ``R_parent(t)⁻¹ R_seg(t)`` as intrinsic
+    Z-X-Y Euler angles (degrees, unwrapped over time); the root's position channels hold the
+    ``root`` joint.
+
+    Parameters
+    ----------
+    result : SkeletonResult
+        Needs the 16 joints of ``estimation.model.JOINTS`` and the orientations of the driving
+        segments, including ``spine``.
+    units : {"cm", "m", "mm", "in"}
+        Length unit of offsets and root positions.
+
+    Returns
+    -------
+    BvhMotion
+        Nodes in ``BVH_NODES`` order with end sites ``<node>_end`` after their parents.
+
+    Raises
+    ------
+    InputError
+        If a joint or orientation the hierarchy needs is missing or not finite.
+    """
+    per_m = 1.0 / unit_scale(units)
+    rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}
+    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
+
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[NDArray[np.float64]] = []
+    channels: list[tuple[str, ...]] = []
+    eulers: list[NDArray[np.float64]] = []
+    index: dict[str, int] = {}
+
+    def add(name: str, parent: str | None, offset: NDArray[np.float64],
+            chans: tuple[str, ...]) -> None:
+        index[name] = len(names)
+        names.append(name)
+        parents.append(index[parent] if parent is not None else -1)
+        offsets.append(offset * per_m)
+        channels.append(chans)
+
+    children: dict[str, list[str]] = {node: [] for node, _, _ in BVH_NODES}
+    for node, parent, _ in BVH_NODES:
+        if parent is not None:
+            children[parent].append(node)
+
+    def visit(node: str, parent: str | None) -> None:
+        rot = rotations[node]
+        if parent is None:
+            add(node, None, np.zeros(3), ROOT_CHANNELS)
+            local = rot
+        else:
+            delta = positions[node] - positions[parent]
+            offset = rotations[parent].inv().apply(delta).mean(axis=0)
+            add(node, parent, offset, JOINT_CHANNELS)
+            local = rotations[parent].inv() * rot
+        eulers.append(local.as_euler("ZXY", degrees=True))
+        for child in children[node]:
+            visit(child, node)
+        if node in END_SITES:
+            segment, direction, default = END_SITES[node]
+            length = float(result.bone_lengths.get(segment, default))
+            add(f"{node}_end", node, np.asarray(direction, dtype=float) * length, ())
+
+    visit("root", None)
+    angles = _continuous_euler(np.stack(eulers, axis=1))  # (F, nodes, 3)
+    values = np.concatenate([positions["root"] * per_m,
+                             angles.reshape(len(angles), -1)], axis=1)
+    return BvhMotion(tuple(names), tuple(parents), np.asarray(offsets, dtype=float),
+                     tuple(channels), 1.0 / float(result.fps), values)
+
+
+def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
+                       units: str = "cm", precision: int = 6) -> None:
+    """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
+
+    Parameters
+    ----------
+    result : SkeletonResult
+    path : path or text stream
+    units : {"cm", "m", "mm", "in"}
+        Length unit of the file (centimetres by default, as most BVH tools expect).
+    precision : int
+        Decimal places of offsets and channel values.
+    """
+    write_bvh(skeleton_to_bvh(result, units=units), path, precision=precision)

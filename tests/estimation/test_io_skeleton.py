@@ -1,0 +1,295 @@
+"""Skeleton result writers: JSON contract, CSV, BVH (own reader and an independent parser)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import bvh as pybvh
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from estimation.bvh import forward_kinematics, read_bvh
+from estimation.errors import InputError
+from estimation.io.skeleton import (
+    BVH_NODES,
+    read_skeleton_json,
+    skeleton_to_bvh,
+    skeleton_to_dict,
+    write_skeleton_bvh,
+    write_skeleton_csv,
+    write_skeleton_json,
+)
+from estimation.model import JOINTS, SEGMENTS
+from estimation.results import JointOffset, SkeletonResult
+
+# Joint position relative to its parent joint, in the parent node's segment frame (metres).
+REST = {
+    "waist": (0.0, 0.10, 0.0), "chest": (0.0, 0.20, 0.0), "neck": (0.0, 0.22, 0.0),
+    "l_shoulder": (0.17, 0.18, -0.01), "r_shoulder": (-0.17, 0.18, -0.01),
+    "l_elbow": (0.0, -0.29, 0.0), "r_elbow": (0.0, -0.29, 0.0),
+    "l_wrist": (0.0, -0.26, 0.01), "r_wrist": (0.0, -0.26, 0.01),
+    "l_hip": (0.09, -0.05, 0.0), "r_hip": (-0.09, -0.05, 0.0),
+    "l_knee": (0.0, -0.42, 0.0), "r_knee": (0.0, -0.42, 0.0),
+    "l_ankle": (0.0, -0.41, -0.01), "r_ankle": (0.0, -0.41, -0.01),
+}
+PARENT = {node: parent for node, parent, _ in BVH_NODES}
+DRIVER = {node: segment for node, _, segment in BVH_NODES}
+
+
+def smooth_rotations(n_frames: int, rng: np.random.Generator, scale: float = 1.0,
+                     upright: bool = False) -> Rotation:
+    t = np.linspace(0, 2 * np.pi, n_frames)[:, None]
+    amp = rng.uniform(0.2, 0.9, 3) * scale
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    base = Rotation.identity() if upright else Rotation.random(rng=rng)
+    return base * Rotation.from_rotvec(amp * np.sin(t * rng.uniform(0.5, 2.0, 3) + phase))
+
+
+def rigid_result(n_frames: int = 30, seed: int = 0, jitter: float = 0.0,
+                 yaw_turns: float = 0.0) -> SkeletonResult:
+    """A result whose joints follow its orientations exactly (plus optional jitter, m)."""
+    rng = np.random.default_rng(seed)
+    segments = [*SEGMENTS, "spine", "cervical"]
+    orient = {s: smooth_rotations(n_frames, rng, 0.3 if yaw_turns else 1.0, bool(yaw_turns))
+              for s in segments}
+    if yaw_turns:
+        yaw = Rotation.from_euler("y", np.linspace(0, 2 * np.pi * yaw_turns, n_frames)[:, None])
+        orient = {s: yaw * r for s, r in orient.items()}
+    t = np.linspace(0, 1, n_frames)[:, None]
+    joints: dict[str, NDArray[np.float64]] = {
+        "root": np.array([0.2, 0.95, -0.1]) + t * np.array([0.5, 0.02, 1.0])}
+    for node, parent, _ in BVH_NODES[1:]:
+        assert parent is not None
+        joints[node] = joints[parent] + orient[DRIVER[parent]].apply(REST[node])
+    joints = {k: v + rng.normal(scale=jitter, size=v.shape) if jitter else v
+              for k, v in joints.items()}
+    return SkeletonResult(
+        method="llsf", fps=30.0, joints={j: joints[j] for j in JOINTS},
+        offsets={"l_knee": JointOffset("l_thigh", np.array([0.01, -0.2, 0.03])),
+                 "waist": JointOffset("pelvis", np.array([0.0, 0.1, -0.05]))},
+        bone_lengths={"l_thigh": 0.42, "l_forearm": np.float64(0.26), "l_hand": 0.09},
+        orientations={s: r.as_quat(scalar_first=True) for s, r in orient.items()},
+        quality={"l_knee": {"rms_residual_m": np.float32(0.002), "hinge": np.bool_(True),
+                            "singular_value_ratio": np.float64(0.01), "estimator": "llsf",
+                            "axis": np.array([1.0, 0.0, 0.0]), "count": np.int64(3)},
+                 "root": {"rms_residual_m": float("nan")}},
+        warnings=("l_knee is a hinge",),
+        timings={"estimate_s": 0.5},
+    )
+
+
+def bvh_positions_m(path: Path) -> dict[str, NDArray[np.float64]]:
+    motion = read_bvh(path)
+    positions, _ = forward_kinematics(motion)
+    return {name: positions[:, j] / 100.0 for j, name in enumerate(motion.names)}
+
+
+# --------------------------------------------------------------------------- BVH
+
+
+def test_bvh_reproduces_a_rigid_result_within_a_millimetre(tmp_path: Path) -> None:
+    result = rigid_result()
+    write_skeleton_bvh(result, tmp_path / "s.bvh")
+    got = bvh_positions_m(tmp_path / "s.bvh")
+    for joint in JOINTS:
+        err = np.linalg.norm(got[joint] - result.joints[joint], axis=-1)
+        assert err.max() < 1e-3, joint
+        assert err.max() < 1e-5, joint  # only the 6-decimal rounding of the file
+
+
+def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
+    result = rigid_result(jitter=0.005, seed=3)
+    write_skeleton_bvh(result, tmp_path / "s.bvh")
+    motion = read_bvh(tmp_path / "s.bvh")
+    positions, rotations = forward_kinematics(motion)
+    rot = {n: Rotation.from_quat(result.orientations[DRIVER[n]], scalar_first=True)
+           for n in DRIVER}
+    # direct FK from the result: chain the frame-mean offsets through the orientations
+    expect = {"root": result.joints["root"]}
+    for node, parent, _ in BVH_NODES[1:]:
+        assert parent is not None
+        local = rot[parent].inv().apply(result.joints[node] - result.joints[parent]).mean(0)
+        expect[node] = expect[parent] + rot[parent].apply(local)
+    for node in DRIVER:
+        j = motion.index(node)
+        np.testing.assert_allclose(positions[:, j] / 100, expect[node], atol=1e-5)
+        # every node turns with the segment it drives
+        assert (rotations[j].inv() * rot[node]).magnitude().max() < 1e-5
+    # jitter makes the mean-offset skeleton differ from the raw joints, but by millimetres
+    err = np.linalg.norm(positions[:, motion.index("l_ankle")] / 100
+                         - result.joints["l_ankle"], axis=-1)
+    assert 1e-3 < err.max() < 0.05
+
+
+def euler_matrix(channels: list[str], degrees: list[float]) -> NDArray[np.float64]:
+    """Rotation of BVH rotation channels, composed in the listed order (own implementation)."""
+    out = np.eye(3)
+    for name, value in zip(channels, degrees, strict=True):
+        a = np.radians(value)
+        c, s = np.cos(a), np.sin(a)
+        m = {"X": [[1, 0, 0], [0, c, -s], [0, s, c]],
+             "Y": [[c, 0, s], [0, 1, 0], [-s, 0, c]],
+             "Z": [[c, -s, 0], [s, c, 0], [0, 0, 1]]}[name[0]]
+        out = out @ np.array(m)
+    return out
+
+
+def test_independent_bvh_parser_reads_the_same_joint_positions(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=12, seed=5)
+    write_skeleton_bvh(result, tmp_path / "s.bvh")
+    mocap = pybvh.Bvh((tmp_path / "s.bvh").read_text())
+    names = mocap.get_joints_names()
+    assert names == [node for node, _, _ in BVH_NODES]
+    assert mocap.nframes == 12
+    assert mocap.frame_time == pytest.approx(1 / 30)
+    for frame in range(mocap.nframes):
+        world: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        for name in names:
+            chans = mocap.joint_channels(name)
+            vals = mocap.frame_joint_channels(frame, name, chans)
+            rot = [c for c in chans if c.endswith("rotation")]
+            r_local = euler_matrix(rot, [v for c, v in zip(chans, vals, strict=True)
+                                         if c.endswith("rotation")])
+            parent_index = mocap.joint_parent_index(name)
+            if parent_index < 0:
+                pos = np.array([vals[chans.index(f"{a}position")] for a in "XYZ"])
+                world[name] = (pos, r_local)
+            else:
+                p_pos, p_rot = world[names[parent_index]]
+                world[name] = (p_pos + p_rot @ np.array(mocap.joint_offset(name)),
+                               p_rot @ r_local)
+        for name in names:
+            err = np.linalg.norm(world[name][0] / 100 - result.joints[name][frame])
+            assert err <= 1e-3, (frame, name)
+
+
+def test_bvh_hierarchy_channels_units_and_end_sites() -> None:
+    result = rigid_result(n_frames=5)
+    motion = skeleton_to_bvh(result)
+    assert motion.names[0] == "root"
+    assert motion.channels[0] == ("Xposition", "Yposition", "Zposition",
+                                  "Zrotation", "Xrotation", "Yrotation")
+    for j, name in enumerate(motion.names[1:], 1):
+        if name.endswith("_end"):
+            assert motion.channels[j] == ()
+        else:
+            assert motion.channels[j] == ("Zrotation", "Xrotation", "Yrotation")
+            assert motion.names[motion.parents[j]] == PARENT[name]
+    ends = {n for n in motion.names if n.endswith("_end")}
+    assert ends == {"neck_end", "l_wrist_end", "r_wrist_end", "l_ankle_end", "r_ankle_end"}
+    # offsets in cm; the hand end site takes the hand's bone length, along -y
+    np.testing.assert_allclose(motion.offsets[motion.index("l_elbow")], [0, -29, 0], atol=1e-9)
+    np.testing.assert_allclose(motion.offsets[motion.index("l_wrist_end")], [0, -9, 0])
+    np.testing.assert_allclose(motion.values[:, :3], result.joints["root"] * 100)
+    in_m = skeleton_to_bvh(result, units="m")
+    np.testing.assert_allclose(in_m.offsets * 100, motion.offsets, atol=1e-12)
+    assert motion.frame_time == pytest.approx(1 / 30)
+
+
+def test_bvh_euler_angles_are_continuous_through_half_turns(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=60, yaw_turns=1.5)
+    motion = skeleton_to_bvh(result)
+    jumps = np.abs(np.diff(motion.values[:, 3:], axis=0))
+    assert jumps.max() < 90  # no ±180/360 wraps between frames
+    write_skeleton_bvh(result, tmp_path / "t.bvh")
+    got = bvh_positions_m(tmp_path / "t.bvh")
+    assert np.abs(got["r_ankle"] - result.joints["r_ankle"]).max() < 1e-5
+
+
+def test_bvh_needs_every_driving_orientation() -> None:
+    result = rigid_result(n_frames=4)
+    orientations = dict(result.orientations)
+    del orientations["spine"]
+    broken = SkeletonResult(result.method, result.fps, result.joints, result.offsets,
+                            result.bone_lengths, orientations, result.quality)
+    with pytest.raises(InputError, match="'spine'") as err:
+        skeleton_to_bvh(broken)
+    assert err.value.field == "orientations.spine"
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+def no_nan(value: str) -> Any:
+    raise AssertionError(f"non-standard JSON constant {value}")
+
+
+def test_json_contract_keys_types_and_no_nan(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=7)
+    write_skeleton_json(result, tmp_path / "s.json")
+    doc = json.loads((tmp_path / "s.json").read_text(), parse_constant=no_nan)
+    assert list(doc) == ["kind", "method", "fps", "frames", "units", "joints", "offsets",
+                         "bone_lengths", "orientations", "quality", "warnings", "timings"]
+    assert (doc["kind"], doc["method"], doc["fps"], doc["frames"], doc["units"]) == (
+        "skeleton", "llsf", 30.0, 7, "m")
+    assert list(doc["joints"]) == list(JOINTS)
+    assert np.array(doc["joints"]["l_knee"]).shape == (7, 3)
+    np.testing.assert_allclose(doc["joints"]["l_knee"], result.joints["l_knee"], atol=5e-7)
+    assert doc["offsets"]["l_knee"] == {"sensor": "l_thigh", "local": [0.01, -0.2, 0.03]}
+    assert list(doc["offsets"]) == ["waist", "l_knee"]  # JOINTS order
+    assert doc["bone_lengths"] == {"l_thigh": 0.42, "l_forearm": 0.26, "l_hand": 0.09}
+    assert np.array(doc["orientations"]["spine"]).shape == (7, 4)
+    quality = doc["quality"]["l_knee"]
+    assert quality["hinge"] is True
+    assert quality["count"] == 3
+    assert quality["axis"] == [1.0, 0.0, 0.0]
+    assert quality["rms_residual_m"] == pytest.approx(0.002)
+    assert doc["quality"]["root"]["rms_residual_m"] is None
+    assert doc["warnings"] == ["l_knee is a hinge"]
+    assert doc["timings"] == {"estimate_s": 0.5}
+
+
+def test_json_round_trip(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=9, seed=2)
+    write_skeleton_json(result, tmp_path / "s.json", indent=1)
+    back = read_skeleton_json(tmp_path / "s.json")
+    assert (back.method, back.fps, back.n_frames) == ("llsf", 30.0, 9)
+    for j in JOINTS:
+        np.testing.assert_allclose(back.joints[j], result.joints[j], atol=1e-6)
+    for s, q in result.orientations.items():
+        np.testing.assert_allclose(back.orientations[s], q, atol=1e-8)
+    assert back.offsets["l_knee"].sensor == "l_thigh"
+    np.testing.assert_allclose(back.offsets["l_knee"].local, [0.01, -0.2, 0.03])
+    assert back.bone_lengths["l_thigh"] == 0.42
+    assert back.quality["l_knee"]["hinge"] is True
+    assert back.warnings == result.warnings
+    assert skeleton_to_dict(back) == skeleton_to_dict(result)
+
+
+def test_json_refuses_nan_joints_and_foreign_documents(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=4)
+    joints = dict(result.joints)
+    joints["l_knee"] = joints["l_knee"].copy()
+    joints["l_knee"][2, 1] = np.nan
+    broken = SkeletonResult(result.method, result.fps, joints, result.offsets,
+                            result.bone_lengths, result.orientations, result.quality)
+    with pytest.raises(InputError, match=r"joints\.l_knee has NaN"):
+        skeleton_to_dict(broken)
+    (tmp_path / "x.json").write_text('{"kind": "translation", "method": "x"}')
+    with pytest.raises(InputError, match="not a bonefit skeleton"):
+        read_skeleton_json(tmp_path / "x.json")
+    (tmp_path / "bad.json").write_text('{"kind": "skeleton",\n "fps": 3,,}')
+    with pytest.raises(InputError, match="line 2") as err:
+        read_skeleton_json(tmp_path / "bad.json")
+    assert err.value.line == 2
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+def test_csv_one_row_per_frame_in_metres(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=6)
+    write_skeleton_csv(result, tmp_path / "j.csv")
+    lines = (tmp_path / "j.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    assert header[:4] == ["time", "root.x", "root.y", "root.z"]
+    assert header[1::3] == [f"{j}.x" for j in JOINTS]
+    assert len(lines) == 7
+    table = np.loadtxt(tmp_path / "j.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 0], np.arange(6) / 30.0, atol=1e-6)
+    k = header.index("l_wrist.x")
+    np.testing.assert_allclose(table[:, k:k + 3], result.joints["l_wrist"], atol=1e-6)
