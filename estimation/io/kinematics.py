@@ -1,0 +1,884 @@
+"""Readers and writers of inertial-suit kinematics for root-translation estimation.
+
+Three inputs give the same :class:`KinematicsRecording` (metres, world frame, Y up):
+
+* **kinematics CSV**, the layout of Hachaj & Ogiela's data: ``Time``, ``<Joint>.Dx/.Dy/.Dz``
+  (cm, Y up, global joint positions), ``<Sensor>.ax/.ay/.az`` (accelerometer, g, sensor frame,
+  gravity included), optional ``<Foot>.c`` contact flags; every other column is kept and
+  written back unchanged;
+* **BVH + accelerations CSV** (``time,LeftFoot.ax,...``): positions by forward kinematics with
+  the root translation of the BVH ignored;
+* **Xsens MVNX** (see :mod:`estimation.io.mvnx`).
+
+The writers put a :class:`~estimation.translation.TranslationResult` back into the input's
+own format, into a BVH with the root path in the root's position channels, or into JSON.
+Formats are described in ``docs/translation.md``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+from ..errors import InputError
+
+if TYPE_CHECKING:
+    from ..translation import TranslationResult
+
+PathLike = str | os.PathLike[str]
+
+GRAVITY: Final[float] = 9.80665
+"""Standard gravity, m/s²."""
+
+FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx")
+"""Input formats of :func:`read_kinematics` (besides ``"auto"``)."""
+
+OUTPUT_FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx", "json")
+"""Output formats of :func:`write_translation`."""
+
+ACCELERATION_UNITS: Final[dict[str, tuple[float, str]]] = {
+    "g": (GRAVITY, "sensor"),
+    "m/s2": (1.0, "sensor"),
+    "free-g": (GRAVITY, "world"),
+    "free-m/s2": (1.0, "world"),
+    "second-differences": (1.0, "world"),
+}
+"""Declarable acceleration units: scale to m/s² and frame. ``g`` and ``m/s2`` are
+accelerometer readings (sensor frame, gravity included); ``free-*`` are gravity-free world
+(Y-up) accelerations; ``second-differences`` are exporter-computed second differences of the
+positions (file length unit per frame²), accepted only when declared."""
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicsRecording:
+    """Global joint positions of an inertial suit plus its foot accelerometers.
+
+    Attributes
+    ----------
+    joints : tuple of str
+        Joint names, length J, in file order.
+    positions : ndarray, shape (F, J, 3)
+        Global joint positions, metres, world frame with +Y up. They may or may not contain
+        a root translation: both estimators replace it.
+    fps : float
+        Frame rate, Hz.
+    time : ndarray, shape (F,)
+        Frame times, seconds.
+    accelerations : mapping of str to ndarray, shape (F, 3)
+        Foot joint name → acceleration, m/s². Frame given by ``acceleration_frame``.
+    acceleration_frame : {"sensor", "world"}
+        ``"sensor"``: accelerometer readings (specific force) in the sensor frame, gravity
+        included (|a| ≈ 9.81 at rest). ``"world"``: gravity-free acceleration in the world
+        frame (+Y up).
+    left_foot, right_foot : str
+        Names of the foot joints (ankles) in ``joints``.
+    toes : mapping of str to str
+        Foot joint → toe joint (or toe end site) used for heel/toe contacts, when present.
+    contacts : mapping of str to ndarray of bool, shape (F,)
+        Foot joint → contact flags read from the file (MVNX footContacts, ``<Foot>.c``
+        columns); empty when the file has none.
+    source_format : str
+        ``"kinematics-csv"``, ``"bvh"`` or ``"mvnx"``.
+    length_scale : float
+        Metres per length unit of the source file (0.01 for cm).
+    columns : tuple of str
+        Kinematics CSV: every column of the file, in order (for passthrough).
+    table : ndarray, shape (F, C) or None
+        Kinematics CSV: every value of the file, in file units.
+    bvh : BvhMotion or None
+        BVH input: the motion (its root translation is what the writer replaces).
+    root : str
+        Name of the root joint whose path is reported (hips).
+    source_path : str or None
+        Path of the file read (the MVNX writer re-streams it).
+    notes : tuple of str
+        What the reader decided (units, toe joints, contact channels).
+    """
+
+    joints: tuple[str, ...]
+    positions: NDArray[np.float64]
+    fps: float
+    time: NDArray[np.float64]
+    accelerations: Mapping[str, NDArray[np.float64]]
+    acceleration_frame: str = "sensor"
+    left_foot: str = "LeftFoot"
+    right_foot: str = "RightFoot"
+    toes: Mapping[str, str] = field(default_factory=dict)
+    contacts: Mapping[str, NDArray[np.bool_]] = field(default_factory=dict)
+    source_format: str = "kinematics-csv"
+    length_scale: float = 0.01
+    columns: tuple[str, ...] = ()
+    table: NDArray[np.float64] | None = None
+    bvh: BvhMotion | None = None
+    root: str = ""
+    source_path: str | None = None
+    notes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        pos = self.positions
+        if pos.ndim != 3 or pos.shape[1] != len(self.joints) or pos.shape[2] != 3:
+            raise InputError(f"positions must be (F, {len(self.joints)}, 3), got {pos.shape}",
+                             field="positions")
+        if self.acceleration_frame not in ("sensor", "world"):
+            raise InputError("acceleration_frame must be 'sensor' or 'world'",
+                             field="acceleration_frame")
+        for foot in (self.left_foot, self.right_foot):
+            if foot not in self.joints:
+                raise InputError(f"foot joint {foot!r} not found; joints: "
+                                 f"{', '.join(self.joints)}", field=foot)
+            acc = self.accelerations.get(foot)
+            if acc is None or acc.shape != (pos.shape[0], 3):
+                raise InputError(f"no (F, 3) accelerations for foot {foot!r}", sensor=foot)
+        if not self.root:
+            object.__setattr__(self, "root", self.joints[0])
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames F."""
+        return int(self.positions.shape[0])
+
+    def index(self, joint: str) -> int:
+        """Index of ``joint``; InputError listing the joints present otherwise."""
+        try:
+            return self.joints.index(joint)
+        except ValueError:
+            raise InputError(f"joint {joint!r} not found; joints: {', '.join(self.joints)}",
+                             field=joint) from None
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _fps_from_time(time: NDArray[np.float64]) -> float:
+    if time.size < 2:
+        raise InputError("need at least two frames", field="Time")
+    steps = np.diff(time)
+    step = float(np.median(steps))
+    if not step > 0 or not np.all(steps > 0):
+        bad = int(np.argmax(steps <= 0)) + 2
+        raise InputError("time must increase from frame to frame", field="Time", line=bad + 1)
+    fps = 1.0 / step
+    return round(fps, 6) if abs(fps - round(fps, 6)) < 1e-6 * fps else fps
+
+
+def _check_units(units: str | None) -> str | None:
+    if units is None:
+        return None
+    key = units.strip().lower().replace("²", "2").replace("m/s^2", "m/s2")
+    if key not in ACCELERATION_UNITS:
+        raise InputError(f"unknown acceleration units {units!r}; use one of "
+                         f"{', '.join(ACCELERATION_UNITS)}", field="acceleration_units")
+    return key
+
+
+def _resolve_acceleration_units(
+    raw: Mapping[str, NDArray[np.float64]],
+    positions: Mapping[str, NDArray[np.float64]],
+    declared: str | None,
+    source: str,
+) -> tuple[str, str]:
+    """Decide the units of raw foot accelerations, or say why they cannot be accepted.
+
+    Returns the unit key and a note. Accelerometer readings have a median magnitude of about
+    1 g (gravity); anything else is reported instead of guessed.
+    """
+    medians = {k: float(np.median(np.linalg.norm(a, axis=1))) for k, a in raw.items()}
+    worst = max(medians.values())
+    least = min(medians.values())
+    names = ", ".join(f"{k} {v:.3g}" for k, v in medians.items())
+    d2_like = []
+    for foot, acc in raw.items():
+        p = positions[foot]
+        if p.shape[0] >= 3:
+            d2 = p[2:] - 2 * p[1:-1] + p[:-2]
+            scale = float(np.linalg.norm(d2)) or 1.0
+            d2_like.append(float(np.linalg.norm(acc[1:-1] - d2)) / scale < 0.05
+                           or float(np.linalg.norm(acc[2:] - d2)) / scale < 0.05
+                           or float(np.linalg.norm(acc[:-2] - d2)) / scale < 0.05)
+    if d2_like and all(d2_like):
+        if declared == "second-differences":
+            return declared, "accelerations declared as second differences of positions"
+        raise InputError(
+            f"the foot acceleration columns of {source} are second differences of the foot "
+            "positions (exporter-computed), not accelerometer readings; declare "
+            "acceleration_units='second-differences' to use them anyway", field="acceleration")
+    if declared is not None:
+        scale, frame = ACCELERATION_UNITS[declared]
+        if frame == "sensor":
+            in_g = np.array([medians[k] * scale / GRAVITY for k in medians])
+            if np.any((in_g < 0.3) | (in_g > 3.0)):
+                raise InputError(
+                    f"acceleration declared as {declared} but the median |a| per foot is "
+                    f"{names}: accelerometer readings at rest are about 1 g; check the units",
+                    field="acceleration_units")
+        return declared, f"accelerations in {declared} (declared)"
+    if least >= 0.6 and worst <= 1.6:
+        return "g", f"accelerations in g (median |a| per foot: {names})"
+    if least >= 6.0 and worst <= 16.0:
+        raise InputError(
+            f"the foot accelerations of {source} look like m/s² (median |a| per foot: {names}), "
+            "not g; declare acceleration_units='m/s2'", field="acceleration_units")
+    if worst < 0.35:
+        raise InputError(
+            f"the foot accelerations of {source} have no gravity in them (median |a| per foot: "
+            f"{names}); declare acceleration_units='free-g' or 'free-m/s2'",
+            field="acceleration_units")
+    raise InputError(
+        f"cannot tell the units of the foot accelerations of {source} (median |a| per foot: "
+        f"{names}); declare acceleration_units", field="acceleration_units")
+
+
+def _foot_not_found(foot: str, joints: tuple[str, ...], what: str) -> InputError:
+    return InputError(f"foot joint {foot!r} not found in the {what}; joints: "
+                      f"{', '.join(joints)}", field=foot)
+
+
+def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]) -> str | None:
+    """Toe joint of ``foot``: a joint named like the foot's side with 'toe' in it
+    (``LeftToe``, ``LeftToeBase``, ``Toes_L``). Anonymous end sites (Shadow's ``EndSite4``)
+    are not taken: where they sit on the foot is not known."""
+    low_foot = foot.lower()
+    side = "left" if "left" in low_foot or low_foot.startswith("l") or low_foot.endswith("_l") \
+        else "right"
+    marks = {"left": ("left", "_l", "l_"), "right": ("right", "_r", "r_")}[side]
+    i = joints.index(foot)
+    candidates = [name for name in joints if "toe" in name.lower()
+                  and any(m in name.lower() for m in marks)]
+    if not candidates:
+        return None
+    gaps = [float(np.median(np.linalg.norm(positions[:, joints.index(c)] - positions[:, i],
+                                           axis=1))) for c in candidates]
+    best = int(np.argmin(gaps))
+    return candidates[best] if 0.02 < gaps[best] < 0.35 else None
+
+
+# --------------------------------------------------------------------------- kinematics CSV
+
+
+def _read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
+    """Header and numeric body of a CSV; a fast parse first, a row-by-row one to name the
+    line and column of a bad value."""
+    with open(path, encoding="utf-8", newline="") as handle:
+        header_line = handle.readline()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                body = np.loadtxt(handle, delimiter=",", dtype=float, ndmin=2)
+        except (ValueError, UserWarning):
+            body = None
+    header = [h.strip() for h in next(csv.reader([header_line]))] if header_line else []
+    if body is not None and body.shape[0] and body.shape[1] == len(header):
+        return header, body
+    return _read_table_slowly(path)
+
+
+def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
+    with open(path, encoding="utf-8", newline="") as handle:
+        reader = csv.reader(handle)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise InputError("empty file", line=1) from None
+        rows: list[list[float]] = []
+        for lineno, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise InputError(f"row has {len(row)} values, the header has {len(header)}",
+                                 line=lineno)
+            try:
+                rows.append([float(c) if c.strip() not in ("", "NA") else math.nan
+                             for c in row])
+            except ValueError:
+                col = next(i for i, c in enumerate(row) if not _is_number(c))
+                raise InputError(f"not a number: {row[col]!r} in column {header[col]!r}",
+                                 line=lineno, column=col + 1, field=header[col]) from None
+    if not rows:
+        raise InputError("no data rows", line=2)
+    return header, np.array(rows, dtype=float)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return text.strip() in ("", "NA")
+    return True
+
+
+def _position_joints(header: list[str]) -> tuple[str, ...]:
+    joints = tuple(h[:-3] for h in header if h.endswith(".Dx"))
+    for j in joints:
+        for axis in ("Dy", "Dz"):
+            if f"{j}.{axis}" not in header:
+                raise InputError(f"joint {j!r} has a .Dx column but no .{axis}",
+                                 field=f"{j}.{axis}")
+    return joints
+
+
+def read_kinematics_csv(
+    path: PathLike,
+    *,
+    left_foot: str = "LeftFoot",
+    right_foot: str = "RightFoot",
+    acceleration_units: str | None = None,
+    length_units_m: float = 0.01,
+) -> KinematicsRecording:
+    """Read a kinematics CSV (the layout of Hachaj & Ogiela's Shadow exports).
+
+    Parameters
+    ----------
+    path : path
+    left_foot, right_foot : str
+        Foot joints; ``<Foot>.Dx/.Dy/.Dz`` and ``<Foot>.ax/.ay/.az`` must exist.
+    acceleration_units : str, optional
+        One of :data:`ACCELERATION_UNITS`. By default the columns must look like g with
+        gravity (median |a| ≈ 1); m/s², gravity-free data and second differences of positions
+        are reported as InputError rather than guessed.
+    length_units_m : float
+        Metres per position unit (0.01: cm).
+
+    Returns
+    -------
+    KinematicsRecording
+
+    Raises
+    ------
+    InputError
+        Malformed file, missing foot columns (listing the joints present), units that do
+        not look like accelerometer readings in g.
+    """
+    declared = _check_units(acceleration_units)
+    header, table = _read_table(path)
+    col = {h: i for i, h in enumerate(header)}
+    time_key = next((h for h in header if h.lower() == "time"), None)
+    joints = _position_joints(header)
+    if not joints:
+        raise InputError("no <Joint>.Dx/.Dy/.Dz position columns", field="header", line=1)
+    for foot in (left_foot, right_foot):
+        if foot not in joints:
+            raise _foot_not_found(foot, joints, "position columns")
+    if np.isnan(table).any():
+        r, c = np.argwhere(np.isnan(table))[0]
+        raise InputError(f"missing value in column {header[c]!r}", line=int(r) + 2,
+                         column=int(c) + 1, field=header[c])
+    positions = np.stack([np.stack([table[:, col[f"{j}.D{a}"]] for a in "xyz"], axis=-1)
+                          for j in joints], axis=1) * length_units_m
+    n = table.shape[0]
+    if time_key is not None:
+        time = table[:, col[time_key]].copy()
+        fps = _fps_from_time(time)
+    else:
+        raise InputError("no Time column", field="Time", line=1)
+    sensors = tuple(h[:-3] for h in header if h.endswith(".ax"))
+    raw: dict[str, NDArray[np.float64]] = {}
+    for foot in (left_foot, right_foot):
+        keys = [f"{foot}.a{a}" for a in "xyz"]
+        missing = [k for k in keys if k not in col]
+        if missing:
+            raise InputError(f"no acceleration columns {', '.join(missing)} for foot {foot!r}; "
+                             f"sensors with accelerations: {', '.join(sensors) or 'none'}",
+                             field=missing[0], sensor=foot)
+        raw[foot] = np.stack([table[:, col[k]] for k in keys], axis=-1)
+    unit, note = _resolve_acceleration_units(
+        raw, {f: positions[:, joints.index(f)] / length_units_m for f in raw}, declared,
+        Path(path).name)
+    scale, frame = ACCELERATION_UNITS[unit]
+    if unit == "second-differences":
+        scale = length_units_m * fps * fps
+    accelerations = {f: a * scale for f, a in raw.items()}
+    notes = [note]
+    contacts: dict[str, NDArray[np.bool_]] = {}
+    toes: dict[str, str] = {}
+    for foot in (left_foot, right_foot):
+        toe = _auto_toe(foot, joints, positions)
+        if toe is not None:
+            toes[foot] = toe
+            notes.append(f"{toe} is the toe of {foot}")
+        flags = [k for k in (f"{foot}.c", f"{toe}.c" if toe else "") if k in col]
+        if flags:
+            contacts[foot] = np.any(np.stack([table[:, col[k]] for k in flags]) > 0.5, axis=0)
+            notes.append(f"contacts of {foot} from {', '.join(flags)}")
+    del n
+    return KinematicsRecording(
+        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
+        acceleration_frame=frame, left_foot=left_foot, right_foot=right_foot, toes=toes,
+        contacts=contacts, source_format="kinematics-csv", length_scale=length_units_m,
+        columns=tuple(header), table=table, root=_guess_root(joints), source_path=str(path),
+        notes=tuple(notes))
+
+
+def _guess_root(joints: tuple[str, ...]) -> str:
+    for name in joints:
+        if name.lower() in ("hips", "hip", "pelvis", "root"):
+            return name
+    return joints[0]
+
+
+# --------------------------------------------------------------------------- BVH + accelerations
+
+
+def read_acceleration_csv(
+    path: PathLike,
+) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]], str | None]:
+    """Read ``time,<Sensor>.ax,<Sensor>.ay,<Sensor>.az,...``.
+
+    A unit may be declared in the header cells, e.g. ``LeftFoot.ax [g]`` or
+    ``LeftFoot.ax (m/s2)``. Returns times (s), sensor → (F, 3) raw values, and the declared
+    unit or None.
+    """
+    header, table = _read_table(path)
+    unit: str | None = None
+    names: list[str] = []
+    for h in header:
+        base = h
+        for open_, close in (("[", "]"), ("(", ")")):
+            if open_ in h and h.endswith(close):
+                base, _, rest = h.partition(open_)
+                found = _check_units(rest[:-1].strip())
+                if unit is not None and found != unit:
+                    raise InputError("acceleration columns declare different units", field=h)
+                unit = found
+        names.append(base.strip())
+    col = {h: i for i, h in enumerate(names)}
+    tkey = next((h for h in names if h.lower() in ("time", "t")), None)
+    if tkey is None:
+        raise InputError("accelerations file has no time column", field="time", line=1)
+    if np.isnan(table).any():
+        r, c = np.argwhere(np.isnan(table))[0]
+        raise InputError(f"missing value in column {names[c]!r}", line=int(r) + 2,
+                         column=int(c) + 1, field=names[c])
+    sensors = [h[:-3] for h in names if h.endswith(".ax")]
+    out: dict[str, NDArray[np.float64]] = {}
+    for s in sensors:
+        keys = [f"{s}.a{a}" for a in "xyz"]
+        if any(k not in col for k in keys):
+            raise InputError(f"sensor {s!r} lacks one of {', '.join(keys)}", sensor=s)
+        out[s] = np.stack([table[:, col[k]] for k in keys], axis=-1)
+    return table[:, col[tkey]].copy(), out, unit
+
+
+def _varying_root(motion: BvhMotion) -> int:
+    """The first node whose position channels move (Bandai files carry a static dummy root)."""
+    for j, chans in enumerate(motion.channels):
+        if any(c.endswith("position") for c in chans):
+            vals = motion.channel_values(j)
+            k = [i for i, c in enumerate(chans) if c.endswith("position")]
+            if np.ptp(vals[:, k], axis=0).max() > 1e-9:
+                return j
+    return motion.parents.index(-1)
+
+
+def bvh_positions_without_root_translation(motion: BvhMotion, root: int | None = None
+                                           ) -> tuple[NDArray[np.float64], int]:
+    """Forward kinematics with the root's position channels frozen at frame 0.
+
+    Returns positions (F, J, 3) in BVH units and the index of the root node used.
+    """
+    j = _varying_root(motion) if root is None else root
+    values = motion.values.copy()
+    start = sum(len(c) for c in motion.channels[:j])
+    for k, ch in enumerate(motion.channels[j]):
+        if ch.endswith("position"):
+            values[:, start + k] = values[0, start + k]
+    positions, _ = forward_kinematics(motion.with_values(values))
+    return positions, j
+
+
+def _child(motion: BvhMotion, node: int) -> int | None:
+    kids = [k for k, p in enumerate(motion.parents) if p == node]
+    if not kids:
+        return None
+    return max(kids, key=lambda k: float(np.linalg.norm(motion.offsets[k])))
+
+
+def read_bvh_kinematics(
+    path: PathLike,
+    accelerations: PathLike,
+    *,
+    left_foot: str = "LeftFoot",
+    right_foot: str = "RightFoot",
+    acceleration_units: str | None = None,
+    length_units_m: float = 0.01,
+) -> KinematicsRecording:
+    """Read a BVH motion plus a CSV of foot accelerations.
+
+    Parameters
+    ----------
+    path : path
+        BVH file; its root translation, if any, is ignored (frozen at frame 0).
+    accelerations : path
+        ``time,<Foot>.ax,<Foot>.ay,<Foot>.az,...``; resampled onto the BVH frame times when
+        the times differ.
+    left_foot, right_foot : str
+        Foot joints of the BVH hierarchy (and sensor names in the accelerations file).
+    acceleration_units : str, optional
+        As in :func:`read_kinematics_csv`; a unit in the header cells counts as declared.
+    length_units_m : float
+        Metres per BVH length unit (0.01: cm).
+
+    Returns
+    -------
+    KinematicsRecording
+    """
+    declared = _check_units(acceleration_units)
+    motion = read_bvh(path)
+    for foot in (left_foot, right_foot):
+        if foot not in motion.names:
+            raise _foot_not_found(foot, motion.names, "BVH")
+    raw_pos, root = bvh_positions_without_root_translation(motion)
+    positions = raw_pos * length_units_m
+    n = motion.n_frames
+    time = np.arange(n, dtype=np.float64) * float(motion.frame_time)
+    a_time, a_raw, header_unit = read_acceleration_csv(accelerations)
+    if declared is None:
+        declared = header_unit
+    raw: dict[str, NDArray[np.float64]] = {}
+    for foot in (left_foot, right_foot):
+        if foot not in a_raw:
+            raise InputError(f"no accelerations for foot {foot!r} in "
+                             f"{Path(accelerations).name}; sensors: {', '.join(a_raw) or 'none'}",
+                             sensor=foot)
+        a = a_raw[foot]
+        if a.shape[0] != n or not np.allclose(a_time - a_time[0], time, atol=0.25 / motion.fps):
+            if a_time[0] > time[0] + 1.0 / motion.fps or a_time[-1] < time[-1] - 1.0 / motion.fps:
+                raise InputError(
+                    f"accelerations cover {a_time[0]:.3f}–{a_time[-1]:.3f} s, the BVH "
+                    f"0–{time[-1]:.3f} s", field="time")
+            a = np.stack([np.interp(time, a_time, a[:, k]) for k in range(3)], axis=-1)
+        raw[foot] = a
+    names = motion.names
+    unit, note = _resolve_acceleration_units(
+        raw, {f: raw_pos[:, names.index(f)] for f in raw}, declared, Path(accelerations).name)
+    scale, frame = ACCELERATION_UNITS[unit]
+    if unit == "second-differences":
+        scale = length_units_m * motion.fps ** 2
+    toes: dict[str, str] = {}
+    notes = [note, f"root translation of {names[root]} ignored"]
+    for foot in (left_foot, right_foot):
+        child = _child(motion, names.index(foot))
+        if child is not None:
+            toes[foot] = names[child]
+            notes.append(f"{names[child]} is the toe of {foot}")
+    return KinematicsRecording(
+        joints=names, positions=positions, fps=motion.fps, time=time,
+        accelerations={f: a * scale for f, a in raw.items()}, acceleration_frame=frame,
+        left_foot=left_foot, right_foot=right_foot, toes=toes, source_format="bvh",
+        length_scale=length_units_m, bvh=motion, root=names[root], source_path=str(path),
+        notes=tuple(notes))
+
+
+# --------------------------------------------------------------------------- dispatch
+
+
+def detect_format(path: PathLike) -> str:
+    """``"kinematics-csv"``, ``"bvh"`` or ``"mvnx"`` from the file's first bytes."""
+    with open(path, "rb") as handle:
+        head = handle.read(4096).lstrip(b"\xef\xbb\xbf").lstrip()
+    if head.upper().startswith(b"HIERARCHY"):
+        return "bvh"
+    if head.startswith(b"<?xml") or head.startswith(b"<mvnx"):
+        if b"mvnx" in head.lower():
+            return "mvnx"
+        raise InputError("XML file is not MVNX", field="format")
+    first = head.split(b"\n", 1)[0]
+    if b".Dx" in first:
+        return "kinematics-csv"
+    raise InputError("cannot tell the format (expected a kinematics CSV with <Joint>.Dx "
+                     "columns, a BVH or an MVNX file); pass format", field="format")
+
+
+def _resolve_format(path: PathLike, format: str) -> str:
+    if format == "auto":
+        return detect_format(path)
+    if format not in FORMATS:
+        raise InputError(f"unknown format {format!r}; use auto, {', '.join(FORMATS)}",
+                         field="format")
+    return format
+
+
+def read_kinematics(
+    path: PathLike,
+    *,
+    format: str = "auto",
+    accelerations: PathLike | None = None,
+    left_foot: str = "LeftFoot",
+    right_foot: str = "RightFoot",
+    acceleration_units: str | None = None,
+) -> KinematicsRecording:
+    """Read an inertial-suit recording for root-translation estimation.
+
+    Parameters
+    ----------
+    path : path
+        Kinematics CSV, BVH or MVNX file.
+    format : {"auto", "kinematics-csv", "bvh", "mvnx"}
+    accelerations : path, optional
+        Foot accelerations CSV; required with a BVH.
+    left_foot, right_foot : str
+        Foot joint names (MVNX: segment names, default ``LeftFoot``/``RightFoot``).
+    acceleration_units : str, optional
+        See :data:`ACCELERATION_UNITS`.
+
+    Returns
+    -------
+    KinematicsRecording
+
+    Raises
+    ------
+    InputError
+        Unreadable file, missing foot (listing the joints present), unrecognised units.
+    """
+    fmt = _resolve_format(path, format)
+    if fmt == "kinematics-csv":
+        return read_kinematics_csv(path, left_foot=left_foot, right_foot=right_foot,
+                                   acceleration_units=acceleration_units)
+    if fmt == "bvh":
+        if accelerations is None:
+            raise InputError("a BVH input needs an accelerations CSV "
+                             "(time,<Foot>.ax,<Foot>.ay,<Foot>.az,...)", field="accelerations")
+        return read_bvh_kinematics(path, accelerations, left_foot=left_foot,
+                                   right_foot=right_foot, acceleration_units=acceleration_units)
+    from .mvnx import read_mvnx
+
+    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot)
+
+
+def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
+    """Quick summary of a recording without loading it.
+
+    Returns
+    -------
+    dict
+        ``format``, ``frames``, ``joints`` (list), ``fps``; streams the file.
+    """
+    fmt = _resolve_format(path, format)
+    if fmt == "mvnx":
+        from .mvnx import sniff_mvnx
+
+        return sniff_mvnx(path)
+    if fmt == "bvh":
+        return _sniff_bvh(path)
+    with open(path, encoding="utf-8", newline="") as handle:
+        reader = csv.reader(handle)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise InputError("empty file", line=1) from None
+        tcol = next((i for i, h in enumerate(header) if h.lower() == "time"), None)
+        frames, t0, t1 = 0, math.nan, math.nan
+        for row in reader:
+            if not row:
+                continue
+            frames += 1
+            if tcol is not None and frames <= 2:
+                try:
+                    t0, t1 = (float(row[tcol]), t0) if frames == 1 else (t0, float(row[tcol]))
+                except (ValueError, IndexError):
+                    raise InputError("bad Time value", line=frames + 1) from None
+    fps = 1.0 / (t1 - t0) if frames >= 2 and t1 > t0 else None
+    return {"format": fmt, "frames": frames, "joints": list(_position_joints(header)),
+            "fps": fps,
+            "sensors": [h[:-3] for h in header if h.endswith(".ax")]}
+
+
+def _sniff_bvh(path: PathLike) -> dict[str, Any]:
+    joints: list[str] = []
+    frames = 0
+    fps: float | None = None
+    with open(path, encoding="utf-8", errors="replace") as handle:
+        for line in handle:
+            parts = line.split()
+            if not parts:
+                continue
+            key = parts[0].upper()
+            if key in ("ROOT", "JOINT") and len(parts) > 1:
+                joints.append(parts[1])
+            elif key == "FRAMES:" and len(parts) > 1:
+                frames = int(parts[1])
+            elif key == "FRAME" and len(parts) > 2:
+                fps = 1.0 / float(parts[2])
+                break
+    return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
+
+
+# --------------------------------------------------------------------------- writers
+
+
+def translation_to_dict(result: TranslationResult, recording: KinematicsRecording | None = None,
+                        *, decimals: int = 5) -> dict[str, Any]:
+    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings."""
+
+    def rows(a: NDArray[np.float64]) -> list[list[float]]:
+        return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
+
+    out: dict[str, Any] = {
+        "method": result.method,
+        "fps": result.fps,
+        "frames": int(result.root.shape[0]),
+        "units": "m",
+        "up": "+Y",
+        "root_joint": recording.root if recording is not None else None,
+        "root": rows(result.root),
+        "translation": rows(result.translation),
+        "floor": np.round(result.floor, decimals).tolist(),
+        "contacts": [str(c) for c in result.contacts],
+        "quality": {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                    for k, v in result.quality.items()},
+        "timings": dict(result.timings),
+    }
+    if recording is not None:
+        out["time"] = np.round(recording.time, 6).tolist()
+    return out
+
+
+def _flat_bvh(result: TranslationResult, recording: KinematicsRecording,
+              scale: float) -> BvhMotion:
+    """A BVH of point joints: the root with the root path, every other joint a child with
+    position channels (for inputs without a rotation hierarchy)."""
+    r = recording.index(recording.root)
+    pos = result.positions / scale
+    order = [r] + [j for j in range(len(recording.joints)) if j != r]
+    names = tuple(recording.joints[j] for j in order)
+    parents = (-1,) + (0,) * (len(order) - 1)
+    offsets = np.zeros((len(order), 3))
+    offsets[1:] = pos[0, order[1:]] - pos[0, r]
+    chans = tuple(("Xposition", "Yposition", "Zposition") for _ in order)
+    values = np.concatenate([pos[:, r]] + [pos[:, j] - pos[:, r] for j in order[1:]], axis=1)
+    return BvhMotion(names, parents, offsets, chans, 1.0 / result.fps, values)
+
+
+def translated_bvh(result: TranslationResult, recording: KinematicsRecording) -> BvhMotion:
+    """The input BVH with the estimated root path in the root's position channels; for other
+    inputs a point-joint BVH (cm) of the corrected positions."""
+    motion = recording.bvh
+    if motion is None:
+        return _flat_bvh(result, recording, 0.01)
+    j = motion.names.index(recording.root)
+    values = motion.values.copy()
+    start = sum(len(c) for c in motion.channels[:j])
+    axes = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
+    chans = motion.channels[j]
+    if not any(c in axes for c in chans):
+        return _flat_bvh(result, recording, recording.length_scale)
+    shift = result.translation / recording.length_scale
+    # The root's world position is its parents' transform applied to its channels; parents
+    # here are static dummies at most (Bandai's joint_Root), so shifting the channels by the
+    # world translation rotated into the parent frame is exact.
+    parent = motion.parents[j]
+    if parent >= 0:
+        _, rots = forward_kinematics(motion)
+        shift = rots[parent].inv().apply(shift)
+    for k, ch in enumerate(chans):
+        if ch in axes:
+            values[:, start + k] = values[0, start + k] + shift[:, axes[ch]]
+    return motion.with_values(values)
+
+
+def write_translation(result: TranslationResult, recording: KinematicsRecording,
+                      path: PathLike | io.TextIOBase, *, format: str) -> None:
+    """Write a translation result.
+
+    Parameters
+    ----------
+    result : TranslationResult
+    recording : KinematicsRecording
+        The input the result was estimated from.
+    path : path or text stream
+    format : {"kinematics-csv", "bvh", "mvnx", "json"}
+        ``kinematics-csv``: every column of the input CSV in its order, positions corrected
+        (input must be a kinematics CSV); ``bvh``: the input BVH with the root path in the
+        root's position channels (a point-joint BVH in cm for other inputs); ``mvnx``: the
+        input MVNX with corrected segment positions; ``json``: root path, contacts, quality.
+    """
+    if format not in OUTPUT_FORMATS:
+        raise InputError(f"unknown output format {format!r}; use {', '.join(OUTPUT_FORMATS)}",
+                         field="format")
+    if format == "json":
+        text = json.dumps(translation_to_dict(result, recording), separators=(",", ":"))
+        _emit(path, text)
+    elif format == "bvh":
+        motion = translated_bvh(result, recording)
+        if isinstance(path, io.TextIOBase):
+            write_bvh(motion, path)
+        else:
+            write_bvh(motion, path)
+    elif format == "kinematics-csv":
+        if recording.table is None:
+            raise InputError(f"cannot write a kinematics CSV for a {recording.source_format} "
+                             "input; use bvh or json", field="format")
+        _emit(path, _kinematics_csv_text(result, recording))
+    else:
+        from .mvnx import write_mvnx
+
+        if isinstance(path, io.TextIOBase):
+            raise InputError("MVNX output needs a file path", field="format")
+        write_mvnx(result, recording, path)
+
+
+def _emit(path: PathLike | io.TextIOBase, text: str) -> None:
+    if isinstance(path, io.TextIOBase):
+        path.write(text)
+    else:
+        Path(path).write_text(text, encoding="utf-8")
+
+
+def _kinematics_csv_text(result: TranslationResult, recording: KinematicsRecording) -> str:
+    assert recording.table is not None
+    table = recording.table.copy()
+    col = {h: i for i, h in enumerate(recording.columns)}
+    corrected = result.positions / recording.length_scale
+    for j, name in enumerate(recording.joints):
+        for k, a in enumerate("xyz"):
+            table[:, col[f"{name}.D{a}"]] = corrected[:, j, k]
+    out = io.StringIO()
+    out.write(",".join(recording.columns) + "\n")
+    np.savetxt(out, table, fmt="%.10g", delimiter=",")
+    return out.getvalue()
+
+
+def write_kinematics_csv(recording: KinematicsRecording, path: PathLike | io.TextIOBase, *,
+                         positions: NDArray[np.float64] | None = None,
+                         length_units_m: float = 0.01) -> None:
+    """Write a recording in the kinematics-CSV layout (``Time``, ``<Joint>.Dx/.Dy/.Dz`` in
+    cm, ``<Foot>.ax/.ay/.az`` in g for sensor-frame accelerations).
+
+    Parameters
+    ----------
+    recording : KinematicsRecording
+    path : path or text stream
+    positions : ndarray, shape (F, J, 3), optional
+        Positions to write instead of the recording's (metres).
+    length_units_m : float
+        Metres per written length unit (0.01: cm).
+    """
+    pos = recording.positions if positions is None else positions
+    names = ["Time"]
+    cols = [recording.time[:, None]]
+    for k, axis in enumerate("xyz"):
+        names += [f"{j}.D{axis}" for j in recording.joints]
+        cols.append(pos[:, :, k] / length_units_m)
+    scale = GRAVITY if recording.acceleration_frame == "sensor" else 1.0
+    for axis_k, axis in enumerate("xyz"):
+        for foot, acc in recording.accelerations.items():
+            names.append(f"{foot}.a{axis}")
+            cols.append(acc[:, axis_k:axis_k + 1] / scale)
+    for foot, flags in recording.contacts.items():
+        names.append(f"{foot}.c")
+        cols.append(flags[:, None].astype(float))
+    out = io.StringIO()
+    out.write(",".join(names) + "\n")
+    np.savetxt(out, np.concatenate(cols, axis=1), fmt="%.10g", delimiter=",")
+    _emit(path, out.getvalue())

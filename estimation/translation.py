@@ -1,0 +1,815 @@
+"""Root translation of inertial-suit recordings from foot accelerometers and kinematics.
+
+Two estimators share one entry point, :func:`estimate_translation`:
+
+``hachaj2018``
+    Hachaj & Ogiela's heuristic exactly as their published R implementation computes it
+    (design.md, "Root translation"), in O(N).
+``contact`` (default)
+    A stance model: per-frame foot contacts (left, right, both, none) chosen by Viterbi
+    decoding of how well each hypothesis explains the measured foot accelerations, then a
+    root path that keeps planted heel/toe points still, follows a ballistic arc in flight and
+    keeps each contact on its own floor level.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+
+from .errors import EstimationError, InputError
+from .io.kinematics import GRAVITY, KinematicsRecording
+from .progress import Progress, no_progress
+
+METHODS: Final[tuple[str, ...]] = ("contact", "hachaj2018")
+"""Names accepted by :func:`estimate_translation`."""
+
+CONTACT_LABELS: Final[tuple[str, ...]] = ("none", "left", "right", "both")
+"""Per-frame contact labels, in state order of the contact model."""
+
+HACHAJ_WINDOW: Final[int] = 100
+"""Gaussian window of the reference implementation, in samples."""
+
+HACHAJ_EPS_M: Final[float] = 0.05
+"""Pass-2 threshold of the reference implementation (5 cm)."""
+
+
+@dataclass(frozen=True, eq=False)
+class TranslationResult:
+    """A root path estimated for an inertial-suit recording.
+
+    Attributes
+    ----------
+    root : ndarray, shape (F, 3)
+        World position of the root joint (hips) per frame, metres, +Y up.
+    translation : ndarray, shape (F, 3)
+        Offset added to every joint of the input positions per frame, metres.
+    positions : ndarray, shape (F, J, 3)
+        Corrected global joint positions, metres.
+    contacts : ndarray of str, shape (F,)
+        ``"left"``, ``"right"``, ``"both"`` or ``"none"`` per frame.
+    floor : ndarray, shape (F,)
+        Height of the floor under the body per frame, metres, in the frame of the foot
+        contact points (heel/toe joints, not the sole surface).
+    quality : dict
+        ``foot_skate_cm_s`` (mean horizontal speed of planted contact points),
+        ``floor_penetration_cm`` (deepest contact point below the floor),
+        ``max_vertical_jump_cm`` (largest frame-to-frame discontinuity of the hips height:
+        |Δy(t) − (Δy(t−1) + Δy(t+1))/2|), ``max_vertical_step_cm``, ``closure_cm``
+        (horizontal hips distance first→last frame), ``path_length_m`` (horizontal hips
+        path), ``contact_fraction`` and method-specific figures.
+    method : str
+    fps : float
+    timings : dict
+        Seconds per stage.
+    """
+
+    root: NDArray[np.float64]
+    translation: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    contacts: NDArray[np.str_]
+    floor: NDArray[np.float64]
+    quality: dict[str, Any]
+    method: str
+    fps: float
+    timings: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames F."""
+        return int(self.root.shape[0])
+
+
+# --------------------------------------------------------------------------- shared pieces
+
+
+def hachaj_window_length(n_frames: int, window: int = HACHAJ_WINDOW) -> int:
+    """Window length the reference implementation ends up with for ``n_frames`` samples.
+
+    The R code passes ``window / n`` as a fraction and the smoother multiplies it back and
+    truncates, so ``int(100 / n * n)`` is 99 for some n (161, 167, 193, ...).
+    """
+    return int(window / n_frames * n_frames)
+
+
+def hachaj_smooth(x: NDArray[np.float64], window: int = HACHAJ_WINDOW) -> NDArray[np.float64]:
+    """Gaussian smoothing of the reference implementation (R ``smoother::smth``).
+
+    Parameters
+    ----------
+    x : ndarray, shape (N,)
+    window : int
+        Nominal window in samples; the effective length is :func:`hachaj_window_length`.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Output i averages samples i−⌊w/2⌋ … i+(w−⌊w/2⌋)−1 with the kernel
+        exp(−½(2.5(j − ⌊w/2⌋)/(w/2))²); the first ⌊w/2⌋ and last w−⌊w/2⌋ outputs are
+        undefined in R and set to 0, as the authors do.
+    """
+    n = x.shape[0]
+    w = hachaj_window_length(n, window)
+    out = np.zeros(n)
+    h = w // 2
+    if w < 1 or n - (w - h) <= h:
+        return out
+    j = np.arange(w)
+    kernel = np.exp(-0.5 * (2.5 * (j - h) / (w / 2.0)) ** 2)
+    kernel /= kernel.sum()
+    valid = np.convolve(x, kernel[::-1], mode="valid")
+    out[h:n - (w - h)] = valid[:n - (w - h) - h]
+    return out
+
+
+def _planted_pairs(right: NDArray[np.float64], left: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Both-frames rule: the left foot is planted on pair (a, a+1) when the right signal is
+    larger on both frames, and vice versa; crossings and ties do nothing."""
+    left_planted = (right[:-1] > left[:-1]) & (right[1:] > left[1:])
+    right_planted = (right[:-1] < left[:-1]) & (right[1:] < left[1:])
+    return left_planted, right_planted
+
+
+def _chain(left: NDArray[np.float64], right: NDArray[np.float64],
+           left_planted: NDArray[np.bool_], right_planted: NDArray[np.bool_]
+           ) -> NDArray[np.float64]:
+    """Shift (F, 3) the reference loop applies: from every later frame it subtracts the
+    displacement of the planted foot (positions ``left``/``right``, (F, 3)). The loop's
+    corrections commute, so their sum is a cumulative sum: O(N) instead of O(N²)."""
+    step = np.zeros((left.shape[0] - 1, 3))
+    step[left_planted] = np.diff(left, axis=0)[left_planted]
+    step[right_planted] += np.diff(right, axis=0)[right_planted]
+    shift = np.zeros((left.shape[0], 3))
+    np.cumsum(step, axis=0, out=shift[1:])
+    return shift
+
+
+def _contact_labels(left: NDArray[np.bool_], right: NDArray[np.bool_]) -> NDArray[np.str_]:
+    state = left.astype(int) + 2 * right.astype(int)
+    labels: NDArray[np.str_] = np.asarray(CONTACT_LABELS, dtype="<U5")[state]
+    return labels
+
+
+@dataclass(frozen=True)
+class _Feet:
+    """Heel/toe contact points of one foot: a soft blend of heel and toe by which is lower."""
+
+    heel: int
+    toe: int | None
+    drop: float  # heel height above the toe when the foot is flat, m
+
+    def weights(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.toe is None:
+            return np.ones(p.shape[0])
+        gap = p[:, self.toe, 1] - (p[:, self.heel, 1] - self.drop)
+        return 0.5 * (1.0 + np.tanh(gap / 0.02))
+
+    def sole(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Height of the contact point (toe frame: heel heights lowered by ``drop``)."""
+        if self.toe is None:
+            return p[:, self.heel, 1].copy()
+        w = self.weights(p)
+        return w * (p[:, self.heel, 1] - self.drop) + (1 - w) * p[:, self.toe, 1]
+
+    def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.toe is None:
+            return p[:, self.heel].copy()
+        w = self.weights(p)[:, None]
+        return w * p[:, self.heel] + (1 - w) * p[:, self.toe]
+
+    def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
+        earlier frame (so switching heel→toe moves nothing)."""
+        d_heel = p[1:, self.heel] - p[:-1, self.heel]
+        if self.toe is None:
+            return d_heel
+        w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
+        return w * d_heel + (1 - w) * (p[1:, self.toe] - p[:-1, self.toe])
+
+
+def _feet(recording: KinematicsRecording, left_foot: str, right_foot: str,
+          use_toes: bool) -> tuple[_Feet, _Feet]:
+    p = recording.positions
+    out = []
+    indices = [recording.index(left_foot), recording.index(right_foot)]
+    toes: list[int | None] = []
+    for foot in (left_foot, right_foot):
+        name = recording.toes.get(foot) if use_toes else None
+        toes.append(recording.index(name) if name else None)
+    for k, (heel, toe) in enumerate(zip(indices, toes, strict=True)):
+        if toe is None:
+            out.append(_Feet(heel, None, 0.0))
+            continue
+        other_toe = toes[1 - k]
+        other = p[:, other_toe, 1] if other_toe is not None else p[:, indices[1 - k], 1]
+        own = p[:, toe, 1] if other_toe is not None else p[:, heel, 1]
+        lower = own <= other
+        gap = p[:, heel, 1] - p[:, toe, 1]
+        drop = float(np.median(gap[lower] if lower.sum() > 10 else gap))
+        out.append(_Feet(heel, toe, drop))
+    return out[0], out[1]
+
+
+def _swing_floor(level: NDArray[np.float64], floor: NDArray[np.float64]
+                 ) -> NDArray[np.float64]:
+    """Per-frame floor under one foot: its contact level, and in the air the lower of the
+    levels before and after (``floor`` where it has never touched down)."""
+    n = level.shape[0]
+    idx = np.where(np.isnan(level), -1, np.arange(n))
+    before = np.maximum.accumulate(idx)
+    idx_after = np.where(np.isnan(level), n, np.arange(n))
+    after = np.minimum.accumulate(idx_after[::-1])[::-1]
+    prev = np.where(before >= 0, level[np.clip(before, 0, n - 1)], np.nan)
+    nxt = np.where(after < n, level[np.clip(after, 0, n - 1)], np.nan)
+    out = np.fmin(prev, nxt)
+    return np.where(np.isnan(out), floor, out)
+
+
+def translation_quality(positions: NDArray[np.float64], fps: float, root: int,
+                        feet: tuple[_Feet, _Feet], contacts: NDArray[np.str_],
+                        floor: NDArray[np.float64],
+                        levels: NDArray[np.float64] | None = None) -> dict[str, Any]:
+    """Quality figures of corrected positions (see :class:`TranslationResult`).
+
+    ``levels`` (F, 2) is the floor level under each foot while it is in contact (NaN in the
+    air); a foot in the air is measured against the lower of the levels it left and lands
+    on (stepping onto a platform is not a penetration of it). Without ``levels`` both feet
+    are measured against ``floor``.
+    """
+    hips = positions[:, root]
+    n = positions.shape[0]
+    horiz = hips[:, [0, 2]]
+    steps = np.linalg.norm(np.diff(horiz, axis=0), axis=1) if n > 1 else np.zeros(0)
+    dy = np.diff(hips[:, 1])
+    jumps = np.abs(dy[1:-1] - 0.5 * (dy[:-2] + dy[2:])) if n > 3 else np.zeros(0)
+    skate = []
+    for k, foot in enumerate(feet):
+        label = ("left", "right")[k]
+        planted = (contacts == label) | (contacts == "both")
+        pair = planted[:-1] & planted[1:]
+        if pair.any():
+            d = foot.steps(positions)[pair][:, [0, 2]]
+            skate.append(np.linalg.norm(d, axis=1) * fps)
+    skate_all = np.concatenate(skate) if skate else np.zeros(0)
+    soles = np.stack([f.sole(positions) for f in feet], axis=1)
+    under = np.repeat(floor[:, None], 2, axis=1)
+    if levels is not None:
+        for k in range(2):
+            under[:, k] = _swing_floor(levels[:, k], floor)
+    penetration = np.maximum(under - soles, 0.0).max(axis=1)
+    in_contact = contacts != "none"
+    return {
+        "foot_skate_cm_s": float(skate_all.mean() * 100) if skate_all.size else 0.0,
+        "foot_skate_p95_cm_s": float(np.percentile(skate_all, 95) * 100)
+        if skate_all.size else 0.0,
+        "floor_penetration_cm": float(penetration.max() * 100) if n else 0.0,
+        "floor_penetration_p99_cm": float(np.percentile(penetration, 99) * 100) if n else 0.0,
+        "max_vertical_jump_cm": float(jumps.max() * 100) if jumps.size else 0.0,
+        "max_vertical_step_cm": float(np.abs(dy).max() * 100) if dy.size else 0.0,
+        "closure_cm": float(np.linalg.norm(horiz[-1] - horiz[0]) * 100),
+        "path_length_m": float(steps.sum()),
+        "contact_fraction": float(in_contact.mean()) if n else 0.0,
+        "flight_frames": int((~in_contact).sum()),
+    }
+
+
+# --------------------------------------------------------------------------- hachaj2018
+
+
+def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, right_foot: str,
+            progress: Progress, window: int = HACHAJ_WINDOW, eps: float = HACHAJ_EPS_M
+            ) -> tuple[NDArray[np.float64], NDArray[np.str_], float]:
+    p0 = recording.positions
+    a_l, a_r = recording.accelerations[left_foot], recording.accelerations[right_foot]
+    mag_l = np.sqrt(np.einsum("ij,ij->i", a_l, a_l))
+    mag_r = np.sqrt(np.einsum("ij,ij->i", a_r, a_r))
+    z_r, z_l = hachaj_smooth(mag_r, window), hachaj_smooth(mag_l, window)
+    left1, right1 = _planted_pairs(z_r, z_l)
+    foot_l, foot_r = p0[:, li], p0[:, ri]
+    shift1 = _chain(foot_l, foot_r, left1, right1)
+    foot_l, foot_r = foot_l - shift1, foot_r - shift1  # only the feet: every joint moves alike
+    progress(0.4, "pass 1")
+    h_r, h_l = hachaj_smooth(foot_r[:, 1], window), hachaj_smooth(foot_l[:, 1], window)
+    apart = np.abs(h_r - h_l)[:-1] > eps
+    left2, right2 = _planted_pairs(h_r, h_l)
+    left2 &= apart
+    right2 &= apart
+    shift2 = _chain(foot_l, foot_r, left2, right2)
+    foot_l, foot_r = foot_l - shift2, foot_r - shift2
+    progress(0.7, "pass 2")
+    ground = foot_r[0, 1]
+    lower = np.where(h_r >= h_l, foot_l[:, 1], foot_r[:, 1])
+    translation = -(shift1 + shift2)
+    translation[:, 1] -= lower - ground
+    # Per-frame contacts: the foot a pass held still on the pair ending at this frame (pass 2
+    # overrides pass 1 where it acted).
+    left_c = np.zeros(p0.shape[0], dtype=bool)
+    right_c = np.zeros(p0.shape[0], dtype=bool)
+    acted2 = left2 | right2
+    left_c[1:] = np.where(acted2, left2, left1)
+    right_c[1:] = np.where(acted2, right2, right1)
+    left_c[0], right_c[0] = left_c[1], right_c[1]
+    return translation, _contact_labels(left_c, right_c), float(ground)
+
+
+# --------------------------------------------------------------------------- contact model
+
+
+@dataclass(frozen=True)
+class ContactOptions:
+    """Parameters of the contact model (times in seconds, lengths in metres).
+
+    Attributes
+    ----------
+    smoothing_s : float
+        Gaussian σ applied to positions before differentiating and to the acceleration
+        residuals (a time, so the model behaves the same at 30 and 120 fps).
+    sigma_acc : float
+        Scale of the acceleration residuals, m/s².
+    relative_sigma_acc : float
+        Growth of that scale with the size of the (non-gravity) acceleration.
+    swing_weight : float
+        Weight of a swinging foot's residual (its predicted reading) against a planted
+        foot's. The swing prediction is exact on synthetic data but the least reliable part on
+        a real suit (sensor placement, impacts, kinematic errors); see docs/translation.md.
+    swing_cost : float
+        Cost per 10 ms of declaring a foot in the air.
+    flight_cost : float
+        Extra cost per 10 ms of declaring both feet in the air.
+    switch_cost : float
+        Cost of one change of contact state (hysteresis).
+    sigma_relative_speed : float
+        Scale of the relative speed of the two feet's contact points in double support, m/s.
+    adapt_relative_speed : bool
+        Widen that scale to 1.5 × the median relative speed of the feet on frames where both
+        accelerometers are at rest (the kinematics' own drift between planted feet).
+    height_tolerance, sigma_height : float
+        A planted foot more than ``height_tolerance`` above the other foot costs
+        ((excess)/σ)² — the other would be below the floor.
+    floor_tolerance : float
+        A new contact whose floor height is within this of a known floor level is put on that
+        level (flat floors stay flat; steps of 10 cm and more become platforms).
+    floor_ramp_s : float
+        Time over which a new contact eases from the height that keeps the body continuous
+        onto its floor level (no vertical jumps when the supporting foot changes).
+    use_toes : bool
+        Use heel/toe contact points when the recording names toe joints.
+    use_file_contacts : bool
+        Take contacts from the file (MVNX footContacts, ``<Foot>.c``) when present.
+    clip_g : float or None
+        Accelerometer range in g; None detects saturation from the data.
+    """
+
+    smoothing_s: float = 0.03
+    sigma_acc: float = 1.5
+    relative_sigma_acc: float = 0.0
+    swing_weight: float = 0.0
+    residual_cap: float = 9.0
+    swing_cost: float = 1.0
+    flight_cost: float = 3.0
+    switch_cost: float = 6.0
+    sigma_relative_speed: float = 0.15
+    adapt_relative_speed: bool = True
+    height_tolerance: float = 0.03
+    sigma_height: float = 0.02
+    floor_tolerance: float = 0.05
+    floor_ramp_s: float = 0.25
+    use_toes: bool = True
+    use_file_contacts: bool = True
+    clip_g: float | None = None
+
+
+def _saturated(raw: NDArray[np.float64], clip_g: float | None,
+               frame: str) -> NDArray[np.bool_]:
+    """Frames where a component sits at the accelerometer's range (the magnitude is then only
+    a lower bound). Without ``clip_g`` the range is found as a pile-up of samples just under
+    the largest values, which a saturating sensor produces and a free signal does not."""
+    if frame != "sensor":
+        return np.zeros(raw.shape[0], dtype=bool)
+    peak = np.abs(raw).max(axis=1)
+    if clip_g is not None:
+        return np.asarray(peak >= 0.98 * clip_g * GRAVITY)
+    ceiling = float(np.percentile(peak, 99.5))
+    if ceiling <= 0:
+        return np.zeros(raw.shape[0], dtype=bool)
+    near = float(np.mean((peak >= 0.96 * ceiling) & (peak <= 1.05 * ceiling)))
+    below = float(np.mean((peak >= 0.85 * ceiling) & (peak < 0.94 * ceiling)))
+    if near > 0.01 and near > 3 * below:
+        return np.asarray(peak >= 0.96 * ceiling)
+    return np.zeros(raw.shape[0], dtype=bool)
+
+
+def _viterbi(cost: NDArray[np.float64], switch: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Minimum-cost state path; cost (F, S) per frame, switch (S, S) per transition."""
+    n, s = cost.shape
+    back = np.empty((n, s), dtype=np.int64)
+    acc = cost[0].copy()
+    for t in range(1, n):
+        total = acc[:, None] + switch
+        back[t] = np.argmin(total, axis=0)
+        acc = total[back[t], np.arange(s)] + cost[t]
+    path = np.empty(n, dtype=np.int64)
+    path[-1] = int(np.argmin(acc))
+    for t in range(n - 1, 0, -1):
+        path[t - 1] = back[t, path[t]]
+    return path
+
+
+def _second_derivative(x: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+    out = np.empty_like(x)
+    out[1:-1] = (x[2:] - 2 * x[1:-1] + x[:-2]) * fps * fps
+    out[0], out[-1] = out[1], out[-2]
+    return out
+
+
+def _derivative(x: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+    return np.gradient(x, 1.0 / fps, axis=0)
+
+
+def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                    names: tuple[str, str], root: int, opt: ContactOptions
+                    ) -> tuple[NDArray[np.int64], dict[str, Any]]:
+    """States 0 none, 1 left, 2 right, 3 both per frame, by Viterbi decoding."""
+    fps = recording.fps
+    n = recording.n_frames
+    sigma = max(opt.smoothing_s * fps, 0.5)
+    p = gaussian_filter1d(recording.positions, sigma, axis=0, mode="nearest")
+    a_sensor = [_second_derivative(p[:, f.heel], fps) for f in feet]
+    a_point = []
+    v_point = []
+    for f in feet:
+        pt = f.point(p)
+        a_point.append(_second_derivative(pt, fps))
+        v_point.append(_derivative(pt, fps))
+    a_hips = _second_derivative(p[:, root], fps)
+    up = np.array([0.0, GRAVITY, 0.0])
+    hyp = {
+        1: -a_point[0],
+        2: -a_point[1],
+        3: -0.5 * (a_point[0] + a_point[1]),
+        0: -up - a_hips,
+    }
+    meas = []
+    sat = []
+    for name in names:
+        raw = recording.accelerations[name]
+        sat.append(_saturated(raw, opt.clip_g, recording.acceleration_frame))
+        meas.append(raw)
+    cost = np.zeros((n, 4))
+    scale = 100.0 / fps  # costs are per 10 ms, whatever the frame rate
+    for state, root_acc in hyp.items():
+        total = np.zeros(n)
+        for k in range(2):
+            world = a_sensor[k] + root_acc
+            if recording.acceleration_frame == "sensor":
+                predicted = np.linalg.norm(world + up, axis=1)
+                measured = np.linalg.norm(meas[k], axis=1)
+                r = measured - predicted
+                r = np.where(sat[k] & (r < 0), 0.0, r)
+                size = np.maximum(np.abs(measured - GRAVITY), np.abs(predicted - GRAVITY))
+            else:
+                r = np.linalg.norm(meas[k] - world, axis=1)
+                size = np.maximum(np.linalg.norm(meas[k], axis=1), np.linalg.norm(world, axis=1))
+            # impacts and swings are large and brief: their exact size matters less than
+            # their presence, so the residual scale grows with the acceleration
+            spread = opt.sigma_acc + opt.relative_sigma_acc * size
+            weight = 1.0
+            if state not in (0, 1 + k, 3):  # this foot swings in this state
+                weight = opt.swing_weight
+            if weight > 0:
+                total += weight * gaussian_filter1d(
+                    np.minimum((r / spread) ** 2, opt.residual_cap), sigma, mode="nearest")
+        cost[:, state] = total
+    sole = [f.sole(p) for f in feet]
+    excess_l = np.maximum(sole[0] - sole[1] - opt.height_tolerance, 0.0) / opt.sigma_height
+    excess_r = np.maximum(sole[1] - sole[0] - opt.height_tolerance, 0.0) / opt.sigma_height
+    rel_speed = np.linalg.norm(v_point[0] - v_point[1], axis=1)
+    # Suits whose kinematics let two planted feet drift apart (IMU orientation errors) need a
+    # looser double-support test: measure that drift where both accelerometers are at rest.
+    rest = []
+    for k in range(2):
+        mag = np.linalg.norm(meas[k], axis=1)
+        level = float(np.median(mag)) if recording.acceleration_frame == "sensor" else 0.0
+        rest.append(gaussian_filter1d(np.abs(mag - level), sigma, mode="nearest")
+                    < 0.08 * GRAVITY)
+    quiet = rest[0] & rest[1]
+    rel_scale = opt.sigma_relative_speed
+    if opt.adapt_relative_speed and quiet.mean() > 0.05:
+        rel_scale = max(rel_scale, 1.5 * float(np.median(rel_speed[quiet])))
+    rel = rel_speed / rel_scale
+    cost[:, 1] += opt.swing_cost + excess_l ** 2
+    cost[:, 2] += opt.swing_cost + excess_r ** 2
+    cost[:, 3] += np.minimum(rel ** 2, 4 * opt.residual_cap)
+    cost[:, 0] += 2 * opt.swing_cost + opt.flight_cost
+    cost *= scale
+    switch = np.full((4, 4), opt.switch_cost)
+    np.fill_diagonal(switch, 0.0)
+    switch[1, 2] = switch[2, 1] = 3 * opt.switch_cost
+    states = _viterbi(cost, switch)
+    info = {"saturated_fraction": float(np.mean(np.concatenate(sat))),
+            "relative_speed_scale_m_s": rel_scale}
+    return states, info
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True."""
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    starts = np.flatnonzero(d == 1)
+    stops = np.flatnonzero(d == -1)
+    return list(zip(starts.tolist(), stops.tolist(), strict=True))
+
+
+def _support_weights(states: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Weight of the left foot per frame (right = 1 − left on contact frames), ramped across
+    double support from the foot before to the foot after, so nothing jumps."""
+    w = np.where(states == 1, 1.0, 0.0)
+    n = states.shape[0]
+    for start, stop in _runs(states == 3):
+        before = states[start - 1] if start > 0 else -1
+        after = states[stop] if stop < n else -1
+        a = 1.0 if before == 1 else 0.0 if before == 2 else math.nan
+        b = 1.0 if after == 1 else 0.0 if after == 2 else math.nan
+        if math.isnan(a):
+            a = b
+        if math.isnan(b):
+            b = a
+        if math.isnan(a):
+            a = b = 0.5
+        frac = (np.arange(start, stop) - start + 1) / (stop - start + 1)
+        w[start:stop] = a + (b - a) * frac
+    return w
+
+
+def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                         states: NDArray[np.int64], root: int, opt: ContactOptions,
+                         progress: Progress
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                    NDArray[np.float64], int]:
+    p = recording.positions
+    n = recording.n_frames
+    dt = 1.0 / recording.fps
+    w_left = _support_weights(states)
+    in_contact = states != 0
+    steps_l, steps_r = feet[0].steps(p), feet[1].steps(p)
+    pair_contact = in_contact[:-1] & in_contact[1:]
+    wl = 0.5 * (w_left[:-1] + w_left[1:])[:, None]
+    steps = -(wl * steps_l + (1 - wl) * steps_r)
+    steps[~pair_contact] = 0.0
+    hips_steps = p[1:, root] - p[:-1, root]
+    flights = _runs(~pair_contact)
+    translation = np.zeros((n, 3))
+    np.cumsum(steps, axis=0, out=translation[1:])
+    for start, stop in flights:  # pair indices: pairs start..stop-1 are ballistic
+        k = min(start, max(1, round(0.05 / dt)))
+        if k >= 1 and start >= k:
+            world = p[start - k:start + 1, root] + translation[start - k:start + 1]
+            v0 = (world[-1] - world[0]) / (k * dt)
+        else:
+            v0 = np.zeros(3)
+        ballistic = v0[None, :] * dt - hips_steps[start:stop]
+        delta = ballistic - steps[start:stop]
+        steps[start:stop] = ballistic
+        translation[start + 1:] += np.concatenate(
+            [np.cumsum(delta, axis=0), np.repeat(delta.sum(axis=0)[None], n - stop - 1, 0)])
+    progress(0.8, "path")
+    # Vertical: each contact sits on its own floor level. A new contact starts at the level
+    # that keeps the body's height continuous, then eases onto a known level within
+    # floor_tolerance (flat floors stay flat, platforms keep their own level).
+    sole = np.stack([f.sole(p) for f in feet], axis=1)
+    level = np.full((n, 2), math.nan)
+    settled = np.full((n, 2), math.nan)
+    known: list[float] = []
+    segments = sorted([(s, e, k) for k in range(2)
+                       for s, e in _runs((states == 1 + k) | (states == 3))])
+    y = np.full(n, math.nan)
+    last_level: float | None = None
+    ramp = max(1, round(opt.floor_ramp_s * recording.fps))
+    hips_y = p[:, root, 1]
+
+    def body(t: int) -> float:
+        """World hips height on contact frame t from the levels assigned so far."""
+        w = w_left[t] if states[t] == 3 else 1.0 if states[t] == 1 else 0.0
+        parts = [(w, 0), (1.0 - w, 1)]
+        return float(sum(c * (level[t, k] - sole[t, k]) for c, k in parts if c > 0)
+                     + hips_y[t])
+
+    for start, stop, k in segments:
+        prev = start - 1
+        if prev >= 0 and not math.isnan(level[prev, 1 - k]):
+            candidate = float(level[prev, 1 - k] - sole[prev, 1 - k] + sole[prev, k])
+        elif not math.isnan(level[start, 1 - k]):
+            candidate = float(level[start, 1 - k] - sole[start, 1 - k] + sole[start, k])
+        elif last_level is not None and start > 0:
+            # Landing after a flight: where the ballistic take-off carries the body.
+            t0 = int(np.flatnonzero((~np.isnan(level[:start])).any(axis=1))[-1])
+            h0 = body(t0)
+            v0 = (h0 - body(t0 - 1)) / dt if t0 >= 1 and in_contact[t0 - 1] else 0.0
+            span = (start - t0) * dt
+            landing = h0 + v0 * span - 0.5 * GRAVITY * span * span
+            candidate = float(landing - hips_y[start] + sole[start, k])
+            if abs(candidate - last_level) > 2 * opt.floor_tolerance:
+                candidate = last_level  # a take-off speed that far off is not to be trusted
+        else:
+            candidate = float(sole[start, k])  # first contact: keep the input's height
+        near = [lv for lv in known if abs(lv - candidate) < opt.floor_tolerance]
+        target = min(near, key=lambda lv: abs(lv - candidate)) if near else candidate
+        if not near:
+            known.append(target)
+        m = min(ramp, stop - start)
+        profile = np.full(stop - start, target)
+        profile[:m] = candidate + (target - candidate) * np.arange(1, m + 1) / m
+        level[start:stop, k] = profile
+        settled[start:stop, k] = target
+        last_level = target
+    for t_arr, k in ((np.flatnonzero(states == 1), 0), (np.flatnonzero(states == 2), 1)):
+        y[t_arr] = level[t_arr, k] - sole[t_arr, k]
+    both = np.flatnonzero(states == 3)
+    wb = w_left[both]
+    y[both] = (wb * (level[both, 0] - sole[both, 0])
+               + (1 - wb) * (level[both, 1] - sole[both, 1]))
+    floor = np.where(states == 1, level[:, 0], np.where(states == 2, level[:, 1],
+                     w_left * level[:, 0] + (1 - w_left) * level[:, 1]))
+    if np.isnan(y).all():
+        y[:] = 0.0
+        floor[:] = float(sole.min())
+    for start, stop in _runs(np.isnan(y)):
+        t = np.arange(start, stop)
+        if start > 0 and stop < n:
+            h0 = y[start - 1] + hips_y[start - 1]
+            h1 = y[stop] + hips_y[stop]
+            t0, t1 = start - 1, stop
+        elif start > 0:
+            h0 = h1 = y[start - 1] + hips_y[start - 1]
+            t0, t1 = start - 1, stop
+        else:
+            h0 = h1 = y[stop] + hips_y[stop]
+            t0, t1 = -1, stop
+        tau = (t - t0) * dt
+        span = (t1 - t0) * dt
+        if t0 >= 1 and not math.isnan(y[t0 - 1]):
+            v0 = (y[t0] + hips_y[t0] - y[t0 - 1] - hips_y[t0 - 1]) / dt
+        else:
+            v0 = (h1 - h0) / span + 0.5 * GRAVITY * span
+        # Ballistic from the take-off height and speed; a linear term absorbs the miss at
+        # landing so both ends stay continuous.
+        miss = h1 - (h0 + v0 * span - 0.5 * GRAVITY * span * span)
+        arc = h0 + v0 * tau - 0.5 * GRAVITY * tau * tau + miss * tau / span
+        if start == 0 or stop == n:
+            arc = np.full(t.shape, h0)
+        y[start:stop] = arc - hips_y[start:stop]
+        f0 = floor[start - 1] if start > 0 else floor[stop]
+        f1 = floor[stop] if stop < n else f0
+        floor[start:stop] = f0 + (f1 - f0) * (t - start + 1) / (stop - start + 1)
+    # Kinematics that disagree with the floor (a foot of the model reaching below the level
+    # its contact settled on) lift the body rather than sink a foot; the lift is spread over
+    # floor_ramp_s so it makes no jump.
+    under = np.stack([_swing_floor(settled[:, k], floor) for k in range(2)], axis=1)
+    need = np.maximum((under - sole - y[:, None]).max(axis=1), 0.0)
+    if need.any():
+        width = max(1, ramp)
+        lift = gaussian_filter1d(maximum_filter1d(need, 2 * width + 1, mode="nearest"),
+                                 width / 3.0, mode="nearest")
+        y = y + np.maximum(lift, need)
+    translation[:, 1] = y
+    return translation, floor, settled, len(known)
+
+
+def _file_states(recording: KinematicsRecording, names: tuple[str, str]) -> NDArray[np.int64]:
+    left = recording.contacts[names[0]]
+    right = recording.contacts[names[1]]
+    return left.astype(np.int64) + 2 * right.astype(np.int64)
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def estimate_translation(
+    recording: KinematicsRecording,
+    *,
+    method: str = "contact",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
+    progress: Progress | None = None,
+    **method_options: Any,
+) -> TranslationResult:
+    """Estimate the root path of an inertial-suit recording.
+
+    Parameters
+    ----------
+    recording : KinematicsRecording
+        Global joint positions (any root translation in them is replaced) and foot
+        accelerometers.
+    method : {"contact", "hachaj2018"}
+        ``hachaj2018``: the authors' implementation exactly (window of 100 samples, three
+        passes, ground at the right foot's first height); assumes at least one foot on a flat
+        floor at all times, no sliding, and that the moving foot has the larger smoothed
+        acceleration magnitude. ``contact``: the stance model of :class:`ContactOptions`.
+    left_foot, right_foot : str, optional
+        Foot joints; default the recording's.
+    progress : callable, optional
+        ``progress(fraction, stage)``.
+    **method_options
+        ``hachaj2018``: ``window`` (samples, 100) and ``eps`` (m, 0.05). ``contact``: any
+        field of :class:`ContactOptions`.
+
+    Returns
+    -------
+    TranslationResult
+
+    Raises
+    ------
+    InputError
+        Unknown method or option, unknown foot joint.
+    EstimationError
+        Fewer than 3 frames.
+
+    Notes
+    -----
+    T. Hachaj and M. R. Ogiela, "Heuristic method for calculating the translation of human
+    body recordings using data from an inertial motion capture costume", Journal of
+    Advances in Information Technology 9(4), 2018; reference implementation
+    github.com/browarsoftware/ShadowMoCap. The contact model is this project's: Viterbi
+    decoding (Rabiner 1989) of contact states scored by the foot accelerometers against the
+    accelerations each state predicts from the kinematics.
+    """
+    report = progress or no_progress
+    started = _time.perf_counter()
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; use {', '.join(METHODS)}", field="method")
+    lf = left_foot or recording.left_foot
+    rf = right_foot or recording.right_foot
+    li, ri = recording.index(lf), recording.index(rf)
+    for foot in (lf, rf):
+        if foot not in recording.accelerations:
+            raise InputError(f"no accelerations for foot {foot!r}; sensors: "
+                             f"{', '.join(recording.accelerations)}", sensor=foot)
+    root = recording.index(recording.root)
+    n = recording.n_frames
+    if n < 3:
+        raise EstimationError("need at least 3 frames to estimate a translation",
+                              field="frames")
+    report(0.0, method)
+    timings: dict[str, float] = {}
+    extra: dict[str, Any] = {}
+    if method == "hachaj2018":
+        unknown = set(method_options) - {"window", "eps"}
+        if unknown:
+            raise InputError(f"unknown option(s) for hachaj2018: {', '.join(sorted(unknown))}",
+                             field="options")
+        feet = _feet(recording, lf, rf, use_toes=True)
+        translation, contacts, ground = _hachaj(
+            recording, li, ri, lf, rf, report,
+            window=int(method_options.get("window", HACHAJ_WINDOW)),
+            eps=float(method_options.get("eps", HACHAJ_EPS_M)))
+        corrected = recording.positions + translation[:, None, :]
+        soles = np.stack([f.sole(corrected) for f in feet], axis=1)
+        planted = np.where(contacts == "right", soles[:, 1], soles[:, 0])
+        floor = np.full(n, float(np.median(planted)))
+        levels: NDArray[np.float64] | None = None
+        extra["ground_m"] = ground
+        extra["window_samples"] = hachaj_window_length(
+            n, int(method_options.get("window", HACHAJ_WINDOW)))
+    else:
+        fields = set(ContactOptions.__dataclass_fields__)
+        unknown = set(method_options) - fields
+        if unknown:
+            raise InputError(f"unknown option(s) for contact: {', '.join(sorted(unknown))}; "
+                             f"options: {', '.join(sorted(fields))}", field="options")
+        opt = ContactOptions(**method_options)
+        feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
+        names = (lf, rf)
+        if opt.use_file_contacts and all(k in recording.contacts for k in names):
+            states = _file_states(recording, names)
+            extra["contacts_source"] = "file"
+        else:
+            states, info = _contact_states(recording, feet, names, root, opt)
+            extra.update(info)
+            extra["contacts_source"] = "accelerometers"
+        report(0.6, "contacts")
+        timings["contacts_s"] = _time.perf_counter() - started
+        translation, floor, levels, n_levels = _contact_translation(
+            recording, feet, states, root, opt, report)
+        contacts = np.asarray(CONTACT_LABELS, dtype="<U5")[states]
+        corrected = recording.positions + translation[:, None, :]
+        extra["floor_levels"] = n_levels
+        extra["toes"] = {name: recording.joints[f.toe] for name, f in zip(names, feet,
+                                                                          strict=True)
+                         if f.toe is not None}
+    quality = translation_quality(corrected, recording.fps, root, feet, contacts, floor,
+                                  levels)
+    quality.update(extra)
+    timings["estimate_s"] = _time.perf_counter() - started
+    report(1.0, "done")
+    return TranslationResult(root=corrected[:, root].copy(), translation=translation,
+                             positions=corrected, contacts=contacts, floor=floor,
+                             quality=quality, method=method, fps=recording.fps,
+                             timings=timings)
