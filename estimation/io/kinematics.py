@@ -725,6 +725,7 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
         return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
 
     out: dict[str, Any] = {
+        "kind": "translation",
         "method": result.method,
         "fps": result.fps,
         "frames": int(result.root.shape[0]),

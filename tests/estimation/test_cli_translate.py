@@ -37,6 +37,7 @@ def test_translate_writes_csv_bvh_and_json(walk_csv: Path, tmp_path: Path,
     hips = corrected.positions[:, 0]
     assert np.linalg.norm(hips[-1, [0, 2]] - hips[0, [0, 2]]) > 1.5  # the walker moved 2.1 m
     data = json.loads((tmp_path / "o.json").read_text())
+    assert data["kind"] == "translation"
     assert data["method"] == "contact"
     assert len(data["contacts"]) == corrected.n_frames
     assert (tmp_path / "o.bvh").read_text().startswith("HIERARCHY")
