@@ -1,0 +1,221 @@
+"""Artifact storage for uploaded recordings and job results: in memory, local disk or S3."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+from urllib.parse import urlsplit
+
+if TYPE_CHECKING:
+    from .settings import Settings
+
+CHUNK = 1024 * 1024
+
+
+def tenant_prefix(tenant: str) -> str:
+    """The tenant as the first segment of its artifact keys."""
+    return re.sub(r"[^A-Za-z0-9_-]", "_", tenant) or "_"
+
+
+class ArtifactStore(Protocol):
+    """Named blobs; keys look like ``tenant/recordings/<id>``."""
+
+    def put_file(self, key: str, path: Path) -> None:
+        """Store the file at ``path`` under ``key`` (the file may be moved away)."""
+
+    def iter_bytes(self, key: str) -> Iterator[bytes]:
+        """The stored bytes, in chunks; FileNotFoundError if absent."""
+
+    def as_file(self, key: str) -> contextlib.AbstractContextManager[Path]:
+        """A local path holding the stored bytes while the context is open."""
+
+    def delete(self, key: str) -> None:
+        """Remove ``key`` if present."""
+
+    def exists(self, key: str) -> bool:
+        """Whether ``key`` is stored."""
+
+    def ping(self) -> None:
+        """Raise if the storage is unreachable."""
+
+
+class MemoryArtifactStore:
+    """Blobs in a dict, for tests."""
+
+    def __init__(self) -> None:
+        self.blobs: dict[str, bytes] = {}
+
+    def put_file(self, key: str, path: Path) -> None:
+        """Read the file into memory."""
+        self.blobs[key] = Path(path).read_bytes()
+
+    def iter_bytes(self, key: str) -> Iterator[bytes]:
+        """Yield the blob."""
+        if key not in self.blobs:
+            raise FileNotFoundError(key)
+        data = self.blobs[key]
+        for start in range(0, len(data), CHUNK):
+            yield data[start:start + CHUNK]
+
+    @contextlib.contextmanager
+    def as_file(self, key: str) -> Iterator[Path]:
+        """Write the blob to a temporary file."""
+        if key not in self.blobs:
+            raise FileNotFoundError(key)
+        with tempfile.TemporaryDirectory(prefix="bonefit-") as tmp:
+            path = Path(tmp) / key.rsplit("/", 1)[-1]
+            path.write_bytes(self.blobs[key])
+            yield path
+
+    def delete(self, key: str) -> None:
+        """Forget the blob."""
+        self.blobs.pop(key, None)
+
+    def exists(self, key: str) -> bool:
+        """Whether the blob is there."""
+        return key in self.blobs
+
+    def ping(self) -> None:
+        """Always reachable."""
+
+
+class LocalArtifactStore:
+    """Blobs as files under a directory."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+
+    def _path(self, key: str) -> Path:
+        path = (self.root / key).resolve()
+        if not path.is_relative_to(self.root.resolve()):
+            raise ValueError(f"bad artifact key {key!r}")
+        return path
+
+    def put_file(self, key: str, path: Path) -> None:
+        """Move the file into place (copy across file systems); atomic for readers."""
+        target = self._path(key)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staging = target.with_name(f".{target.name}.{os.getpid()}.part")
+        shutil.move(path, staging)
+        os.replace(staging, target)
+
+    def iter_bytes(self, key: str) -> Iterator[bytes]:
+        """Read the file in chunks."""
+        with self._path(key).open("rb") as fh:
+            while chunk := fh.read(CHUNK):
+                yield chunk
+
+    @contextlib.contextmanager
+    def as_file(self, key: str) -> Iterator[Path]:
+        """The file itself."""
+        path = self._path(key)
+        if not path.exists():
+            raise FileNotFoundError(key)
+        yield path
+
+    def delete(self, key: str) -> None:
+        """Remove the file."""
+        self._path(key).unlink(missing_ok=True)
+
+    def exists(self, key: str) -> bool:
+        """Whether the file exists."""
+        return self._path(key).exists()
+
+    def ping(self) -> None:
+        """Check the directory is writable."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        if not os.access(self.root, os.W_OK):
+            raise PermissionError(f"{self.root} is not writable")
+
+
+class S3ArtifactStore:
+    """Blobs in an S3-compatible bucket under a prefix."""
+
+    def __init__(self, bucket: str, prefix: str, client: Any) -> None:
+        self.bucket = bucket
+        self.prefix = prefix.strip("/")
+        self.client = client
+
+    def _key(self, key: str) -> str:
+        return f"{self.prefix}/{key}" if self.prefix else key
+
+    def put_file(self, key: str, path: Path) -> None:
+        """Upload (multipart for large files)."""
+        self.client.upload_file(str(path), self.bucket, self._key(key))
+
+    def iter_bytes(self, key: str) -> Iterator[bytes]:
+        """Stream the object."""
+        try:
+            body = self.client.get_object(Bucket=self.bucket, Key=self._key(key))["Body"]
+        except self.client.exceptions.NoSuchKey:
+            raise FileNotFoundError(key) from None
+        try:
+            while chunk := body.read(CHUNK):
+                yield chunk
+        finally:
+            body.close()
+
+    @contextlib.contextmanager
+    def as_file(self, key: str) -> Iterator[Path]:
+        """Download to a temporary file."""
+        with tempfile.TemporaryDirectory(prefix="bonefit-") as tmp:
+            path = Path(tmp) / key.rsplit("/", 1)[-1]
+            try:
+                self.client.download_file(self.bucket, self._key(key), str(path))
+            except Exception as exc:
+                if _is_missing(exc):
+                    raise FileNotFoundError(key) from exc
+                raise
+            yield path
+
+    def delete(self, key: str) -> None:
+        """Delete the object."""
+        self.client.delete_object(Bucket=self.bucket, Key=self._key(key))
+
+    def exists(self, key: str) -> bool:
+        """Whether the object exists."""
+        try:
+            self.client.head_object(Bucket=self.bucket, Key=self._key(key))
+        except Exception as exc:
+            if _is_missing(exc):
+                return False
+            raise
+        return True
+
+    def ping(self) -> None:
+        """Head the bucket."""
+        self.client.head_bucket(Bucket=self.bucket)
+
+
+def _is_missing(exc: Exception) -> bool:
+    response = getattr(exc, "response", None) or {}
+    return str(response.get("Error", {}).get("Code")) in ("404", "NoSuchKey", "NotFound")
+
+
+def open_artifacts(settings: Settings) -> ArtifactStore:
+    """The artifact store configured by ``BONEFIT_STORAGE_URL``."""
+    url = settings.resolved_storage_url
+    parts = urlsplit(url)
+    if parts.scheme == "memory":
+        return MemoryArtifactStore()
+    if parts.scheme == "file":
+        return LocalArtifactStore(Path(parts.path))
+    if parts.scheme == "s3":
+        import boto3  # only distributed deployments pay for importing boto3
+        from botocore.config import Config
+
+        secret = settings.s3_secret_access_key
+        client = boto3.client(
+            "s3", endpoint_url=settings.s3_endpoint_url, region_name=settings.s3_region,
+            aws_access_key_id=settings.s3_access_key_id,
+            aws_secret_access_key=secret.get_secret_value() if secret else None,
+            config=Config(retries={"max_attempts": 3, "mode": "standard"},
+                          s3={"addressing_style": "path"}))
+        return S3ArtifactStore(parts.netloc, parts.path, client)
+    raise ValueError(f"unsupported storage URL {url!r} (use file://, s3:// or memory://)")

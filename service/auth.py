@@ -1,0 +1,50 @@
+"""API keys → tenants; with no keys configured, loopback clients only."""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+
+from fastapi import Request
+
+from .problems import Problem
+from .settings import Settings
+
+LOCAL_TENANT = "local"
+"""The tenant of every request when no API keys are configured."""
+
+
+def is_loopback(host: str | None) -> bool:
+    """Whether ``host`` is a loopback address."""
+    if not host:
+        return False
+    try:
+        return ipaddress.ip_address(host.split("%")[0]).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def tenant_for(settings: Settings, authorization: str | None, client_host: str | None) -> str:
+    """The tenant a request acts for, or the 401/403 problem."""
+    if not settings.api_keys:
+        if not is_loopback(client_host):
+            raise Problem(403, "Forbidden", "no API keys are configured, so this server only "
+                          "answers loopback clients", slug="loopback-only")
+        return LOCAL_TENANT
+    scheme, _, key = (authorization or "").partition(" ")
+    if scheme.lower() != "bearer" or not key.strip():
+        raise Problem(401, "Unauthorized", "send an API key as 'Authorization: Bearer <key>'",
+                      slug="unauthorized", headers={"WWW-Authenticate": "Bearer"})
+    key = key.strip()
+    for known, tenant in settings.api_keys.items():
+        if hmac.compare_digest(known.encode(), key.encode()):
+            return tenant
+    raise Problem(401, "Unauthorized", "unknown API key", slug="unauthorized",
+                  headers={"WWW-Authenticate": 'Bearer error="invalid_token"'})
+
+
+def tenant(request: Request) -> str:
+    """FastAPI dependency: the tenant of the request."""
+    settings: Settings = request.app.state.runtime.settings
+    client = request.client.host if request.client else None
+    return tenant_for(settings, request.headers.get("authorization"), client)

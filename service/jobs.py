@@ -1,0 +1,526 @@
+"""The job store: recordings and jobs, behind a small Protocol (SQLAlchemy 2 or in memory)."""
+
+from __future__ import annotations
+
+import copy
+import os
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any, Final, Protocol
+
+import sqlalchemy as sa
+from sqlalchemy.engine import Engine
+
+STATUSES: Final = ("queued", "running", "succeeded", "failed", "cancelled")
+TERMINAL: Final = frozenset({"succeeded", "failed", "cancelled"})
+_CROCKFORD = "0123456789abcdefghjkmnpqrstvwxyz"
+
+
+_last_id = [0]
+_id_lock = threading.Lock()
+
+
+def new_id() -> str:
+    """A 26-character, time-ordered, random identifier (monotonic ULID, lower case)."""
+    with _id_lock:
+        value = (time.time_ns() // 1_000_000) << 80 | int.from_bytes(os.urandom(10), "big")
+        if value >> 80 == _last_id[0] >> 80:  # same millisecond: keep the order of creation
+            value = _last_id[0] + 1 + int.from_bytes(os.urandom(2), "big")
+        _last_id[0] = value
+    return "".join(_CROCKFORD[(value >> (5 * i)) & 31] for i in reversed(range(26)))
+
+
+@dataclass
+class Recording:
+    """An uploaded file: its metadata and where its bytes are stored."""
+
+    id: str
+    tenant: str
+    key: str
+    filename: str | None
+    content_type: str | None
+    format: str
+    size: int
+    sha256: str
+    created_at: float
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Job:
+    """One estimation run and everything the API reports about it."""
+
+    id: str
+    tenant: str
+    kind: str
+    recording_id: str
+    params: dict[str, Any]
+    inputs: dict[str, str]
+    created_at: float
+    updated_at: float
+    status: str = "queued"
+    started_at: float | None = None
+    finished_at: float | None = None
+    attempts: int = 0
+    fraction: float = 0.0
+    stage: str = "queued"
+    message: str | None = None
+    error: dict[str, Any] | None = None
+    results: dict[str, str] = field(default_factory=dict)
+    worker: str | None = None
+    lease_until: float | None = None
+    cancel_requested: bool = False
+    idempotency_key: str | None = None
+    request_hash: str | None = None
+    version: int = 1
+
+
+@dataclass
+class Histogram:
+    """Cumulative counts per upper bound, number and sum of observations."""
+
+    counts: list[int]
+    count: int
+    total: float
+
+
+Expect = Mapping[str, Any]
+"""Compare-and-set conditions: column → value, or a tuple of accepted values."""
+
+
+class JobStore(Protocol):
+    """Persistent state shared by API replicas and workers."""
+
+    def init(self) -> None:
+        """Create tables if missing."""
+
+    def ping(self) -> None:
+        """Raise if the store is unreachable."""
+
+    def add_recording(self, recording: Recording) -> None:
+        """Insert a recording."""
+
+    def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """The tenant's recording, or None."""
+
+    def list_recordings(self, tenant: str, *, before: str | None, limit: int) -> list[Recording]:
+        """The tenant's recordings, newest first, ids below ``before``."""
+
+    def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """Delete and return the tenant's recording, or None."""
+
+    def add_job(self, job: Job) -> Job:
+        """Insert a job; with an idempotency key already used, return that job instead."""
+
+    def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
+        """The job (of ``tenant`` when given), or None."""
+
+    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
+                  before: str | None, limit: int) -> list[Job]:
+        """The tenant's jobs, newest first, filtered."""
+
+    def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
+        """Apply ``changes`` if every ``expect`` condition holds; the updated job or None."""
+
+    def expired_leases(self, now: float) -> list[Job]:
+        """Running jobs whose lease ended before ``now``."""
+
+    def stale_queued(self, before: float) -> list[Job]:
+        """Queued jobs not updated since ``before`` (their queue message may be lost)."""
+
+    def counts(self) -> dict[tuple[str, str], int]:
+        """Number of jobs per (kind, status)."""
+
+    def durations(self, buckets: tuple[float, ...]) -> dict[str, Histogram]:
+        """Per kind, the run time (start to finish) of succeeded jobs as a histogram."""
+
+    def recording_totals(self) -> tuple[int, int]:
+        """Number of stored recordings and their total bytes."""
+
+    def purge(self, before: float) -> tuple[list[Recording], list[Job]]:
+        """Delete recordings created and finished jobs ended before ``before``; return them."""
+
+
+def _matches(obj: Any, expect: Expect) -> bool:
+    for name, wanted in expect.items():
+        value = getattr(obj, name)
+        if isinstance(wanted, tuple):
+            if value not in wanted:
+                return False
+        elif value != wanted:
+            return False
+    return True
+
+
+class MemoryJobStore:
+    """A job store in a dict, for tests and single-process use."""
+
+    def __init__(self) -> None:
+        self._recordings: dict[str, Recording] = {}
+        self._jobs: dict[str, Job] = {}
+        self._lock = threading.Lock()
+
+    def init(self) -> None:
+        """Nothing to create."""
+
+    def ping(self) -> None:
+        """Always reachable."""
+
+    def add_recording(self, recording: Recording) -> None:
+        """Insert a recording."""
+        with self._lock:
+            self._recordings[recording.id] = copy.deepcopy(recording)
+
+    def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """The tenant's recording, or None."""
+        rec = self._recordings.get(recording_id)
+        return copy.deepcopy(rec) if rec and rec.tenant == tenant else None
+
+    def list_recordings(self, tenant: str, *, before: str | None, limit: int) -> list[Recording]:
+        """The tenant's recordings, newest first."""
+        recs = [r for r in self._recordings.values()
+                if r.tenant == tenant and (before is None or r.id < before)]
+        return copy.deepcopy(sorted(recs, key=lambda r: r.id, reverse=True)[:limit])
+
+    def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """Delete and return the tenant's recording."""
+        with self._lock:
+            rec = self.get_recording(tenant, recording_id)
+            if rec:
+                del self._recordings[recording_id]
+            return rec
+
+    def add_job(self, job: Job) -> Job:
+        """Insert a job unless its idempotency key is taken."""
+        with self._lock:
+            if job.idempotency_key is not None:
+                for other in self._jobs.values():
+                    if (other.tenant, other.idempotency_key) == (job.tenant, job.idempotency_key):
+                        return copy.deepcopy(other)
+            self._jobs[job.id] = copy.deepcopy(job)
+            return copy.deepcopy(job)
+
+    def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
+        """The job, or None."""
+        job = self._jobs.get(job_id)
+        if job is None or (tenant is not None and job.tenant != tenant):
+            return None
+        return copy.deepcopy(job)
+
+    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
+                  before: str | None, limit: int) -> list[Job]:
+        """The tenant's jobs, newest first."""
+        jobs = [j for j in self._jobs.values() if j.tenant == tenant
+                and (status is None or j.status == status) and (kind is None or j.kind == kind)
+                and (before is None or j.id < before)]
+        return copy.deepcopy(sorted(jobs, key=lambda j: j.id, reverse=True)[:limit])
+
+    def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
+        """Compare and set."""
+        with self._lock:
+            job = self._jobs.get(job_id)
+            if job is None or not _matches(job, expect):
+                return None
+            job = replace(job, **changes, version=job.version + 1, updated_at=time.time())
+            self._jobs[job_id] = job
+            return copy.deepcopy(job)
+
+    def expired_leases(self, now: float) -> list[Job]:
+        """Running jobs whose lease ended."""
+        return [copy.deepcopy(j) for j in self._jobs.values()
+                if j.status == "running" and j.lease_until is not None and j.lease_until < now]
+
+    def stale_queued(self, before: float) -> list[Job]:
+        """Queued jobs not updated since ``before``."""
+        return [copy.deepcopy(j) for j in self._jobs.values()
+                if j.status == "queued" and j.updated_at < before]
+
+    def counts(self) -> dict[tuple[str, str], int]:
+        """Jobs per (kind, status)."""
+        out: dict[tuple[str, str], int] = {}
+        for j in self._jobs.values():
+            out[j.kind, j.status] = out.get((j.kind, j.status), 0) + 1
+        return out
+
+    def durations(self, buckets: tuple[float, ...]) -> dict[str, Histogram]:
+        """Run time of succeeded jobs."""
+        out: dict[str, Histogram] = {}
+        for j in self._jobs.values():
+            if j.status == "succeeded" and j.finished_at and j.started_at:
+                seconds = j.finished_at - j.started_at
+                h = out.setdefault(j.kind, Histogram([0] * len(buckets), 0, 0.0))
+                h.counts[:] = [c + (seconds <= b) for c, b in zip(h.counts, buckets, strict=True)]
+                h.count += 1
+                h.total += seconds
+        return out
+
+    def recording_totals(self) -> tuple[int, int]:
+        """Count and bytes of recordings."""
+        return len(self._recordings), sum(r.size for r in self._recordings.values())
+
+    def purge(self, before: float) -> tuple[list[Recording], list[Job]]:
+        """Delete what is older than ``before``."""
+        with self._lock:
+            recs = [r for r in self._recordings.values() if r.created_at < before]
+            jobs = [j for j in self._jobs.values()
+                    if j.finished_at is not None and j.finished_at < before]
+            for r in recs:
+                del self._recordings[r.id]
+            for j in jobs:
+                del self._jobs[j.id]
+            return recs, jobs
+
+
+_metadata = sa.MetaData()
+
+recordings_table = sa.Table(
+    "bonefit_recordings", _metadata,
+    sa.Column("id", sa.String(32), primary_key=True),
+    sa.Column("tenant", sa.String(200), nullable=False, index=True),
+    sa.Column("key", sa.String(500), nullable=False),
+    sa.Column("filename", sa.String(500)),
+    sa.Column("content_type", sa.String(200)),
+    sa.Column("format", sa.String(40), nullable=False),
+    sa.Column("size", sa.BigInteger, nullable=False),
+    sa.Column("sha256", sa.String(64), nullable=False),
+    sa.Column("created_at", sa.Float, nullable=False, index=True),
+    sa.Column("summary", sa.JSON, nullable=False),
+)
+
+jobs_table = sa.Table(
+    "bonefit_jobs", _metadata,
+    sa.Column("id", sa.String(32), primary_key=True),
+    sa.Column("tenant", sa.String(200), nullable=False, index=True),
+    sa.Column("kind", sa.String(40), nullable=False),
+    sa.Column("recording_id", sa.String(32), nullable=False),
+    sa.Column("params", sa.JSON, nullable=False),
+    sa.Column("inputs", sa.JSON, nullable=False),
+    sa.Column("created_at", sa.Float, nullable=False),
+    sa.Column("updated_at", sa.Float, nullable=False),
+    sa.Column("status", sa.String(16), nullable=False, index=True),
+    sa.Column("started_at", sa.Float),
+    sa.Column("finished_at", sa.Float, index=True),
+    sa.Column("attempts", sa.Integer, nullable=False),
+    sa.Column("fraction", sa.Float, nullable=False),
+    sa.Column("stage", sa.String(100), nullable=False),
+    sa.Column("message", sa.Text),
+    sa.Column("error", sa.JSON),
+    sa.Column("results", sa.JSON, nullable=False),
+    sa.Column("worker", sa.String(200)),
+    sa.Column("lease_until", sa.Float, index=True),
+    sa.Column("cancel_requested", sa.Boolean, nullable=False),
+    sa.Column("idempotency_key", sa.String(300)),
+    sa.Column("request_hash", sa.String(64)),
+    sa.Column("version", sa.Integer, nullable=False),
+    sa.UniqueConstraint("tenant", "idempotency_key", name="bonefit_jobs_idempotency"),
+)
+
+_RECORDING_FIELDS = [f.name for f in fields(Recording)]
+_JOB_FIELDS = [f.name for f in fields(Job)]
+
+
+def _recording(row: sa.Row[Any]) -> Recording:
+    return Recording(**{name: getattr(row, name) for name in _RECORDING_FIELDS})
+
+
+def _job(row: sa.Row[Any]) -> Job:
+    return Job(**{name: getattr(row, name) for name in _JOB_FIELDS})
+
+
+def _conditions(table: sa.Table, expect: Expect) -> list[sa.ColumnElement[bool]]:
+    return [table.c[name].in_(value) if isinstance(value, tuple) else table.c[name] == value
+            for name, value in expect.items()]
+
+
+def create_engine(url: str) -> Engine:
+    """An engine for ``url``; SQLite gets WAL mode and a long busy timeout for many processes."""
+    if url.startswith("postgresql://"):
+        url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
+    if not url.startswith("sqlite"):
+        return sa.create_engine(url, pool_pre_ping=True)
+    if url in ("sqlite://", "sqlite:///:memory:"):
+        return sa.create_engine(url, poolclass=sa.pool.StaticPool,
+                                connect_args={"check_same_thread": False})
+    engine = sa.create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+
+    @sa.event.listens_for(engine, "connect")
+    def _pragmas(dbapi_connection: Any, _record: Any) -> None:
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.execute("PRAGMA synchronous=NORMAL")
+        cursor.close()
+
+    return engine
+
+
+class SqlJobStore:
+    """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core."""
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+
+    @classmethod
+    def from_url(cls, url: str) -> SqlJobStore:
+        """A store on the database at ``url``."""
+        return cls(create_engine(url))
+
+    def init(self) -> None:
+        """Create the tables if missing (concurrent creators tolerated)."""
+        try:
+            _metadata.create_all(self.engine)
+        except (sa.exc.IntegrityError, sa.exc.ProgrammingError, sa.exc.OperationalError):
+            _metadata.create_all(self.engine)  # another process created them at the same time
+
+    def ping(self) -> None:
+        """Run a trivial query."""
+        with self.engine.connect() as conn:
+            conn.execute(sa.text("SELECT 1"))
+
+    def add_recording(self, recording: Recording) -> None:
+        """Insert a recording."""
+        with self.engine.begin() as conn:
+            conn.execute(recordings_table.insert().values(**asdict(recording)))
+
+    def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """The tenant's recording, or None."""
+        t = recordings_table
+        with self.engine.connect() as conn:
+            row = conn.execute(sa.select(t).where(t.c.id == recording_id,
+                                                  t.c.tenant == tenant)).first()
+        return _recording(row) if row else None
+
+    def list_recordings(self, tenant: str, *, before: str | None, limit: int) -> list[Recording]:
+        """The tenant's recordings, newest first."""
+        t = recordings_table
+        query = sa.select(t).where(t.c.tenant == tenant).order_by(t.c.id.desc()).limit(limit)
+        if before is not None:
+            query = query.where(t.c.id < before)
+        with self.engine.connect() as conn:
+            return [_recording(row) for row in conn.execute(query)]
+
+    def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """Delete and return the tenant's recording."""
+        t = recordings_table
+        with self.engine.begin() as conn:
+            row = conn.execute(sa.select(t).where(t.c.id == recording_id,
+                                                  t.c.tenant == tenant)).first()
+            if row is None:
+                return None
+            conn.execute(t.delete().where(t.c.id == recording_id))
+        return _recording(row)
+
+    def add_job(self, job: Job) -> Job:
+        """Insert a job, or return the one already holding its idempotency key."""
+        t = jobs_table
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(t.insert().values(**asdict(job)))
+            return job
+        except sa.exc.IntegrityError:
+            with self.engine.connect() as conn:
+                row = conn.execute(sa.select(t).where(
+                    t.c.tenant == job.tenant, t.c.idempotency_key == job.idempotency_key)).first()
+            if row is None:
+                raise
+            return _job(row)
+
+    def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
+        """The job, or None."""
+        t = jobs_table
+        query = sa.select(t).where(t.c.id == job_id)
+        if tenant is not None:
+            query = query.where(t.c.tenant == tenant)
+        with self.engine.connect() as conn:
+            row = conn.execute(query).first()
+        return _job(row) if row else None
+
+    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
+                  before: str | None, limit: int) -> list[Job]:
+        """The tenant's jobs, newest first."""
+        t = jobs_table
+        query = sa.select(t).where(t.c.tenant == tenant).order_by(t.c.id.desc()).limit(limit)
+        if status is not None:
+            query = query.where(t.c.status == status)
+        if kind is not None:
+            query = query.where(t.c.kind == kind)
+        if before is not None:
+            query = query.where(t.c.id < before)
+        with self.engine.connect() as conn:
+            return [_job(row) for row in conn.execute(query)]
+
+    def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
+        """Compare and set in one transaction."""
+        t = jobs_table
+        values = {**changes, "version": t.c.version + 1, "updated_at": time.time()}
+        with self.engine.begin() as conn:
+            done = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
+                                .values(**values))
+            if done.rowcount != 1:
+                return None
+            row = conn.execute(sa.select(t).where(t.c.id == job_id)).first()
+        return _job(row) if row else None
+
+    def expired_leases(self, now: float) -> list[Job]:
+        """Running jobs whose lease ended."""
+        t = jobs_table
+        with self.engine.connect() as conn:
+            rows = conn.execute(sa.select(t).where(t.c.status == "running",
+                                                   t.c.lease_until < now))
+            return [_job(row) for row in rows]
+
+    def stale_queued(self, before: float) -> list[Job]:
+        """Queued jobs not updated since ``before``."""
+        t = jobs_table
+        with self.engine.connect() as conn:
+            rows = conn.execute(sa.select(t).where(t.c.status == "queued",
+                                                   t.c.updated_at < before))
+            return [_job(row) for row in rows]
+
+    def counts(self) -> dict[tuple[str, str], int]:
+        """Jobs per (kind, status)."""
+        t = jobs_table
+        with self.engine.connect() as conn:
+            rows = conn.execute(sa.select(t.c.kind, t.c.status, sa.func.count())
+                                .group_by(t.c.kind, t.c.status))
+            return {(kind, status): int(n) for kind, status, n in rows}
+
+    def durations(self, buckets: tuple[float, ...]) -> dict[str, Histogram]:
+        """Run time of succeeded jobs, counted in the database."""
+        t = jobs_table
+        seconds = t.c.finished_at - t.c.started_at
+        columns = [sa.func.sum(sa.case((seconds <= b, 1), else_=0)) for b in buckets]
+        query = (sa.select(t.c.kind, sa.func.count(), sa.func.sum(seconds), *columns)
+                 .where(t.c.status == "succeeded", t.c.started_at.is_not(None),
+                        t.c.finished_at.is_not(None)).group_by(t.c.kind))
+        with self.engine.connect() as conn:
+            return {row[0]: Histogram([int(c or 0) for c in row[3:]], int(row[1]),
+                                      float(row[2] or 0.0)) for row in conn.execute(query)}
+
+    def recording_totals(self) -> tuple[int, int]:
+        """Count and bytes of recordings."""
+        t = recordings_table
+        with self.engine.connect() as conn:
+            n, total = conn.execute(sa.select(sa.func.count(), sa.func.sum(t.c.size))).one()
+        return int(n), int(total or 0)
+
+    def purge(self, before: float) -> tuple[list[Recording], list[Job]]:
+        """Delete what is older than ``before``."""
+        r, j = recordings_table, jobs_table
+        with self.engine.begin() as conn:
+            recs = [_recording(row) for row in conn.execute(
+                sa.select(r).where(r.c.created_at < before))]
+            jobs = [_job(row) for row in conn.execute(
+                sa.select(j).where(j.c.finished_at < before))]
+            conn.execute(r.delete().where(r.c.id.in_([x.id for x in recs])))
+            conn.execute(j.delete().where(j.c.id.in_([x.id for x in jobs])))
+        return recs, jobs
+
+
+def open_store(url: str) -> JobStore:
+    """The store for ``url``: ``memory://`` or any SQLAlchemy URL."""
+    if url == "memory://":
+        return MemoryJobStore()
+    return SqlJobStore.from_url(url)
+

@@ -1,0 +1,125 @@
+"""The job queue: job ids travel through huey (SQLite embedded, Redis distributed) or a deque."""
+
+from __future__ import annotations
+
+import collections
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Protocol
+from urllib.parse import urlsplit
+
+Handler = Callable[[str], None]
+TASK_NAME = "bonefit.run_job"
+
+
+class JobQueue(Protocol):
+    """Delivers job ids to workers; a lost message is recovered by the lease reaper."""
+
+    def enqueue(self, job_id: str) -> None:
+        """Ask a worker to run ``job_id``."""
+
+    def run_next(self, handler: Handler) -> bool:
+        """Take one job id, call ``handler`` with it; False when the queue was empty."""
+
+    def depth(self) -> int:
+        """Number of job ids waiting."""
+
+    def pending(self) -> set[str]:
+        """The job ids waiting."""
+
+    def ping(self) -> None:
+        """Raise if the queue is unreachable."""
+
+
+class MemoryQueue:
+    """A thread-safe deque, for tests."""
+
+    def __init__(self) -> None:
+        self._items: collections.deque[str] = collections.deque()
+        self._lock = threading.Lock()
+
+    def enqueue(self, job_id: str) -> None:
+        """Append the id."""
+        with self._lock:
+            self._items.append(job_id)
+
+    def run_next(self, handler: Handler) -> bool:
+        """Pop one id and handle it."""
+        with self._lock:
+            if not self._items:
+                return False
+            job_id = self._items.popleft()
+        handler(job_id)
+        return True
+
+    def depth(self) -> int:
+        """Ids waiting."""
+        return len(self._items)
+
+    def pending(self) -> set[str]:
+        """Ids waiting."""
+        with self._lock:
+            return set(self._items)
+
+    def ping(self) -> None:
+        """Always reachable."""
+
+
+class HueyQueue:
+    """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers."""
+
+    def __init__(self, huey: Any) -> None:
+        self.huey = huey
+        self._handler: Handler | None = None
+        self._task = huey.task(name=TASK_NAME)(self._dispatch)
+
+    def _dispatch(self, job_id: str) -> None:
+        if self._handler is None:
+            raise RuntimeError("no job handler in this process")
+        self._handler(job_id)
+
+    def enqueue(self, job_id: str) -> None:
+        """Send the task."""
+        self._task(job_id)
+
+    def run_next(self, handler: Handler) -> bool:
+        """Dequeue one task and execute it through huey (signals, logging)."""
+        task = self.huey.dequeue()
+        if task is None:
+            return False
+        self._handler = handler
+        try:
+            self.huey.execute(task)
+        finally:
+            self._handler = None
+        return True
+
+    def depth(self) -> int:
+        """huey's pending count."""
+        return int(self.huey.pending_count())
+
+    def pending(self) -> set[str]:
+        """Job ids of the pending tasks."""
+        return {str(task.args[0]) for task in self.huey.pending() if task.args}
+
+    def ping(self) -> None:
+        """Count pending tasks (touches the storage)."""
+        self.huey.pending_count()
+
+
+def open_queue(url: str) -> JobQueue:
+    """The queue for ``url``: ``sqlite:///path``, ``redis://...`` or ``memory://``."""
+    from huey import RedisHuey, SqliteHuey  # keep importing this module free of side effects
+
+    scheme = urlsplit(url).scheme
+    if scheme == "memory":
+        return MemoryQueue()
+    if scheme == "sqlite":
+        path = Path(url.removeprefix("sqlite:///"))  # SQLAlchemy style: 4 slashes = absolute
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return HueyQueue(SqliteHuey("bonefit", filename=str(path), results=False, timeout=30))
+    if scheme in ("redis", "rediss", "unix"):
+        return HueyQueue(RedisHuey("bonefit", url=url, results=False, blocking=True,
+                                   read_timeout=1))
+    raise ValueError(f"unsupported queue URL {url!r} (use sqlite:///, redis:// or memory://)")

@@ -1,0 +1,64 @@
+"""Service configuration: one ``Settings`` object read from ``BONEFIT_*`` variables at start-up."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Every knob of the service; built once at start-up and passed down."""
+
+    model_config = SettingsConfigDict(env_prefix="BONEFIT_", extra="ignore")
+
+    data_dir: Path = Field(Path("bonefit-data"), description="SQLite files, artifacts.")
+    database_url: str | None = Field(None, description="Job store; default sqlite in data_dir.")
+    queue_url: str | None = Field(None, description="Queue; default sqlite in data_dir.")
+    storage_url: str | None = Field(None, description="Artifacts; default file:// in data_dir.")
+    s3_endpoint_url: str | None = None
+    s3_access_key_id: str | None = None
+    s3_secret_access_key: SecretStr | None = None
+    s3_region: str | None = None
+    api_keys: dict[str, str] = Field(default_factory=dict, description="API key → tenant.")
+    max_upload_bytes: int = Field(2 * 1024**3, gt=0)
+    lease_seconds: float = Field(30.0, gt=0)
+    max_attempts: int = Field(3, ge=1)
+    workers: int = Field(2, ge=0, description="Embedded worker processes of `bonefit serve`.")
+    retention_seconds: float = Field(0.0, ge=0, description="TTL of recordings/results/jobs.")
+    progress_interval_seconds: float = Field(0.5, ge=0)
+    shutdown_grace_seconds: float = Field(10.0, ge=0)
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    log_level: str = "info"
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The job-store URL, defaulting to SQLite under the data directory."""
+        return self.database_url or f"sqlite:///{self.data_dir.resolve() / 'jobs.db'}"
+
+    @property
+    def resolved_queue_url(self) -> str:
+        """The queue URL, defaulting to SQLite under the data directory."""
+        return self.queue_url or f"sqlite:///{self.data_dir.resolve() / 'queue.db'}"
+
+    @property
+    def resolved_storage_url(self) -> str:
+        """The artifact-storage URL, defaulting to a directory under the data directory."""
+        return self.storage_url or f"file://{self.data_dir.resolve() / 'artifacts'}"
+
+    def to_env(self) -> dict[str, str]:
+        """These settings as ``BONEFIT_*`` variables, to hand them to a child process."""
+        env: dict[str, str] = {}
+        for name, value in self.model_dump(mode="json").items():
+            if value is None:
+                continue
+            if name == "data_dir":
+                value = str(self.data_dir.resolve())
+            if name == "s3_secret_access_key" and self.s3_secret_access_key is not None:
+                value = self.s3_secret_access_key.get_secret_value()
+            env[f"BONEFIT_{name.upper()}"] = (
+                json.dumps(value) if isinstance(value, dict | list) else str(value))
+        return env

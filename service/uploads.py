@@ -1,0 +1,230 @@
+"""Streaming uploads: request body (raw or multipart) → temporary file, hashed and size-limited."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import shutil
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import IO, Any
+
+import anyio.to_thread
+from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
+
+from estimation.errors import BonefitError, InputError
+
+from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
+from .problems import Problem
+
+FLUSH_BYTES = 1024 * 1024
+
+
+def too_large(limit: int) -> Problem:
+    """413 for an upload over ``limit`` bytes."""
+    return Problem(413, "Upload too large", f"the upload exceeds the limit of {limit} bytes",
+                   slug="upload-too-large", limit=limit)
+
+
+class UploadSink:
+    """Hashes and writes chunks to a file, off the event loop, refusing more than ``limit``."""
+
+    def __init__(self, path: Path, limit: int) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self.limit = limit
+        self.size = 0
+        self.sha256 = hashlib.sha256()
+        self._pending: list[bytes] = []
+        self._pending_size = 0
+        self._fh: IO[bytes] = path.open("wb")
+
+    def feed(self, data: bytes) -> None:
+        """Accept a chunk (raises the 413 problem past the limit)."""
+        self.size += len(data)
+        if self.size > self.limit:
+            raise too_large(self.limit)
+        self._pending.append(data)
+        self._pending_size += len(data)
+
+    def _write(self, data: bytes) -> None:
+        self.sha256.update(data)
+        self._fh.write(data)
+
+    async def drain(self, *, force: bool = False) -> None:
+        """Write what was fed once a megabyte is pending (or now, with ``force``)."""
+        if self._pending_size >= FLUSH_BYTES or (force and self._pending):
+            data = b"".join(self._pending)
+            self._pending.clear()
+            self._pending_size = 0
+            await anyio.to_thread.run_sync(self._write, data)
+
+    async def close(self) -> None:
+        """Flush and close the file."""
+        await self.drain(force=True)
+        self._fh.close()
+
+    def discard(self) -> None:
+        """Close and delete the file."""
+        self._fh.close()
+        self.path.unlink(missing_ok=True)
+
+
+async def receive_raw(chunks: AsyncIterator[bytes], sink: UploadSink) -> None:
+    """The whole body is the file."""
+    async for chunk in chunks:
+        sink.feed(chunk)
+        await sink.drain()
+
+
+async def receive_multipart(chunks: AsyncIterator[bytes], content_type: str,
+                            sink: UploadSink) -> tuple[str | None, str | None]:
+    """Stream the ``file`` field of a multipart form into ``sink``; its filename and type."""
+    _, options = parse_options_header(content_type)
+    boundary = options.get(b"boundary")
+    if not boundary:
+        raise Problem(400, "Bad multipart body", "the Content-Type has no boundary",
+                      slug="bad-multipart", field="Content-Type")
+    state: dict[str, Any] = {"headers": {}, "field": b"", "value": b"", "in_file": False,
+                             "found": False, "filename": None, "type": None}
+
+    def on_part_begin() -> None:
+        state["headers"] = {}
+        state["in_file"] = False
+
+    def on_header_field(data: bytes, start: int, end: int) -> None:
+        state["field"] += data[start:end]
+
+    def on_header_value(data: bytes, start: int, end: int) -> None:
+        state["value"] += data[start:end]
+
+    def on_header_end() -> None:
+        state["headers"][state["field"].decode("latin-1").lower()] = state["value"]
+        state["field"], state["value"] = b"", b""
+
+    def on_headers_finished() -> None:
+        _, disp = parse_options_header(state["headers"].get("content-disposition", b""))
+        if disp.get(b"name") == b"file" and not state["found"]:
+            state["in_file"] = state["found"] = True
+            name = disp.get(b"filename")
+            state["filename"] = name.decode("utf-8", "replace") if name else None
+            ctype = state["headers"].get("content-type")
+            state["type"] = ctype.decode("latin-1") if ctype else None
+
+    def on_part_data(data: bytes, start: int, end: int) -> None:
+        if state["in_file"]:
+            sink.feed(data[start:end])
+
+    callbacks: Any = {
+        "on_part_begin": on_part_begin, "on_header_field": on_header_field,
+        "on_header_value": on_header_value, "on_header_end": on_header_end,
+        "on_headers_finished": on_headers_finished, "on_part_data": on_part_data}
+    try:
+        parser = MultipartParser(boundary, callbacks)
+    except Exception as exc:
+        raise Problem(400, "Bad multipart body", f"bad boundary: {exc}", slug="bad-multipart",
+                      field="Content-Type") from None
+    async for chunk in chunks:
+        try:
+            parser.write(chunk)
+        except Problem:
+            raise
+        except Exception as exc:
+            raise Problem(400, "Bad multipart body", f"cannot parse the form: {exc}",
+                          slug="bad-multipart") from None
+        await sink.drain()
+    parser.finalize()
+    if parser.state != MultipartState.END:
+        raise Problem(400, "Bad multipart body", "the form ends before its closing boundary",
+                      slug="bad-multipart")
+    if not state["found"]:
+        raise Problem(422, "Missing file", "the multipart form has no 'file' field",
+                      slug="invalid-request", field="file")
+    return state["filename"], state["type"]
+
+
+def clean_spool(spool: Path, max_age: float = 3600.0) -> int:
+    """Remove uploads left behind by a killed process (untouched for ``max_age`` s); how many."""
+    removed = 0
+    if not spool.is_dir():
+        return 0
+    for entry in spool.iterdir():
+        try:
+            paths = [entry, *entry.iterdir()] if entry.is_dir() else [entry]
+            if time.time() - max(p.stat().st_mtime for p in paths) > max_age:
+                shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+                removed += 1
+        except OSError:
+            continue  # vanished or being finished by its request
+    return removed
+
+
+def _sniff_accelerations(path: Path) -> dict[str, Any]:
+    header: list[str] | None = None
+    frames = 0
+    with path.open(encoding="utf-8-sig", errors="strict") as fh:
+        for text in fh:
+            line = text.strip()
+            if not line or line.startswith("#"):
+                continue
+            if header is None:
+                header = [c.strip() for c in line.split(",")]
+                if len(header) < 2 or not any(c[:1].isalpha() for c in header):
+                    raise InputError("expected a header line of column names", line=1,
+                                     field="header")
+                continue
+            frames += 1
+    if header is None:
+        raise InputError("empty file: no header line", line=1, field="header")
+    return {"format": "accelerations-csv", "frames": frames, "columns": header}
+
+
+def _kinematics_sniffer() -> Any:
+    try:
+        return importlib.import_module("estimation.io.kinematics").sniff_kinematics
+    except (ImportError, AttributeError):
+        return None
+
+
+def sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, Any]]:
+    """The API format name and quick summary of the file; InputError when it is unreadable."""
+    try:
+        return _sniff(path, fmt, filename)
+    except BonefitError:
+        raise
+    except Exception as exc:  # whatever a reader trips on in a client's file, the file is bad
+        raise InputError(f"cannot read the file as {fmt}: {type(exc).__name__}",
+                         field="file") from None
+
+
+def _sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, Any]]:
+    from estimation.io.sensors import sniff_recording
+
+    if fmt == "accelerations-csv":
+        return fmt, _sniff_accelerations(path)
+    by_name = {v: k for k, v in KINEMATICS_FORMATS.items()}
+    if fmt in SENSOR_FORMATS:
+        summary = sniff_recording(path, SENSOR_FORMATS[fmt])
+        return fmt, summary
+    sniff_kinematics = _kinematics_sniffer()
+    if fmt in KINEMATICS_FORMATS:
+        if sniff_kinematics is None:
+            raise InputError(f"format {fmt!r} is not supported by this server", field="format")
+        summary = dict(sniff_kinematics(path, KINEMATICS_FORMATS[fmt]))
+        return fmt, summary
+    suffix = Path(filename or "").suffix.lower()
+    if suffix in (".bvh", ".mvnx") and sniff_kinematics is not None:
+        summary = dict(sniff_kinematics(path, "auto"))
+        return by_name.get(str(summary.get("format")), suffix[1:]), summary
+    try:
+        summary = sniff_recording(path, "auto")
+        return {v: k for k, v in SENSOR_FORMATS.items()}[summary["format"]], summary
+    except InputError as first:
+        if sniff_kinematics is None:
+            raise
+        try:
+            summary = dict(sniff_kinematics(path, "auto"))
+        except InputError:
+            raise first from None
+        return by_name.get(str(summary.get("format")), "kinematics-csv"), summary

@@ -1,0 +1,90 @@
+"""Helpers of the service tests: fake job kinds, small recordings, client shortcuts."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from estimation.errors import InputError
+from estimation.progress import Progress
+from service.kinds import Input, Kind, SkeletonParams, TranslationParams
+from service.runtime import Runtime
+from service.worker import Worker
+
+with warnings.catch_warnings():
+    # Starlette 1.x asks for httpx2 in its TestClient; httpx works the same for these tests.
+    warnings.simplefilter("ignore", UserWarning)
+    from fastapi.testclient import TestClient
+
+__all__ = ["TestClient"]
+
+KEYS = {"key-a": "alice", "key-b": "bob"}
+AUTH_A = {"Authorization": "Bearer key-a"}
+AUTH_B = {"Authorization": "Bearer key-b"}
+SEGMENTS = ("pelvis", "chest", "head")
+
+
+def require_services() -> bool:
+    """Whether CI demands the external servers (fail instead of skip)."""
+    return os.environ.get("BONEFIT_TEST_REQUIRE_SERVICES") == "1"
+
+
+def sensor_csv(frames: int = 5, segments: tuple[str, ...] = SEGMENTS) -> bytes:
+    """A tiny, well-formed sensor CSV."""
+    cols = ["time"] + [f"{s}.{c}" for s in segments for c in ("x", "y", "z", "qw", "qx", "qy",
+                                                               "qz")]
+    rows = [",".join(cols)]
+    for i in range(frames):
+        values = [f"{i / 60:.4f}"] + ["0.1", "1.0", "0.2", "1", "0", "0", "0"] * len(segments)
+        rows.append(",".join(values))
+    return ("\n".join(rows) + "\n").encode()
+
+
+def fake_run(inputs: Mapping[str, Input], params: Any, progress: Progress,
+             outdir: Path) -> dict[str, Path]:
+    """A job that reads its input, reports progress and writes three small results."""
+    text = inputs["recording"].path.read_text()
+    if "BAD" in text:
+        raise InputError("bad number 'BAD'", line=3, column=2, field="pelvis.x")
+    if "CRASH" in text:
+        raise RuntimeError("boom")
+    for i in range(5):
+        progress(i / 5, "fake")
+    out = {}
+    for fmt in ("json", "bvh", "csv"):
+        out[fmt] = outdir / f"out.{fmt}"
+        out[fmt].write_text(f"{fmt}:{len(text)}")
+    return out
+
+
+FAKE_KINDS = {"skeleton": Kind("skeleton", SkeletonParams, fake_run),
+              "translation": Kind("translation", TranslationParams, fake_run,
+                                  inputs=("accelerations",))}
+
+
+def upload(client: TestClient, data: bytes | None = None, **params: str) -> dict[str, Any]:
+    """Upload a recording and return its representation."""
+    r = client.post("/v1/recordings", content=sensor_csv() if data is None else data,
+                    params={"filename": "rec.csv", **params})
+    assert r.status_code == 201, r.text
+    body: dict[str, Any] = r.json()
+    return body
+
+
+def submit(client: TestClient, recording_id: str, **extra: Any) -> dict[str, Any]:
+    """Submit a skeleton job and return it."""
+    r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": recording_id, **extra})
+    assert r.status_code == 202, r.text
+    body: dict[str, Any] = r.json()
+    return body
+
+
+def drain(runtime: Runtime, worker: Worker) -> int:
+    """Run every queued job; how many messages were handled."""
+    n = 0
+    while runtime.queue.run_next(worker.run_job):
+        n += 1
+    return n

@@ -1,0 +1,277 @@
+"""The job store, queue and artifact back-ends, each implementation against one contract."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import sqlalchemy as sa
+
+from service.artifacts import ArtifactStore, LocalArtifactStore, MemoryArtifactStore
+from service.jobs import Job, JobStore, MemoryJobStore, Recording, SqlJobStore, new_id
+from service.queue import HueyQueue, JobQueue, MemoryQueue, open_queue
+from tests.service.helpers import require_services
+
+POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]
+                   if os.environ.get("BONEFIT_TEST_POSTGRES_URL") else
+                   ["postgresql://postgres@127.0.0.1:5432/postgres",
+                    "postgresql://root@127.0.0.1:5432/postgres"])
+"""Admin connections to try (the same variable as the e2e tests)."""
+REDIS_BASE = os.environ.get("BONEFIT_TEST_REDIS_URL", "redis://127.0.0.1:6379").rstrip("/")
+
+
+def unavailable(reason: str) -> None:
+    if require_services():
+        pytest.fail(f"{reason} (BONEFIT_TEST_REQUIRE_SERVICES=1)")
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="module")
+def postgres_url() -> Iterator[str]:
+    """A fresh PostgreSQL database, dropped afterwards."""
+    name = f"bonefit_unit_{uuid.uuid4().hex[:8]}"
+    errors = []
+    for url in POSTGRES_ADMINS:
+        admin = sa.create_engine(url.replace("postgresql://", "postgresql+psycopg://", 1),
+                                 isolation_level="AUTOCOMMIT")
+        try:
+            with admin.connect() as conn:
+                conn.execute(sa.text(f"CREATE DATABASE {name}"))
+            break
+        except sa.exc.SQLAlchemyError as exc:
+            errors.append(f"{url}: {type(exc).__name__}")
+            admin.dispose()
+    else:
+        unavailable(f"PostgreSQL not reachable ({'; '.join(errors)})")
+    yield admin.url.set(database=name).render_as_string(hide_password=False)
+    with admin.connect() as conn:
+        conn.execute(sa.text(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)"))
+    admin.dispose()
+
+
+@pytest.fixture(params=["memory", "sqlite", "postgresql"])
+def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
+    """Each job-store implementation."""
+    if request.param == "memory":
+        yield MemoryJobStore()
+        return
+    if request.param == "sqlite":
+        sql = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'jobs.db'}")
+    else:
+        sql = SqlJobStore.from_url(request.getfixturevalue("postgres_url"))
+    sql.init()
+    sql.init()  # idempotent
+    with sql.engine.begin() as conn:  # the PostgreSQL database is shared by the module's tests
+        conn.execute(sa.text("DELETE FROM bonefit_jobs"))
+        conn.execute(sa.text("DELETE FROM bonefit_recordings"))
+    yield sql
+    sql.engine.dispose()
+
+
+def job(tenant: str = "t", **extra: object) -> Job:
+    now = time.time()
+    fields: dict[str, object] = {"kind": "skeleton", **extra}
+    return Job(id=new_id(), tenant=tenant, recording_id="r", params={"a": 1}, inputs={},
+               created_at=now, updated_at=now, **fields)  # type: ignore[arg-type]
+
+
+def recording(tenant: str = "t", created_at: float | None = None) -> Recording:
+    return Recording(id=new_id(), tenant=tenant, key=f"{tenant}/x", filename="a.csv",
+                     content_type="text/csv", format="sensor-csv", size=10, sha256="0" * 64,
+                     created_at=time.time() if created_at is None else created_at,
+                     summary={"frames": 3, "sensors": ["pelvis"]})
+
+
+def test_ids_are_time_ordered_and_unique() -> None:
+    ids = [new_id() for _ in range(1000)]
+    assert len(set(ids)) == 1000
+    assert all(len(i) == 26 for i in ids)
+    first = new_id()
+    time.sleep(0.002)
+    assert new_id() > first
+
+
+def test_recordings(store: JobStore) -> None:
+    recs = [recording() for _ in range(3)]
+    for r in recs:
+        store.add_recording(r)
+    store.add_recording(recording("other"))
+    got = store.get_recording("t", recs[0].id)
+    assert got is not None
+    assert got.summary == recs[0].summary
+    assert store.get_recording("other", recs[0].id) is None
+    page = store.list_recordings("t", before=None, limit=2)
+    assert [r.id for r in page] == [recs[2].id, recs[1].id]
+    assert [r.id for r in store.list_recordings("t", before=recs[1].id, limit=2)] == [recs[0].id]
+    assert store.recording_totals() == (4, 40)
+    assert store.delete_recording("other", recs[0].id) is None
+    assert store.delete_recording("t", recs[0].id) is not None
+    assert store.get_recording("t", recs[0].id) is None
+
+
+def test_jobs_compare_and_set(store: JobStore) -> None:
+    j = store.add_job(job())
+    assert store.get_job(j.id, "nobody") is None
+    running = store.update_job(j.id, {"status": "running", "worker": "w1", "attempts": 1},
+                               expect={"status": "queued"})
+    assert running is not None
+    assert running.version == 2
+    assert running.worker == "w1"
+    assert store.update_job(j.id, {"status": "running"}, expect={"status": "queued"}) is None
+    assert store.update_job(j.id, {"fraction": 0.5}, expect={"worker": "w2"}) is None
+    done = store.update_job(j.id, {"status": "succeeded", "results": {"json": "k"}},
+                            expect={"status": ("queued", "running"), "worker": "w1"})
+    assert done is not None
+    assert done.results == {"json": "k"}
+    assert done.version == 3
+
+
+def test_idempotency_keys_are_per_tenant(store: JobStore) -> None:
+    a = store.add_job(job(idempotency_key="k", request_hash="h"))
+    again = store.add_job(job(idempotency_key="k", request_hash="h2"))
+    assert again.id == a.id
+    assert again.request_hash == "h"
+    assert store.add_job(job("other", idempotency_key="k")).id != a.id
+
+
+def test_concurrent_claims_have_one_winner(store: JobStore) -> None:
+    j = store.add_job(job())
+    winners: list[str] = []
+
+    def claim(name: str) -> None:
+        if store.update_job(j.id, {"status": "running", "worker": name},
+                            expect={"status": "queued"}):
+            winners.append(name)
+
+    threads = [threading.Thread(target=claim, args=(f"w{i}",)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(winners) == 1
+
+
+def test_listing_leases_counts_and_purge(store: JobStore) -> None:
+    now = time.time()
+    a = store.add_job(job())
+    b = store.add_job(job(kind="translation"))
+    c = store.add_job(job())
+    store.update_job(a.id, {"status": "running", "lease_until": now - 1}, expect={})
+    store.update_job(b.id, {"status": "succeeded", "started_at": now - 3, "finished_at": now - 1},
+                     expect={})
+    store.update_job(c.id, {"status": "running", "lease_until": now + 60}, expect={})
+    assert [x.id for x in store.expired_leases(now)] == [a.id]
+    assert store.counts() == {("skeleton", "running"): 2, ("translation", "succeeded"): 1}
+    hist = store.durations((1.0, 2.5, 10.0))
+    assert list(hist) == ["translation"]
+    assert hist["translation"].counts == [0, 1, 1]
+    assert hist["translation"].count == 1
+    assert hist["translation"].total == pytest.approx(2.0)
+    assert [x.id for x in store.list_jobs("t", status="running", kind=None, before=None,
+                                          limit=10)] == [c.id, a.id]
+    assert [x.id for x in store.list_jobs("t", status=None, kind="translation", before=None,
+                                          limit=10)] == [b.id]
+    old = recording(created_at=now - 100)
+    store.add_recording(old)
+    store.add_recording(recording())
+    recs, jobs = store.purge(now - 50)
+    assert [r.id for r in recs] == [old.id]
+    assert jobs == []
+    recs, jobs = store.purge(now)
+    assert recs == []
+    assert [j.id for j in jobs] == [b.id]
+    store.ping()
+
+
+# ---------------------------------------------------------------------------------- queue
+
+
+@pytest.fixture(params=["memory", "sqlite", "redis"])
+def queue(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobQueue]:
+    """Each queue implementation."""
+    if request.param == "memory":
+        yield MemoryQueue()
+        return
+    if request.param == "sqlite":
+        yield open_queue(f"sqlite:///{tmp_path / 'queue.db'}")
+        return
+    import redis
+    from huey import RedisHuey
+
+    url = f"{REDIS_BASE}/0"
+    client = redis.Redis.from_url(url)
+    try:
+        client.ping()
+    except redis.exceptions.ConnectionError:
+        unavailable(f"Redis not reachable at {url}")
+    finally:
+        client.close()
+    # a queue name of its own: other sessions may use the same database
+    huey = RedisHuey(f"bonefit-test-{uuid.uuid4().hex[:8]}", url=url, results=False)
+    yield HueyQueue(huey)
+    huey.flush()
+
+
+def test_queue_delivers_each_id_once(queue: JobQueue) -> None:
+    queue.ping()
+    for i in range(3):
+        queue.enqueue(f"job{i}")
+    assert queue.depth() == 3
+    assert queue.pending() == {"job0", "job1", "job2"}
+    got: list[str] = []
+    while queue.run_next(got.append):
+        pass
+    assert got == ["job0", "job1", "job2"]
+    assert queue.depth() == 0
+
+
+def test_sqlite_queue_is_shared_between_instances(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'q.db'}"
+    open_queue(url).enqueue("x")
+    got: list[str] = []
+    assert open_queue(url).run_next(got.append)
+    assert got == ["x"]
+
+
+def test_bad_urls_are_refused() -> None:
+    with pytest.raises(ValueError, match="unsupported queue"):
+        open_queue("amqp://x")
+
+
+# ------------------------------------------------------------------------------ artifacts
+
+
+@pytest.fixture(params=["memory", "local"])
+def artifacts(request: pytest.FixtureRequest, tmp_path: Path) -> ArtifactStore:
+    """Each artifact-store implementation (S3 runs in the distributed e2e tests)."""
+    if request.param == "memory":
+        return MemoryArtifactStore()
+    return LocalArtifactStore(tmp_path / "artifacts")
+
+
+def test_artifacts_round_trip(artifacts: ArtifactStore, tmp_path: Path) -> None:
+    src = tmp_path / "src.bin"
+    data = os.urandom(3 * 1024 * 1024 + 5)
+    src.write_bytes(data)
+    artifacts.ping()
+    artifacts.put_file("t/recordings/a.bin", src)
+    assert artifacts.exists("t/recordings/a.bin")
+    assert b"".join(artifacts.iter_bytes("t/recordings/a.bin")) == data
+    with artifacts.as_file("t/recordings/a.bin") as path:
+        assert path.read_bytes() == data
+    artifacts.delete("t/recordings/a.bin")
+    artifacts.delete("t/recordings/a.bin")
+    assert not artifacts.exists("t/recordings/a.bin")
+    with pytest.raises(FileNotFoundError):
+        b"".join(artifacts.iter_bytes("t/recordings/a.bin"))
+
+
+def test_local_keys_cannot_escape(tmp_path: Path) -> None:
+    store = LocalArtifactStore(tmp_path / "root")
+    with pytest.raises(ValueError, match="bad artifact key"):
+        store.exists("../outside")

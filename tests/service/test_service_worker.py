@@ -1,0 +1,224 @@
+"""Workers: claiming, progress, cancel, hand-back on shutdown, crash retries, leases, retention."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from estimation.progress import Progress
+from service.kinds import Input, Kind, SkeletonParams
+from service.runtime import Runtime
+from service.worker import Worker, purge, reap
+from tests.service.helpers import TestClient, drain, sensor_csv, submit, upload
+
+
+def kind_with(body: Any) -> dict[str, Kind]:
+    """A registry whose skeleton kind runs ``body(progress)`` then writes one result."""
+
+    def run(inputs: Mapping[str, Input], params: Any, progress: Progress,
+            outdir: Path) -> dict[str, Path]:
+        body(progress)
+        out = outdir / "r.json"
+        out.write_text("{}")
+        return {"json": out}
+
+    return {"skeleton": Kind("skeleton", SkeletonParams, run)}
+
+
+def test_progress_reaches_the_store(client: TestClient, runtime: Runtime) -> None:
+    job = submit(client, upload(client)["id"])
+    seen: list[tuple[float, str]] = []
+
+    def body(progress: Progress) -> None:
+        for f in (0.2, 0.1, 0.6):  # a step back is clamped: progress never decreases
+            progress(f, "joints")
+            stored = runtime.store.get_job(job["id"])
+            assert stored is not None
+            seen.append((stored.fraction, stored.stage))
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    assert seen == [(0.2, "joints"), (0.2, "joints"), (0.6, "joints")]
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
+
+
+def test_progress_writes_are_throttled(client: TestClient, runtime: Runtime) -> None:
+    runtime.settings.progress_interval_seconds = 60
+    job = submit(client, upload(client)["id"])
+    versions: list[int] = []
+
+    def body(progress: Progress) -> None:
+        for i in range(50):
+            progress(i / 50, "fast")
+        stored = runtime.store.get_job(job["id"])
+        assert stored is not None
+        versions.append(stored.version)
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    assert versions == [2]  # only the claim wrote
+
+
+def test_cancel_stops_a_running_job_at_its_next_report(client: TestClient,
+                                                       runtime: Runtime) -> None:
+    job = submit(client, upload(client)["id"])
+    reports: list[float] = []
+
+    def body(progress: Progress) -> None:
+        for i in range(10):
+            progress(i / 10, "work")
+            reports.append(i / 10)
+            if i == 2:
+                r = client.post(f"/v1/jobs/{job['id']}/cancel")
+                assert r.status_code == 202
+                assert r.json()["progress"]["message"] == "cancelling"
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    done = client.get(f"/v1/jobs/{job['id']}").json()
+    assert done["status"] == "cancelled"
+    assert done["results"] == {}
+    assert reports == [0.0, 0.1, 0.2]
+
+
+def test_shutdown_hands_the_running_job_back(client: TestClient, runtime: Runtime) -> None:
+    job = submit(client, upload(client)["id"])
+    worker = Worker(runtime, kind_with(lambda progress: (worker.shutdown(grace=0),
+                                                         progress(0.5, "x"))))
+    assert runtime.queue.run_next(worker.run_job)
+    back = client.get(f"/v1/jobs/{job['id']}").json()
+    assert (back["status"], back["attempts"]) == ("queued", 0)
+    assert runtime.queue.depth() == 1
+    drain(runtime, Worker(runtime, kind_with(lambda progress: None)))
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
+
+
+def test_crashes_are_retried_then_fail_without_leaking(client: TestClient, runtime: Runtime,
+                                                      worker: Worker) -> None:
+    job = submit(client, upload(client, sensor_csv() + b"CRASH\n")["id"])
+    assert drain(runtime, worker) == 2  # max_attempts = 2
+    failed = client.get(f"/v1/jobs/{job['id']}").json()
+    assert (failed["status"], failed["attempts"]) == ("failed", 2)
+    assert failed["error"]["status"] == 500
+    assert "boom" not in str(failed["error"])
+
+
+def test_deleted_recording_fails_the_job(client: TestClient, runtime: Runtime,
+                                         worker: Worker) -> None:
+    rec = upload(client)
+    job = submit(client, rec["id"])
+    client.delete(f"/v1/recordings/{rec['id']}")
+    drain(runtime, worker)
+    failed = client.get(f"/v1/jobs/{job['id']}").json()
+    assert failed["status"] == "failed"
+    assert failed["error"]["field"] == "recording_id"
+
+
+def _running(runtime: Runtime, job_id: str, attempts: int, **extra: Any) -> None:
+    assert runtime.store.update_job(job_id, {
+        "status": "running", "worker": "dead:1", "attempts": attempts,
+        "lease_until": time.time() - 1, **extra}, expect={}) is not None
+
+
+def test_reaper_requeues_then_gives_up(client: TestClient, runtime: Runtime,
+                                       worker: Worker) -> None:
+    job = submit(client, upload(client)["id"])
+    runtime.queue.run_next(lambda _id: None)  # the dead worker took the message
+    _running(runtime, job["id"], 1)
+    assert reap(runtime) == [job["id"]]
+    assert reap(runtime) == []
+    queued = client.get(f"/v1/jobs/{job['id']}").json()
+    assert (queued["status"], queued["attempts"]) == ("queued", 1)
+    assert "worker was lost" in queued["progress"]["message"]
+    drain(runtime, worker)
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
+
+    lost = submit(client, upload(client)["id"])
+    runtime.queue.run_next(lambda _id: None)
+    _running(runtime, lost["id"], 2)
+    reap(runtime)
+    failed = client.get(f"/v1/jobs/{lost['id']}").json()
+    assert failed["status"] == "failed"
+    assert failed["error"]["title"] == "Worker lost"
+
+    cancelled = submit(client, upload(client)["id"])
+    _running(runtime, cancelled["id"], 1, cancel_requested=True)
+    reap(runtime)
+    assert client.get(f"/v1/jobs/{cancelled['id']}").json()["status"] == "cancelled"
+
+
+def test_heartbeat_keeps_a_long_job_alive(client: TestClient, runtime: Runtime) -> None:
+    runtime.settings.lease_seconds = 0.3
+    job = submit(client, upload(client)["id"])
+    reaped: list[str] = []
+
+    def body(progress: Progress) -> None:
+        for _ in range(8):  # 0.8 s without any progress report: only the heartbeat renews
+            time.sleep(0.1)
+            reaped.extend(reap(runtime))
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    assert reaped == []
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
+
+
+def test_a_worker_that_lost_its_lease_stops(client: TestClient, runtime: Runtime) -> None:
+    job = submit(client, upload(client)["id"])
+
+    def body(progress: Progress) -> None:
+        runtime.store.update_job(job["id"], {"worker": "other:2"}, expect={})
+        progress(0.5, "x")
+        raise AssertionError("not reached")
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    stolen = runtime.store.get_job(job["id"])
+    assert stolen is not None
+    assert (stolen.status, stolen.worker) == ("running", "other:2")
+
+
+def test_retention_purges_old_records_and_artifacts(client: TestClient, runtime: Runtime,
+                                                    worker: Worker) -> None:
+    rec = upload(client)
+    job = submit(client, rec["id"])
+    drain(runtime, worker)
+    assert purge(runtime) == 0  # retention 0 keeps everything
+    runtime.settings.retention_seconds = 10
+    assert purge(runtime) == 0
+    stored = runtime.store.get_job(job["id"])
+    assert stored is not None
+    keys = [*stored.results.values()]
+    assert purge(runtime, now=time.time() + 11) == 2
+    assert client.get(f"/v1/jobs/{job['id']}").status_code == 404
+    assert client.get(f"/v1/recordings/{rec['id']}").status_code == 404
+    assert not any(runtime.artifacts.exists(k) for k in keys)
+
+
+def test_a_lost_queue_message_is_sent_again(client: TestClient, runtime: Runtime,
+                                            worker: Worker) -> None:
+    job = submit(client, upload(client)["id"])
+    waiting = submit(client, upload(client)["id"])
+    runtime.queue.run_next(lambda _id: None)  # a worker took the message and died unclaimed
+    assert reap(runtime) == []  # not stale yet
+    later = time.time() + runtime.settings.lease_seconds + 1
+    assert reap(runtime, now=later) == [job["id"]]  # the other still has its message
+    assert reap(runtime, now=later) == []  # touched: no duplicate on the next pass
+    drain(runtime, worker)
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
+    assert client.get(f"/v1/jobs/{waiting['id']}").json()["status"] == "succeeded"
+
+
+def test_serve_loop_runs_jobs_until_shutdown(client: TestClient, runtime: Runtime,
+                                             worker: Worker) -> None:
+    import threading
+
+    job = submit(client, upload(client)["id"])
+    thread = threading.Thread(target=worker.serve, kwargs={"poll": 0.01})
+    thread.start()
+    try:
+        deadline = time.monotonic() + 10
+        while client.get(f"/v1/jobs/{job['id']}").json()["status"] != "succeeded":
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+    finally:
+        worker.shutdown(grace=0)
+        thread.join(5)
+    assert not thread.is_alive()
