@@ -2,13 +2,27 @@
 
 Pure numpy/scipy; knows nothing of HTTP. Arrays are time-first, lengths metres, angles
 radians, quaternions scalar-first ``(w, x, y, z)``.
+
+Skeleton (magnetic 6-DOF trackers, Miura et al. 2015): `estimate_skeleton`, built from
+`estimate_joint` (LLSF/GDKE with hinge handling), `estimate_limb` (limbs without forearm and
+lower-leg sensors) and `estimate_orientations`. Root translation (inertial suits, Hachaj &
+Ogiela): `estimate_translation`. File formats live in `estimation.io`, synthetic recordings
+with exact ground truth in `estimation.simulate`.
 """
 
 from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
 from .errors import BonefitError, EstimationError, InputError
+from .gaps import fill_gaps
+from .io.kinematics import KinematicsRecording
+from .joints import JointFit, estimate_joint
+from .limbs import LimbFit, estimate_limb, standard_lengths, torso_length
 from .model import DROPPED_IN_REDUCED, JOINTS, REDUCED_SEGMENTS, SEGMENTS
+from .orientations import estimate_orientations
 from .progress import Progress
 from .recording import SensorRecording
+from .results import JointOffset, SkeletonResult
+from .skeleton import estimate_chest, estimate_root, estimate_skeleton
+from .translation import ContactOptions, TranslationResult, estimate_translation
 
 __all__ = [
     "DROPPED_IN_REDUCED",
@@ -17,11 +31,28 @@ __all__ = [
     "SEGMENTS",
     "BonefitError",
     "BvhMotion",
+    "ContactOptions",
     "EstimationError",
     "InputError",
+    "JointFit",
+    "JointOffset",
+    "KinematicsRecording",
+    "LimbFit",
     "Progress",
     "SensorRecording",
+    "SkeletonResult",
+    "TranslationResult",
+    "estimate_chest",
+    "estimate_joint",
+    "estimate_limb",
+    "estimate_orientations",
+    "estimate_root",
+    "estimate_skeleton",
+    "estimate_translation",
+    "fill_gaps",
     "forward_kinematics",
     "read_bvh",
+    "standard_lengths",
+    "torso_length",
     "write_bvh",
 ]

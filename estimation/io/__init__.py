@@ -1,1 +1,54 @@
-"""Readers and writers of recording and result files."""
+"""Readers and writers of recording and result files.
+
+Sensor recordings (skeleton input): bonefit sensor CSV, tracker ASCII, NPZ.
+Kinematics recordings (translation input): kinematics CSV, BVH + accelerations, Xsens MVNX.
+Results: skeleton JSON/CSV/BVH; translation JSON/CSV/BVH/MVNX.
+"""
+
+from .kinematics import (
+    KinematicsRecording,
+    read_kinematics,
+    sniff_kinematics,
+    translation_to_dict,
+    write_kinematics_csv,
+    write_translation,
+)
+from .sensors import (
+    example_path,
+    parse_stations,
+    read_recording,
+    sniff_recording,
+    write_sensor_csv,
+    write_sensor_npz,
+)
+from .skeleton import (
+    read_skeleton_json,
+    skeleton_from_dict,
+    skeleton_to_bvh,
+    skeleton_to_dict,
+    write_skeleton_bvh,
+    write_skeleton_csv,
+    write_skeleton_json,
+)
+
+__all__ = [
+    "KinematicsRecording",
+    "example_path",
+    "parse_stations",
+    "read_kinematics",
+    "read_recording",
+    "read_skeleton_json",
+    "skeleton_from_dict",
+    "skeleton_to_bvh",
+    "skeleton_to_dict",
+    "sniff_kinematics",
+    "sniff_recording",
+    "translation_to_dict",
+    "write_kinematics_csv",
+    "write_sensor_csv",
+    "write_sensor_npz",
+    "write_skeleton_bvh",
+    "write_skeleton_csv",
+    "write_skeleton_json",
+    "write_translation",
+]

@@ -1,2 +1,14 @@
 """Synthetic recordings with exact ground truth, built from real BVH clips (design.md,
 "Evaluation protocol")."""
+
+from .inertial import InertialTruth, simulate_inertial, simulate_walker
+from .sensors import SimulationTruth, example_motion, simulate_sensors
+
+__all__ = [
+    "InertialTruth",
+    "SimulationTruth",
+    "example_motion",
+    "simulate_inertial",
+    "simulate_sensors",
+    "simulate_walker",
+]

@@ -1,0 +1,174 @@
+"""Speed of skeleton estimation on a recording the size of the paper's RT1 (6,283 frames, 30 fps).
+
+Builds synthetic 15- and 11-sensor recordings (``estimation.simulate.sensors``, design.md's
+noise protocol) from a real clip in ``../shared/data/motions``, played forwards and backwards
+until it has the wanted number of frames, and times ``estimate_skeleton`` per method by its
+own ``timings["estimate_s"]`` (median of several runs, every method in the same process).
+
+Run from the project root::
+
+    .venv/bin/python benchmarks/skeleton_speed.py            # RT1 size, 3 runs
+    .venv/bin/python benchmarks/skeleton_speed.py --runs 5 --scales 1 4 16
+
+Prints three tables: time per method; Nelder–Mead against the default least-squares
+optimizer of the paper's reduced method (time and cost evaluations per limb); and the default
+reduced method at 1×, 4×, 16× the frames (it should grow linearly).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from estimation.bvh import BvhMotion, read_bvh
+from estimation.recording import SensorRecording
+from estimation.simulate.sensors import simulate_sensors
+from estimation.skeleton import estimate_skeleton
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "motions"
+DEFAULT_CLIP = "cmu_acrnn/martial/03.bvh"  # karate, 120 fps, cm
+RT1_FRAMES = 6283
+RT1_FPS = 30.0
+LIMB_JOINTS = ("l_knee", "r_knee", "l_elbow", "r_elbow")
+
+
+def resampled(motion: BvhMotion, fps: float, n_frames: int) -> BvhMotion:
+    """The clip at ``fps`` (every k-th frame), played forwards then backwards (no jumps at the
+    seams) until it has ``n_frames`` frames."""
+    step = max(1, round(motion.fps / fps))
+    values = motion.values[::step]
+    cycle = np.concatenate([values, values[-2:0:-1]])
+    reps = int(np.ceil(n_frames / len(cycle)))
+    out = np.tile(cycle, (reps, 1))[:n_frames]
+    return BvhMotion(motion.names, motion.parents, motion.offsets, motion.channels,
+                     1.0 / fps, out)
+
+
+def recordings(clip: Path, n_frames: int, units_m: float
+               ) -> tuple[SensorRecording, SensorRecording]:
+    motion = resampled(read_bvh(clip), RT1_FPS, n_frames)
+    full, _ = simulate_sensors(motion, units_m=units_m, n_sensors=15, seed=1, fps=RT1_FPS)
+    reduced, _ = simulate_sensors(motion, units_m=units_m, n_sensors=11, seed=1, fps=RT1_FPS)
+    return full, reduced
+
+
+class StageClock:
+    """Progress callback that records when each stage is first reported."""
+
+    def __init__(self) -> None:
+        self.first: dict[str, float] = {}
+
+    def __call__(self, fraction: float, stage: str) -> None:
+        self.first.setdefault(stage, time.perf_counter())
+
+    def limbs_s(self) -> float:
+        return self.first["orientations"] - self.first["limbs"]
+
+
+def timed(recording: SensorRecording, runs: int, **options: Any
+          ) -> tuple[float, list[float], Any, float]:
+    """Median estimate_s over runs, the runs, the last result, median limb-stage seconds."""
+    times, limb_times = [], []
+    result = None
+    for _ in range(runs):
+        clock = StageClock()
+        result = estimate_skeleton(recording, progress=clock, **options)
+        times.append(float(result.timings["estimate_s"]))
+        if "limbs" in clock.first and "orientations" in clock.first:
+            limb_times.append(clock.limbs_s())
+    limbs = statistics.median(limb_times) if limb_times else float("nan")
+    return statistics.median(times), times, result, limbs
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    lines = ["| " + " | ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)) + " |",
+             "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    lines += ["| " + " | ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) + " |"
+              for r in rows]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--clip", default=DEFAULT_CLIP, help="BVH under ../shared/data/motions")
+    parser.add_argument("--units", type=float, default=0.01, help="metres per BVH unit")
+    parser.add_argument("--frames", type=int, default=RT1_FRAMES)
+    parser.add_argument("--runs", type=int, default=3, help="runs per method (median)")
+    parser.add_argument("--scales", type=int, nargs="+", default=[1, 4, 16])
+    args = parser.parse_args()
+
+    clip = DATA / args.clip
+    started = time.perf_counter()
+    full, reduced = recordings(clip, args.frames, args.units)
+    print(f"clip {args.clip}: {args.frames} frames at {RT1_FPS:g} fps "
+          f"(built in {time.perf_counter() - started:.1f} s); median of {args.runs} runs\n")
+
+    cases = [
+        ("llsf", "15", full, {"method": "llsf"}),
+        ("gdke", "15", full, {"method": "gdke"}),
+        ("auto", "15", full, {"method": "auto"}),
+        ("reduced, nelder-mead (paper)", "11", reduced,
+         {"method": "reduced", "optimizer": "nelder-mead"}),
+        ("reduced, least-squares (default)", "11", reduced, {"method": "reduced"}),
+        ("auto", "11", reduced, {"method": "auto"}),
+    ]
+    rows = []
+    results: dict[str, tuple[float, list[float], Any, float]] = {}
+    for label, sensors, rec, options in cases:
+        results[f"{label}/{sensors}"] = out = timed(rec, args.runs, **options)
+        rows.append([label, sensors, f"{out[0]:.3f}", f"{out[3]:.3f}",
+                     " ".join(f"{t:.3f}" for t in out[1])])
+    print("Time per method (estimate_s and its limb stage, seconds)\n")
+    print(table(["method", "sensors", "median s", "limb stage s", "runs s"], rows))
+
+    nm = results["reduced, nelder-mead (paper)/11"]
+    ls = results["reduced, least-squares (default)/11"]
+    limb_rows = []
+    for joint in LIMB_JOINTS:
+        qn, ql = nm[2].quality[joint], ls[2].quality[joint]
+        rel = abs(qn["cost"] - ql["cost"]) / ql["cost"]
+        limb_rows.append([joint.split("_")[1] + (" (L)" if joint[0] == "l" else " (R)"),
+                          f"{qn['n_evaluations']}", f"{ql['n_evaluations']}",
+                          f"{ql['cost']:.6e}", f"{rel:.1e}"])
+    # The machine may be shared: alternate the two paths so that both see the same load,
+    # and report the median of the per-pair ratios next to the ratio of medians.
+    pair_total, pair_limbs = [], []
+    for _ in range(args.runs):
+        a = timed(reduced, 1, method="reduced", optimizer="nelder-mead")
+        b = timed(reduced, 1, method="reduced")
+        pair_total.append(a[0] / b[0])
+        pair_limbs.append(a[3] / b[3])
+    print(f"\nNelder–Mead vs least-squares, same run: estimate_s {nm[0]:.3f} s / {ls[0]:.3f} s"
+          f" = {nm[0] / ls[0]:.1f}×; limb stage {nm[3]:.3f} s / {ls[3]:.3f} s = "
+          f"{nm[3] / ls[3]:.1f}×")
+    print(f"alternating pairs, median of per-pair ratios: estimate_s "
+          f"{statistics.median(pair_total):.1f}×, limb stage {statistics.median(pair_limbs):.1f}×"
+          f" (pairs: {' '.join(f'{r:.1f}' for r in pair_limbs)})")
+    print("(paper's Table 2, RT1: LLSF 6 s, LLSF + present 27 s)\n")
+    print(table(["limb", "NM evaluations", "LS evaluations", "E (LS)", "|ΔE|/E"], limb_rows))
+
+    scale_rows = []
+    base = None
+    for scale in args.scales:
+        n = args.frames * scale
+        _, rec = recordings(clip, n, args.units) if scale != 1 else (full, reduced)
+        median, _, _, limbs = timed(rec, args.runs, method="reduced")
+        auto = timed(rec, args.runs, method="auto")[0]
+        base = base or median / n
+        scale_rows.append([f"{scale}×", f"{n}", f"{median:.3f}", f"{limbs:.3f}",
+                           f"{median / n * 1e6:.1f}", f"{median / n / base:.2f}",
+                           f"{auto:.3f}"])
+    print("\nDefault reduced method (least-squares) against recording length, 11 sensors\n")
+    print(table(["scale", "frames", "reduced s", "limb stage s", "µs / frame",
+                 "per-frame vs 1×", "auto s"], scale_rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,727 @@
+"""Limb joints without forearm and lower-leg sensors (Miura et al. 2015, §2.1, eqs. 2–5).
+
+A leg (arm) carries a sensor on the thigh (upper arm) and on the foot (hand); the hip
+(shoulder) is known from the torso step. The knee (elbow) is a point fixed in the upper
+sensor's frame and the ankle (wrist) a point fixed in the distal sensor's frame; because the
+shank (forearm) is rigid, the distance between the two stays constant.
+
+Two estimators:
+
+``method="paper"``
+    The paper's cost ``E`` (eq. 5) minimised either by Nelder–Mead (``optimizer=
+    "nelder-mead"``, the paper's simplex method) or, by default, by Levenberg–Marquardt
+    (``scipy.optimize.least_squares``) with an analytic Jacobian on ``E`` written as a sum of
+    squares. Both reach the same minimum.
+``method="improved"``
+    A free shank length instead of the variance, a soft-L1 robust loss against slip and outlier
+    frames, a hinge rule that fixes the two directions the data cannot see (the flexion axis
+    of the knee or elbow is estimated from the motion of the distal joint in the upper sensor
+    frame, and the knee and the ankle are put in the plane through the hip perpendicular to
+    that axis), weak priors instead of the paper's pull towards the sensor origins, and
+    plausibility bounds; the priors grow when the limb hardly moves.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares, minimize
+from scipy.spatial.transform import Rotation
+
+from .anthropometry import LIMB_KEYS, TABLES
+from .errors import EstimationError, InputError
+from .progress import Progress, no_progress
+
+__all__ = ["LimbFit", "estimate_limb", "paper_cost", "standard_lengths", "torso_length"]
+
+Float = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class LimbFit:
+    """Result of :func:`estimate_limb`.
+
+    Attributes
+    ----------
+    middle_local : ndarray, shape (3,)
+        Middle joint (knee, elbow) in the upper sensor frame (thigh, upper arm), metres.
+    distal_local : ndarray, shape (3,)
+        Distal joint (ankle, wrist) in the distal sensor frame (foot, hand), metres.
+    middle, distal : ndarray, shape (F, 3)
+        World positions of the two joints per frame, metres.
+    cost : float
+        The paper's ``E`` (eq. 5, with the ``w_s``, ``w_l`` and standard lengths given) at the
+        solution, m². For ``method="improved"`` this is E evaluated at its solution, which is
+        not E's minimiser.
+    n_evaluations : int
+        Cost (or residual) evaluations used.
+    quality : dict
+        ``method``, ``optimizer``, ``upper_length_m`` (mean proximal–middle distance),
+        ``lower_length_m`` (mean middle–distal distance), ``lower_length_sd_m`` (its standard
+        deviation over frames: 0 for a rigid segment), ``converged``; for ``"improved"`` also
+        ``hinge_axis_local`` (flexion axis in the upper sensor frame), ``hinge_doubt`` (0 when
+        the distal joint's path in the upper frame is a clean, wide circle arc, 1 when it
+        gives no usable axis: then the hinge rule is off), ``flexion_range_deg`` (about that
+        axis, 2.5–97.5 percentiles; None without a usable axis), ``relative_motion_deg``
+        (90th percentile of the distal–upper rotation's deviation from its mean) and
+        ``prior_gain`` (factor on the prior weights, > 1 when that motion is under 20°).
+    """
+
+    middle_local: Float
+    distal_local: Float
+    middle: Float
+    distal: Float
+    cost: float
+    n_evaluations: int
+    quality: dict[str, Any] = field(default_factory=dict)
+
+
+def torso_length(waist: ArrayLike, l_hip: ArrayLike, r_hip: ArrayLike,
+                 chest: ArrayLike) -> float:
+    """Subject's torso length ``L'_T`` (paper, below eq. 4).
+
+    Parameters
+    ----------
+    waist, l_hip, r_hip, chest : array_like, shape (F, 3)
+        World positions of W, LH, RH and C per frame, metres.
+
+    Returns
+    -------
+    float
+        ``mean_t(|W − (LH + RH)/2| + |C − W|)``, metres.
+
+    Notes
+    -----
+    Miura et al., "Sensor Number Reduction in Skeleton Estimation from Magnetic Motion Capture
+    Data", J. Inf. Process. 23(5), 2015, eq. 4.
+    """
+    w, lh, rh, c = (np.asarray(v, dtype=float).reshape(-1, 3)
+                    for v in (waist, l_hip, r_hip, chest))
+    lower = np.linalg.norm(w - 0.5 * (lh + rh), axis=-1)
+    upper = np.linalg.norm(c - w, axis=-1)
+    value = float(np.mean(lower + upper))
+    if not np.isfinite(value):
+        raise EstimationError("torso length is undefined (NaN in the torso joints)",
+                              field="torso")
+    return value
+
+
+def standard_lengths(torso_length: float,
+                     table: str | Mapping[str, float] = "aist") -> dict[str, float]:
+    """Standard limb-segment lengths scaled to the subject, ``L = L_β · L'_T / L_T``.
+
+    Parameters
+    ----------
+    torso_length : float
+        The subject's torso length ``L'_T`` (see :func:`torso_length`), metres.
+    table : str or mapping, default "aist"
+        ``"aist"`` or ``"winter"`` (see :mod:`estimation.anthropometry`), or a mapping with
+        keys ``torso``, ``thigh``, ``shank``, ``upperarm``, ``forearm`` giving lengths or
+        ratios in any one unit.
+
+    Returns
+    -------
+    dict of str to float
+        ``thigh``, ``shank``, ``upperarm``, ``forearm`` lengths, metres.
+
+    Notes
+    -----
+    Miura et al. 2015, eq. 4.
+    """
+    if isinstance(table, str):
+        try:
+            ratios = TABLES[table]
+        except KeyError:
+            raise InputError(f"unknown anthropometric table {table!r}; use one of "
+                             f"{', '.join(TABLES)} or a mapping", field="anthropometry") from None
+    else:
+        ratios = table
+    missing = [k for k in ("torso", *LIMB_KEYS) if k not in ratios]
+    if missing:
+        raise InputError(f"anthropometric table lacks {', '.join(missing)}",
+                         field="anthropometry")
+    ref = float(ratios["torso"])
+    if not (np.isfinite(torso_length) and torso_length > 0 and np.isfinite(ref) and ref > 0):
+        raise InputError("torso lengths must be positive", field="anthropometry")
+    return {k: float(ratios[k]) * torso_length / ref for k in LIMB_KEYS}
+
+
+@dataclass(frozen=True)
+class _Limb:
+    """The data expressed in the upper sensor frame, where the costs are cheapest."""
+
+    b: Float  # (F,3) distal sensor origin in the upper frame
+    q: Float  # (F,3,3) distal → upper rotation matrices
+    h: Float  # (F,3) proximal joint in the upper frame
+
+    @property
+    def n(self) -> int:
+        return int(self.b.shape[0])
+
+    def distal(self, a: Float) -> Float:
+        """Distal joint (F,3) in the upper frame for ``a`` in the distal frame.
+
+        Hot loops avoid BLAS (einsum instead of matmul): on a loaded machine a threaded
+        BLAS call on these thin arrays can cost milliseconds instead of microseconds."""
+        return np.asarray(self.b + np.einsum("fij,j->fi", self.q, a))
+
+
+def _norm(v: Float) -> Float:
+    """Row norms of an (F, 3) array (faster than np.linalg.norm for this shape)."""
+    return np.asarray(np.sqrt(np.einsum("fi,fi->f", v, v)))
+
+
+def _as_frames(name: str, value: ArrayLike) -> Float:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name} must have shape (F, 3), got {arr.shape}", field=name)
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name} contains NaN or inf; fill gaps first", field=name)
+    return arr
+
+
+def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
+             distal_positions: ArrayLike, distal_rotations: Rotation) -> _Limb:
+    hip = _as_frames("proximal", proximal)
+    pu = _as_frames("upper_positions", upper_positions)
+    pd = _as_frames("distal_positions", distal_positions)
+    n = hip.shape[0]
+    if pu.shape[0] != n or pd.shape[0] != n or len(upper_rotations) != n \
+            or len(distal_rotations) != n:
+        raise InputError("limb inputs have different numbers of frames", field="frames")
+    if n < 3:
+        raise EstimationError(f"{n} frames are too few to locate limb joints", field="frames")
+    ru = upper_rotations.as_matrix()
+    # Rᵤᵀ(…) with einsum: one pass over the frames, cheaper than composing Rotations
+    b = np.einsum("fji,fj->fi", ru, pd - pu)
+    q = np.einsum("fji,fjk->fik", ru, distal_rotations.as_matrix())
+    h = np.einsum("fji,fj->fi", ru, hip - pu)
+    if not (np.isfinite(q).all() and np.isfinite(b).all()):
+        raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
+    return _Limb(b=b, q=q, h=h)
+
+
+def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
+                     ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
+    """``E`` as a sum of squares: residuals r(θ) with Σ r² = E, and their Jacobian.
+
+    θ = (s_j, s_{j+1}). Per frame the variance and lower-length terms share l, and
+    ``(l − l̄)²/M + w(l − L)²/M = (1 + w)(l − c)²/M + w(l̄ − L)²/(M(1 + w))`` with
+    ``c = (l̄ + wL)/(1 + w)``, so E needs M rows ``√((1+w)/M)(l − c)``, one row
+    ``√(w/(1+w))(l̄ − L)``, M rows ``√(w/M)(l_{j−1,j} − L_{j−1,j})`` and 6 rows ``√w_S θ``:
+    2M + 7 rows instead of 3M + 6.
+    """
+    m = limb.n
+    l_up, l_low = lengths
+    root_c = np.sqrt((1.0 + w_l) / m)
+    root_bar = np.sqrt(w_l / (1.0 + w_l))
+    root_l = np.sqrt(w_l / m)
+    root_s = np.sqrt(w_s)
+    cache: dict[str, Any] = {}
+
+    def geometry(theta: Float) -> tuple[Float, Float, Float, Float]:
+        # least_squares asks for the residuals and then the Jacobian at the same point
+        if cache.get("theta") is not None and np.array_equal(cache["theta"], theta):
+            return cache["value"]  # type: ignore[no-any-return]
+        k, a = theta[:3], theta[3:]
+        d = limb.distal(a) - k
+        ll = _norm(d)
+        e = limb.h - k
+        lu = _norm(e)
+        cache["theta"], cache["value"] = theta.copy(), (d, ll, e, lu)
+        return d, ll, e, lu
+
+    def fun(theta: Float) -> Float:
+        _, ll, _, lu = geometry(theta)
+        mean = ll.mean()
+        out = np.empty(2 * m + 7)
+        out[:m] = root_c * (ll - (mean + w_l * l_low) / (1.0 + w_l))
+        out[m] = root_bar * (mean - l_low)
+        out[m + 1:2 * m + 1] = root_l * (lu - l_up)
+        out[2 * m + 1:] = root_s * theta
+        return out
+
+    def jac(theta: Float) -> Float:
+        d, ll, e, lu = geometry(theta)
+        u = d / ll[:, None]
+        out = np.empty((2 * m + 7, 6))
+        jl = out[:m]
+        jl[:, :3] = -u
+        jl[:, 3:] = np.einsum("fi,fij->fj", u, limb.q)
+        jl_bar = jl.mean(axis=0)
+        jl -= jl_bar / (1.0 + w_l)
+        jl *= root_c
+        out[m] = root_bar * jl_bar
+        out[m + 1:2 * m + 1, :3] = e / lu[:, None] * -root_l
+        out[m + 1:2 * m + 1, 3:] = 0.0
+        out[2 * m + 1:] = root_s * np.eye(6)
+        return out
+
+    return fun, jac
+
+
+def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,
+               upper_rotations: Rotation, distal_positions: ArrayLike,
+               distal_rotations: Rotation, *, standard_lengths: tuple[float, float],
+               w_s: float = 0.01, w_l: float = 0.01) -> float:
+    """The paper's cost ``E`` (eq. 5) at ``theta = (s_j, s_{j+1})``.
+
+    Parameters
+    ----------
+    theta : array_like, shape (6,)
+        Middle joint in the upper sensor frame, then distal joint in the distal sensor frame,
+        metres.
+    proximal, upper_positions, distal_positions : array_like, shape (F, 3)
+        World positions (metres) of the proximal joint and of the two sensors.
+    upper_rotations, distal_rotations : Rotation, length F
+        Sensor → world rotations.
+    standard_lengths : (float, float)
+        ``L_{j−1,j}`` and ``L_{j,j+1}``, metres.
+    w_s, w_l : float
+        Weights of eqs. 3 and 4.
+
+    Returns
+    -------
+    float
+        ``E = Var_t(l) + w_S(|s_j|² + |s_{j+1}|²) + w_L mean_t[(l_{j−1,j} − L_{j−1,j})²
+        + (l_{j,j+1} − L_{j,j+1})²]``, m².
+
+    Notes
+    -----
+    Miura et al. 2015, eqs. 2–5.
+    """
+    limb = _prepare(proximal, upper_positions, upper_rotations, distal_positions,
+                    distal_rotations)
+    fun, _ = _paper_residuals(limb, standard_lengths, w_s, w_l)
+    r = fun(np.asarray(theta, dtype=float).reshape(6))
+    return float(np.einsum("i,i->", r, r))
+
+
+def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
+    """Start from geometry: the knee one thigh length from the hip, through the thigh sensor
+    (which sits on the bone); the ankle one shank length from that knee towards the foot
+    sensor (which sits next to the ankle)."""
+    h_bar = limb.h.mean(axis=0)
+    norm = np.linalg.norm(h_bar)
+    direction = -h_bar / norm if norm > 1e-9 else np.array([0.0, -1.0, 0.0])
+    k0 = h_bar + lengths[0] * direction
+    to_sensor = limb.b - k0
+    dist = np.linalg.norm(to_sensor, axis=1, keepdims=True)
+    ankle_upper = k0 + lengths[1] * to_sensor / np.maximum(dist, 1e-9)
+    # Ankle into the distal frame: a = Qᵀ(x − b), averaged over frames.
+    a0 = np.einsum("fji,fj->i", limb.q, ankle_upper - limb.b) / limb.n
+    return np.concatenate([k0, a0])
+
+
+_COARSE_FRAMES = 400
+"""Least-squares fits first converge on every k-th frame (about this many frames), then
+polish on all frames: the final point is the minimum of the full cost, reached with a few
+full-size iterations instead of ~15."""
+
+
+def _coarse(limb: _Limb) -> _Limb | None:
+    step = limb.n // _COARSE_FRAMES
+    if step < 2:
+        return None
+    return _Limb(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
+
+
+def _fit_paper_ls(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
+                  w_l: float) -> tuple[Float, int, bool]:
+    n_eval = 0
+    coarse = _coarse(limb)
+    if coarse is not None:
+        fun, jac = _paper_residuals(coarse, lengths, w_s, w_l)
+        sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac",
+                            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=500)
+        x0 = np.asarray(sol.x, dtype=float)
+        n_eval += int(sol.nfev + sol.njev)
+    fun, jac = _paper_residuals(limb, lengths, w_s, w_l)
+    # 1e-10: E within ~1e-12 (relative) of its minimum, far inside the 1e-6 agreement with
+    # Nelder–Mead that the tests and benchmarks check
+    sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac",
+                        ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=500)
+    n_eval += int(sol.nfev + sol.njev)
+    return np.asarray(sol.x, dtype=float), n_eval, bool(sol.status > 0)
+
+
+def _fit_paper_nm(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
+                  w_l: float, progress: Progress) -> tuple[Float, int, bool]:
+    l_up, l_low = lengths
+
+    def cost(theta: Float) -> float:
+        # E directly (eq. 5), no residual vector: the cheapest honest evaluation
+        k, a = theta[:3], theta[3:]
+        ll = _norm(limb.distal(a) - k)
+        lu = _norm(limb.h - k)
+        dev = ll - ll.mean()
+        e_var = np.einsum("f,f->", dev, dev) / limb.n
+        e_len = (np.einsum("f,f->", lu - l_up, lu - l_up)
+                 + np.einsum("f,f->", ll - l_low, ll - l_low)) / limb.n
+        return float(e_var + w_s * np.einsum("i,i->", theta, theta) + w_l * e_len)
+
+    x = np.asarray(x0, dtype=float)
+    f = cost(x)
+    n_eval = 1
+    step = 0.05
+    converged = False
+    # Nelder–Mead stalls on elongated valleys; restarting it from its own result with a
+    # fresh simplex is the classic remedy and still the plain simplex method.
+    for restart in range(30):
+        simplex = np.vstack([x, x + step * np.eye(6)])
+        res = minimize(cost, x, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "xatol": 1e-10, "fatol": 1e-18,
+                                "maxiter": 20000, "maxfev": 20000})
+        n_eval += int(res.nfev)
+        improved = f - float(res.fun)
+        x, f = np.asarray(res.x, dtype=float), float(res.fun)
+        progress(min(0.9, 0.2 + 0.1 * restart), "limbs")
+        if improved <= 1e-13 * max(f, 1e-300):
+            converged = True
+            break
+        step = max(step * 0.3, 1e-4)
+    return x, n_eval, converged
+
+
+def _soft_l1(r: Float, scale: float) -> tuple[Float, Float]:
+    """Residuals whose squares are the soft-L1 loss of ``r``, and their derivative."""
+    u2 = (r / scale) ** 2
+    s = np.sqrt(1.0 + u2)
+    return r * np.sqrt(2.0 / (s + 1.0)), np.sqrt(0.5 * (s + 1.0)) / s
+
+
+def _hinge_axis(limb: _Limb, a: Float) -> tuple[Float, float]:
+    """Flexion axis in the upper frame: the distal joint circles around it, so it is the
+    direction of least scatter of the distal joint's path. Second value: how far that path
+    is from a clean circle arc, 0 (planar and wide) to 1 (no usable axis): the planarity
+    ratio (least over middle variance) relative to ``_PLANARITY_OFF``, or the arc being no
+    wider than the noise (middle spread under ``_ARC_MIN_M``)."""
+    x = limb.distal(a)
+    cov = np.cov(x, rowvar=False)
+    vals, vecs = np.linalg.eigh(cov)
+    planarity = float(vals[0] / vals[1]) if vals[1] > 0 else 1.0
+    spread = float(np.sqrt(max(vals[1], 0.0)))
+    width = float(np.clip((spread - _ARC_MIN_M) / _ARC_MIN_M, 0.0, 1.0))
+    return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
+
+
+def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_hinge: float,
+                      w_line: float, w_length: float, w_distal: float,
+                      robust_scale: float | None,
+                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
+    """θ = (k, a, L): middle joint (upper frame), distal joint (distal frame), lower length.
+
+    Rows: M data rows ρ(l(t) − L); 2 hinge rows; 3 straight-limb rows (middle joint at the
+    standard length ratio on the line from the proximal joint to the distal joint's mean
+    position in the upper frame); 2 length rows; 3 distal-offset rows; 3 plausibility rows
+    (zero unless a segment length leaves ±30 % of its standard length or the distal joint
+    lies more than 0.2 m from its sensor).
+    """
+    m = limb.n
+    h_bar = limb.h.mean(axis=0)
+    b_bar = limb.b.mean(axis=0)
+    q_bar = limb.q.mean(axis=0)
+    c_h = np.sqrt(m * w_hinge)
+    c_s = np.sqrt(m * w_line)
+    c_l = np.sqrt(m * w_length)
+    c_d = np.sqrt(m * w_distal)
+    c_b = np.sqrt(m * _W_BOUND)
+    l_up, l_low = lengths
+    tol_up, tol_low = _BOUND * l_up, _BOUND * l_low
+
+    def outside(value: float, target: float, tol: float) -> tuple[float, float]:
+        # flat-bottomed penalty: zero within ±tol of the standard length, linear beyond
+        dev = value - target
+        excess = abs(dev) - tol
+        return (float(np.sign(dev) * excess), float(np.sign(dev))) if excess > 0 else (0.0, 0.0)
+
+    ratio = l_up / (l_up + l_low)
+
+    def fun(theta: Float) -> Float:
+        k, a, length = theta[:3], theta[3:6], theta[6]
+        ll = _norm(limb.distal(a) - k)
+        r = ll - length
+        if robust_scale is not None:
+            r, _ = _soft_l1(r, robust_scale)
+        x_bar = b_bar + q_bar @ a
+        lu = np.linalg.norm(k - h_bar)
+        tail = np.concatenate([
+            [c_h * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
+            c_s * (k - h_bar - ratio * (x_bar - h_bar)),
+            [c_l * (lu - l_up), c_l * (length - l_low)],
+            c_d * a,
+            [c_b * outside(float(lu), l_up, tol_up)[0],
+             c_b * outside(float(length), l_low, tol_low)[0],
+             c_b * outside(float(np.linalg.norm(a)), 0.0, _DISTAL_REACH)[0]],
+        ])
+        return np.concatenate([r, tail])
+
+    def jac(theta: Float) -> Float:
+        k, a, length = theta[:3], theta[3:6], theta[6]
+        d = limb.distal(a) - k
+        ll = _norm(d)
+        u = d / ll[:, None]
+        j = np.zeros((m + 13, 7))
+        j[:m, :3] = -u
+        j[:m, 3:6] = np.einsum("fi,fij->fj", u, limb.q)
+        j[:m, 6] = -1.0
+        if robust_scale is not None:
+            _, dr = _soft_l1(ll - length, robust_scale)
+            j[:m] *= dr[:, None]
+        j[m, :3] = c_h * axis
+        j[m + 1, :3] = -c_h * axis
+        j[m + 1, 3:6] = c_h * axis @ q_bar
+        j[m + 2:m + 5, :3] = c_s * np.eye(3)
+        j[m + 2:m + 5, 3:6] = -c_s * ratio * q_bar
+        e = k - h_bar
+        j[m + 5, :3] = c_l * e / np.linalg.norm(e)
+        j[m + 6, 6] = c_l
+        j[m + 7:m + 10, 3:6] = c_d * np.eye(3)
+        j[m + 10, :3] = c_b * outside(float(np.linalg.norm(e)), l_up, tol_up)[1] * e \
+            / np.linalg.norm(e)
+        j[m + 11, 6] = c_b * outside(float(length), l_low, tol_low)[1]
+        reach = float(np.linalg.norm(a))
+        if reach > 0:
+            j[m + 12, 3:6] = c_b * outside(reach, 0.0, _DISTAL_REACH)[1] * a / reach
+        return j
+
+    return fun, jac
+
+
+# Weights of the improved method's priors, per frame (the data rows have unit weight and
+# residuals of a few millimetres). Chosen on simulated clips (benchmarks/skeleton_accuracy.py
+# protocol): they only matter along directions the motion does not determine.
+_W_HINGE = 0.03     # hinge rule, fully on for planar distal paths
+_W_LINE = 3e-4      # middle joint on the proximal–distal line at the standard length ratio
+_W_LENGTH = 1e-4    # standard lengths (anthropometric tables are ±20 % off real subjects)
+_W_DISTAL = 3e-4    # distal joint near its sensor (as the paper's w_S, weaker, distal only)
+_W_BOUND = 1.0      # lengths beyond ±_BOUND of the standard ones (implausible): strong
+_BOUND = 0.3
+_DISTAL_REACH = 0.2  # m: the ankle (wrist) lies within this distance of the foot (hand) sensor
+_PLANARITY_OFF = 0.2  # hinge rule off when the distal path is this far from planar
+_ARC_MIN_M = 0.01     # ... or when its in-plane spread is below 1 cm (noise, not flexion)
+_ALTERNATE = 2      # axis ↔ joints alternations
+
+
+_MOTION_REF_DEG = 20.0  # relative rotation (90th percentile) below which priors are raised
+
+
+def _relative_motion_deg(limb: _Limb) -> float:
+    """90th percentile of the angle between the distal–upper relative rotation and its mean
+    (chordal mean), degrees: how much the limb moves."""
+    u, _, vt = np.linalg.svd(limb.q.mean(axis=0))
+    mean = u @ np.diag([1.0, 1.0, float(np.linalg.det(u @ vt))]) @ vt
+    cos = (np.einsum("ij,fij->f", mean, limb.q) - 1.0) / 2.0
+    return float(np.degrees(np.percentile(np.arccos(np.clip(cos, -1.0, 1.0)), 90)))
+
+
+def _hinge_weight(doubt: float) -> float:
+    return _W_HINGE * (1.0 - doubt)
+
+
+def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float],
+                  robust_scale: float | None) -> tuple[Float, int, bool, dict[str, Any]]:
+    n_eval, ok = 0, False
+    coarse = _coarse(limb) or limb
+    motion_deg = _relative_motion_deg(limb)
+    # Little relative rotation between the two sensors means the data hardly constrain the
+    # joints (and their noise would be fitted): lean on the priors accordingly.
+    gain = float(np.clip((_MOTION_REF_DEG / max(motion_deg, 1e-3)) ** 2, 1.0, 100.0))
+    w_line, w_length, w_distal = gain * _W_LINE, gain * _W_LENGTH, gain * _W_DISTAL
+    best: tuple[float, Float, Float, float] | None = None
+    # Several starts on the subsample (the objective has local minima when the limb moves
+    # little); the best one is polished on every frame.
+    for start in starts:
+        axis, doubt = _hinge_axis(limb, start[3:6])
+        length = float(_norm(limb.distal(start[3:6]) - start[:3]).mean())
+        x = np.concatenate([start[:6], [length]])
+        # The axis depends on the distal joint and vice versa: alternate.
+        for _ in range(_ALTERNATE):
+            fun, jac = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
+                                         w_line, w_length, w_distal, robust_scale)
+            sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
+                                ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
+            n_eval += int(sol.nfev + sol.njev)
+            x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
+            new_axis, doubt = _hinge_axis(limb, x[3:6])
+            if new_axis @ axis < 0:
+                new_axis = -new_axis
+            moved = float(np.arccos(np.clip(new_axis @ axis, -1.0, 1.0)))
+            axis = new_axis
+            if moved < 1e-4:
+                break
+        fun, _ = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
+                                   w_length, w_distal, robust_scale)
+        r = fun(x)
+        value = float(r @ r)
+        if best is None or value < best[0]:
+            best = (value, x, axis, doubt)
+    assert best is not None
+    _, x, axis, doubt = best
+    fun, jac = _improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
+                                 w_length, w_distal, robust_scale)
+    if coarse is not limb:
+        sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
+                            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
+        n_eval += int(sol.nfev + sol.njev)
+        x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
+    r = fun(x)
+    v = limb.distal(x[3:6]) - x[:3]
+    v -= np.outer(v @ axis, axis)
+    v /= np.maximum(_norm(v), 1e-12)[:, None]
+    mean_dir = v.mean(axis=0)
+    angles = np.degrees(np.arccos(np.clip(v @ (mean_dir / np.linalg.norm(mean_dir)), -1, 1)))
+    side = np.sign(np.cross(v, mean_dir) @ axis)
+    signed = angles * np.where(side == 0, 1.0, side)
+    return x[:6], n_eval, ok, {
+        "objective": float(r @ r),
+        "hinge_axis_local": axis.tolist(),
+        "hinge_doubt": doubt,
+        "relative_motion_deg": motion_deg,
+        "prior_gain": gain,
+        "flexion_range_deg": (float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
+                              if doubt < 1.0 else None),
+    }
+
+
+def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
+                  distal_positions: ArrayLike, distal_rotations: Rotation, *,
+                  standard_lengths: tuple[float, float], method: str = "improved",
+                  optimizer: str = "least-squares", w_s: float = 0.01, w_l: float = 0.01,
+                  robust_scale: float | None = 0.01,
+                  progress: Progress | None = None) -> LimbFit:
+    """Knee and ankle (elbow and wrist) from the thigh and foot (upper-arm and hand) sensors.
+
+    Parameters
+    ----------
+    proximal : array_like, shape (F, 3)
+        Hip (shoulder) world positions per frame, metres, from the torso step.
+    upper_positions : array_like, shape (F, 3)
+        Thigh (upper-arm) sensor origin per frame, world frame, metres.
+    upper_rotations : Rotation, length F
+        Thigh (upper-arm) sensor → world rotation per frame.
+    distal_positions : array_like, shape (F, 3)
+        Foot (hand) sensor origin per frame, world frame, metres.
+    distal_rotations : Rotation, length F
+        Foot (hand) sensor → world rotation per frame.
+    standard_lengths : (float, float)
+        Standard upper and lower segment lengths ``L_{j−1,j}``, ``L_{j,j+1}`` (thigh and shank,
+        or upper arm and forearm), metres; see :func:`standard_lengths`.
+    method : {"improved", "paper"}
+        ``"paper"``: minimise the paper's E (eq. 5). ``"improved"``: see the module docstring.
+    optimizer : {"least-squares", "nelder-mead"}
+        For ``method="paper"``: trust-region least squares with an analytic Jacobian
+        (default) or Nelder–Mead on E (the paper's simplex method). Both start from the same
+        geometric initial point and reach the same minimum. ``"improved"`` always uses least
+        squares.
+    w_s, w_l : float
+        Weights of the paper's eqs. 3 and 4 (0.01 in the paper; lengths in metres).
+    robust_scale : float or None, default 0.01
+        ``"improved"`` only: residual scale (metres) of the soft-L1 loss; None for plain least
+        squares.
+    progress : callable, optional
+        ``progress(fraction, stage)``.
+
+    Returns
+    -------
+    LimbFit
+
+    Raises
+    ------
+    InputError
+        Bad shapes, NaN in the inputs, unknown method or optimizer.
+    EstimationError
+        Fewer than 3 frames.
+
+    Notes
+    -----
+    Miura, Kaiga, Tajima, Shibata, Tamamoto, "Sensor Number Reduction in Skeleton Estimation
+    from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707, 2015, eqs. 2–5.
+    Nelder & Mead, Comput. J. 7:308–313, 1965.
+
+    ``E`` is a sum of squares because ``Var_t(l) = Σ_t ((l(t) − l̄)/√M)²``; with
+    ``u = (ankle − knee)/l`` the Jacobian rows are ``∂l/∂s_j = −uᵀP_k`` and
+    ``∂l/∂s_{j+1} = uᵀP_{k+1}`` (computed in the upper sensor frame, where
+    ``P_kᵀP_{k+1}`` is precomputed once), so one evaluation costs O(F).
+
+    The Nelder–Mead path uses scipy's implementation with an initial simplex of 5 cm steps
+    around the start, ``xatol=1e-10`` m, ``fatol=1e-18`` m², and restarts from its own
+    result with a shrinking simplex until a restart no longer lowers E (relative 1e-13).
+
+    ``"improved"`` replaces ``Var_t(l)`` by ``Σ_t ρ(l(t) − L)`` with a free length ``L`` and
+    the soft-L1 loss ``ρ``, drops the ``|s|²`` term (it pulls the joints towards the sensor
+    origins, a bias of centimetres), and adds the hinge rule: with ``n`` the flexion axis in
+    the upper frame (least-scatter direction of the distal joint's path there), the middle
+    joint is the point of the axis nearest the proximal joint (``nᵀ(s_j − h) = 0``) and the
+    distal joint lies in the same plane (``nᵀ(x̄ − s_j) = 0``); both directions are
+    unobservable from a hinge's motion. The rule is switched off when that path is not a
+    clean arc wider than 1 cm. Weak priors (per frame, relative to the data rows: 1e-4 on the
+    two standard lengths, 3e-4 on the middle joint lying on the proximal–distal line at the
+    standard length ratio and on the distal joint lying near its sensor) keep a motionless
+    limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the relative
+    rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment lengths
+    beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
+    the paper's least-squares solution, the geometric point and a straight limb through the
+    distal sensor; the alternation between axis and joints runs on a 400-frame subsample
+    from each start and the best is polished on every frame. Weights were chosen on
+    simulated clips (see ``docs/skeleton-limbs.md``).
+
+    Least-squares fits first converge on a subsample of about 400 frames and are then
+    polished on all frames (``ftol = xtol = gtol = 1e-10``), so the full-size Jacobian is
+    built only a few times.
+    """
+    report = progress or no_progress
+    if method not in ("paper", "improved"):
+        raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
+                         field="method")
+    if optimizer not in ("least-squares", "nelder-mead"):
+        raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
+                         "'nelder-mead'", field="optimizer")
+    lengths = (float(standard_lengths[0]), float(standard_lengths[1]))
+    if not all(np.isfinite(v) and v > 0 for v in lengths):
+        raise InputError("standard lengths must be positive", field="standard_lengths")
+    report(0.0, "limbs")
+    limb = _prepare(proximal, upper_positions, upper_rotations, distal_positions,
+                    distal_rotations)
+    x0 = _initial_point(limb, lengths)
+    quality: dict[str, Any] = {"method": method}
+    if method == "paper" and optimizer == "nelder-mead":
+        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
+        quality["optimizer"] = "nelder-mead"
+    else:
+        theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l)
+        quality["optimizer"] = "least-squares"
+        if method == "improved":
+            report(0.3, "limbs")
+            h_bar = limb.h.mean(axis=0)
+            toward = limb.b.mean(axis=0) - h_bar
+            straight = np.concatenate([
+                h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9),
+                np.zeros(3)])
+            theta, more, ok, extra = _fit_improved(limb, [theta, x0, straight], lengths,
+                                                   robust_scale)
+            n_eval += more
+            quality.update(extra)
+    fun, _ = _paper_residuals(limb, lengths, w_s, w_l)
+    r = fun(theta)
+    k, a = theta[:3], theta[3:]
+    x = limb.distal(a)
+    ll = np.linalg.norm(x - k, axis=1)
+    lu = np.linalg.norm(limb.h - k, axis=1)
+    quality.update({
+        "upper_length_m": float(lu.mean()),
+        "lower_length_m": float(ll.mean()),
+        "lower_length_sd_m": float(ll.std()),
+        "converged": ok,
+        "n_evaluations": n_eval,
+    })
+    report(1.0, "limbs")
+    upper_rot = upper_rotations
+    middle = np.asarray(upper_positions, dtype=float) + upper_rot.apply(k)
+    distal = np.asarray(distal_positions, dtype=float) + distal_rotations.apply(a)
+    return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
+                   cost=float(r @ r), n_evaluations=n_eval, quality=quality)

@@ -1,0 +1,485 @@
+"""Skeleton (joint centres, bone lengths, segment orientations) from 6-DOF sensor recordings."""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.signal import savgol_filter
+from scipy.spatial.transform import Rotation
+
+from .errors import EstimationError, InputError
+from .gaps import fill_gaps, gap_lengths
+from .joints import JointFit, estimate_joint, range_of_motion
+from .limbs import estimate_limb, standard_lengths, torso_length
+from .model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
+from .orientations import estimate_orientations
+from .progress import Progress, no_progress, scaled
+from .recording import SensorRecording
+from .results import JointOffset, SkeletonResult
+
+METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
+
+BONES: Final[dict[str, tuple[str, str]]] = {
+    "pelvis": ("root", "waist"),
+    "chest": ("waist", "neck"),
+    "l_upperarm": ("l_shoulder", "l_elbow"),
+    "l_forearm": ("l_elbow", "l_wrist"),
+    "r_upperarm": ("r_shoulder", "r_elbow"),
+    "r_forearm": ("r_elbow", "r_wrist"),
+    "l_thigh": ("l_hip", "l_knee"),
+    "l_shank": ("l_knee", "l_ankle"),
+    "r_thigh": ("r_hip", "r_knee"),
+    "r_shank": ("r_knee", "r_ankle"),
+}
+"""Segment → (proximal joint, distal joint) whose mean distance is the segment's bone length."""
+
+HUMAN_RANGE_M: Final[dict[str, tuple[float, float]]] = {
+    "torso": (0.2, 1.0),
+    "chest": (0.15, 0.9),
+    "l_upperarm": (0.12, 0.55), "r_upperarm": (0.12, 0.55),
+    "l_forearm": (0.1, 0.5), "r_forearm": (0.1, 0.5),
+    "l_thigh": (0.2, 0.7), "r_thigh": (0.2, 0.7),
+    "l_shank": (0.2, 0.7), "r_shank": (0.2, 0.7),
+}
+"""Plausible adult bone lengths, metres; outside them the units are probably wrong."""
+
+# limb name -> (proximal joint, middle joint, distal joint, upper seg, middle seg, distal seg,
+#               standard-length keys)
+_LIMBS: Final[dict[str, tuple[str, str, str, str, str, str, tuple[str, str]]]] = {
+    "l_arm": ("l_shoulder", "l_elbow", "l_wrist", "l_upperarm", "l_forearm", "l_hand",
+              ("upperarm", "forearm")),
+    "r_arm": ("r_shoulder", "r_elbow", "r_wrist", "r_upperarm", "r_forearm", "r_hand",
+              ("upperarm", "forearm")),
+    "l_leg": ("l_hip", "l_knee", "l_ankle", "l_thigh", "l_shank", "l_foot",
+              ("thigh", "shank")),
+    "r_leg": ("r_hip", "r_knee", "r_ankle", "r_thigh", "r_shank", "r_foot",
+              ("thigh", "shank")),
+}
+_TORSO_JOINTS: Final[tuple[str, ...]] = ("l_hip", "r_hip", "l_shoulder", "r_shoulder",
+                                         "waist", "neck")
+# joint -> the pair of joints it sits midway between (sideways), in the same sensor frame
+_MIDLINE: Final[dict[str, tuple[str, str]]] = {"waist": ("l_hip", "r_hip"),
+                                               "neck": ("l_shoulder", "r_shoulder")}
+
+
+NECK_RISE: Final[float] = 0.15
+"""Neck prior: height above the shoulders' midpoint as a fraction of the shoulder width
+(0.05–0.2 in the CMU and Bandai Namco rigs)."""
+PRIOR_SIGMA_M: Final[dict[str, float]] = {"neck": 0.03, "mirror": 0.03}
+"""Standard deviation of each anatomical prior, metres."""
+
+
+def estimate_chest(waist: NDArray[np.float64], neck: NDArray[np.float64],
+                   l_shoulder: NDArray[np.float64], r_shoulder: NDArray[np.float64]
+                   ) -> NDArray[np.float64]:
+    """Chest joint C from the torso joints (Miura et al. 2015, eq. 1).
+
+    Parameters
+    ----------
+    waist, neck, l_shoulder, r_shoulder : ndarray, shape (F, 3)
+        World positions of W, N, LS, RS, metres.
+
+    Returns
+    -------
+    ndarray, shape (F, 3)
+        ``q_C = W + α (q'_C − W)/|q'_C − W|`` where ``q'_C`` is the midpoint of the common
+        perpendicular of lines W–N and LS–RS and ``α = mean_t |q'_C − W|``.
+
+    Notes
+    -----
+    Miura, Kaiga, Tajima, Shibata & Tamamoto, J. Inf. Process. 23(5):704–707 (2015), eq. 1.
+    Parallel lines (a degenerate frame) use the foot of the perpendicular from W.
+    """
+    w, n, ls, rs = waist, neck, l_shoulder, r_shoulder
+    d1, d2, r = n - w, rs - ls, w - ls
+    a = np.einsum("ij,ij->i", d1, d1)
+    b = np.einsum("ij,ij->i", d1, d2)
+    c = np.einsum("ij,ij->i", d2, d2)
+    d = np.einsum("ij,ij->i", d1, r)
+    e = np.einsum("ij,ij->i", d2, r)
+    den = a * c - b * b
+    parallel = den <= 1e-12 * np.maximum(a * c, 1e-300)
+    safe = np.where(parallel, 1.0, den)
+    s = np.where(parallel, 0.0, (b * e - c * d) / safe)
+    t = np.where(parallel, e / np.where(c > 0, c, 1.0), (a * e - b * d) / safe)
+    q = 0.5 * ((w + s[:, None] * d1) + (ls + t[:, None] * d2))
+    v = q - w
+    dist = np.linalg.norm(v, axis=1)
+    alpha = float(np.mean(dist))
+    return np.asarray(w + v / np.where(dist > 0, dist, 1.0)[:, None] * alpha)
+
+
+def estimate_root(waist: NDArray[np.float64], l_hip: NDArray[np.float64],
+                  r_hip: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Root R: centroid of W, LH and RH per frame (Miura et al. 2015, §2.1)."""
+    return np.asarray((waist + l_hip + r_hip) / 3.0)
+
+
+def _parse_up(up: ArrayLike) -> NDArray[np.float64]:
+    vec = np.asarray(up, dtype=float).reshape(-1)
+    if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) == 0:
+        raise InputError(f"up must be a non-zero 3-vector, got {up!r}", field="up")
+    return np.asarray(vec / np.linalg.norm(vec))
+
+
+def _units_hint(length: float, low: float, high: float) -> str:
+    typical = np.sqrt(low * high)
+    ratio = length / typical
+    for factor, unit in ((1000.0, "millimetres"), (100.0, "centimetres"),
+                         (39.37, "inches"), (3.281, "feet")):
+        if 0.5 * factor < ratio < 2.0 * factor:
+            return f"; the positions look like {unit}: convert them to metres (or pass units)"
+    return "; check the units of the positions and that each sensor carries the right name"
+
+
+def _check_units(bone_lengths: Mapping[str, float], warnings: list[str]) -> None:
+    """EstimationError when the bones are, as a whole, far outside human size (wrong units);
+    a warning for a single implausible bone (a badly located joint)."""
+    ratios = {seg: length / float(np.sqrt(np.prod(HUMAN_RANGE_M[seg])))
+              for seg, length in bone_lengths.items() if seg in HUMAN_RANGE_M}
+    typical = float(np.median(list(ratios.values())))
+    if not 1.0 / 3.0 <= typical <= 3.0:
+        seg = max(ratios, key=lambda k: abs(np.log(max(ratios[k], 1e-12))))
+        low, high = HUMAN_RANGE_M[seg]
+        length = bone_lengths[seg]
+        raise EstimationError(
+            f"the {seg} bone is {length:.3g} m long, outside the human range "
+            f"{low}–{high} m{_units_hint(length, low, high)}", field=seg)
+    for seg in ratios:
+        low, high = HUMAN_RANGE_M[seg]
+        if not low <= bone_lengths[seg] <= high:
+            warnings.append(f"{seg}: bone length {bone_lengths[seg]:.3f} m is outside the "
+                            f"human range {low}–{high} m; its joints are poorly located")
+
+
+def _smooth(x: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+    """Zero-phase Savitzky–Golay smoothing over ~0.1 s (cubic), for white sensor noise."""
+    window = round(0.1 * fps) | 1
+    if window < 5 or x.shape[0] <= window:
+        return x
+    return np.asarray(savgol_filter(x, window, 3, axis=0, mode="interp"))
+
+
+def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.asarray(v / max(float(np.linalg.norm(v)), 1e-9))
+
+
+def _neck_prior(fits: Mapping[str, JointFit]) -> tuple[NDArray[np.float64], float]:
+    """Anatomical prior of the neck in the chest sensor's frame (point, standard deviation,
+    metres): above the shoulders' midpoint, away from the waist, by ``NECK_RISE`` times the
+    shoulder width (the base of the neck sits a little above the shoulder joints)."""
+    left, right = fits["l_shoulder"].local_a, fits["r_shoulder"].local_a
+    mid = 0.5 * (left + right)
+    up = _unit(mid - fits["waist"].local_b)
+    return mid + NECK_RISE * float(np.linalg.norm(left - right)) * up, PRIOR_SIGMA_M["neck"]
+
+
+def _sagittal_plane(segment: str, fits: Mapping[str, JointFit]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mid-sagittal plane (point, unit normal) in the chest or pelvis sensor frame: through
+    the waist–neck line (chest) or the waist (pelvis), normal along the left–right axis."""
+    if segment == "chest":
+        left, right = fits["l_shoulder"].local_a, fits["r_shoulder"].local_a
+        base, top = fits["waist"].local_b, fits["neck"].local_a
+    else:
+        left, right = fits["l_hip"].local_a, fits["r_hip"].local_a
+        base = fits["waist"].local_a
+        top = base + (base - 0.5 * (left + right))
+    along = _unit(top - base)
+    across = left - right
+    return base, _unit(across - float(across @ along) * along)
+
+
+def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArray[np.float64]]
+             ) -> NDArray[np.float64]:
+    base, normal = plane
+    return np.asarray(point - 2.0 * float((point - base) @ normal) * normal)
+
+
+def estimate_skeleton(
+    recording: SensorRecording,
+    *,
+    method: str = "auto",
+    optimizer: str = "least-squares",
+    torso: str = "llsf",
+    up: ArrayLike = (0.0, 1.0, 0.0),
+    i0: int = 0,
+    anthropometry: str | Mapping[str, float] = "aist",
+    w_s: float = 0.01,
+    w_l: float = 0.01,
+    smooth: bool | None = None,
+    highpass_s: float = 0.0,
+    min_range_deg: float = 2.0,
+    progress: Progress | None = None,
+) -> SkeletonResult:
+    """Joint centres, bone lengths and segment orientations from a sensor recording.
+
+    Parameters
+    ----------
+    recording : SensorRecording
+        15 sensors (full suit) or the 11 of the reduced suit (``model.REDUCED_SEGMENTS``),
+        positions in metres. Dropped samples (NaN) are filled by interpolation.
+    method : {"auto", "llsf", "gdke", "reduced"}
+        ``"llsf"`` / ``"gdke"``: every joint between two sensors by that estimator as
+        published (plain least squares, no hinge rule); needs all 15 sensors.
+        ``"reduced"``: the paper exactly: torso joints by ``torso``, root and chest by eq. 1,
+        the four limbs by the variance cost E (eqs. 2–5, ``limbs.estimate_limb(method=
+        "paper")``) from the thigh/foot and upper-arm/hand sensors; works with 11 or 15
+        sensors (extra sensors are ignored). ``"auto"`` (default): every sensor present and
+        the best estimator per joint: robust LLSF (Huber IRLS) for joints between two
+        sensors, hinge knees and elbows resolved by the straight-limb rule, twisting wrists
+        by the bone-length rule (``joints.estimate_joint``), waist and neck weakly tied to
+        the mid-plane between the hips (shoulders), limbs whose middle sensor is missing by
+        ``estimate_limb(method="improved")``, and zero-phase smoothing of the joint paths.
+    optimizer : {"least-squares", "nelder-mead"}
+        Minimiser of E for ``method="reduced"``.
+    torso : {"llsf", "gdke"}
+        Torso estimator of ``method="reduced"``.
+    up : array_like, shape (3,)
+        World up direction (segment orientations only).
+    i0 : int
+        Calibration frame of hands, feet and head orientations (paper eq. 7).
+    anthropometry : str or mapping
+        Table of standard segment lengths (``limbs.standard_lengths``).
+    w_s, w_l : float
+        Weights of the paper's eq. 5.
+    smooth : bool, optional
+        Smooth the joint paths (Savitzky–Golay, 0.1 s); default: only for ``"auto"``.
+    highpass_s : float
+        ``"auto"`` only: remove a moving average of this length (seconds) from each LLSF
+        system, cancelling sensor slip slower than the motion (0: off, the default; see
+        ``joints.estimate_joint(highpass=...)``).
+    min_range_deg : float
+        A joint whose two segments rotate less than this relative to each other cannot be
+        located: EstimationError naming it. 0 estimates it anyway.
+    progress : callable, optional
+        ``progress(fraction, stage)`` with stages ``gaps``, ``torso``, ``limbs``,
+        ``orientations``.
+
+    Returns
+    -------
+    SkeletonResult
+        ``joints`` holds all 16 joints of ``model.JOINTS`` with no NaN.
+
+    Raises
+    ------
+    InputError
+        A required sensor is missing (naming it and the sensors present), a sensor has no
+        valid sample, an unknown option.
+    EstimationError
+        Too little motion to locate a joint, or bone lengths outside human range (wrong
+        units).
+
+    Notes
+    -----
+    Miura, Kaiga, Tajima, Shibata & Tamamoto, "Sensor Number Reduction in Skeleton
+    Estimation from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707 (2015);
+    O'Brien et al., Graphics Interface 2000 (LLSF); Knight & Semwal, WSCG 2007 (GDKE).
+    """
+    started = _time.perf_counter()
+    report = progress or no_progress
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; use one of {', '.join(METHODS)}",
+                         field="method")
+    if optimizer not in ("least-squares", "nelder-mead"):
+        raise InputError(f"unknown optimizer {optimizer!r}; use least-squares or nelder-mead",
+                         field="optimizer")
+    if torso not in ("llsf", "gdke"):
+        raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
+    up_vec = _parse_up(up)
+    n_frames = recording.n_frames
+    if not 0 <= i0 < max(n_frames, 1):
+        raise InputError(f"i0={i0} is outside the recording's {n_frames} frames", field="i0")
+    if n_frames < 10:
+        raise EstimationError(f"the recording has {n_frames} frames; at least 10 are needed",
+                              field="frames")
+    required: Sequence[str] = SEGMENTS if method in ("llsf", "gdke") else REDUCED_SEGMENTS
+    for seg in required:
+        recording.index(seg)  # raises InputError naming the missing sensor
+    use = [s for s in SEGMENTS if s in recording.sensors]
+    if method == "reduced":
+        use = list(REDUCED_SEGMENTS)
+    valid = recording.valid()
+    for seg in use:
+        if not valid[:, recording.index(seg)].any():
+            raise InputError(f"sensor {seg!r} has no valid sample (all NaN)", sensor=seg)
+    warnings: list[str] = []
+
+    report(0.0, "gaps")
+    cols = [recording.index(s) for s in use]
+    pos, quat, filled = fill_gaps(recording.positions[:, cols], recording.quaternions[:, cols],
+                                  time=recording.time)
+    positions = {s: pos[:, k] for k, s in enumerate(use)}
+    rotations = {s: Rotation.from_quat(quat[:, k], scalar_first=True)
+                 for k, s in enumerate(use)}
+    ok = {s: ~filled[:, k] for k, s in enumerate(use)}
+    for k, s in enumerate(use):
+        longest = int(gap_lengths(~filled[:, k]).max(initial=0))
+        if longest > 0.5 * recording.fps:
+            warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
+                            "interpolated")
+    spread = max(float(np.ptp(pos[:, k], axis=0).max()) for k in range(len(use)))
+    if spread == 0.0:
+        raise EstimationError("no sensor moves: a recording with motion of every joint is "
+                              "needed", field="motion")
+
+    # per-joint range of motion: a joint that barely rotates is located from priors and
+    # flagged; only a recording in which most joints barely rotate is refused
+    pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
+             and (method != "reduced" or j in _TORSO_JOINTS)]
+    rom = {j: range_of_motion(rotations[JOINT_SEGMENTS[j][0]], rotations[JOINT_SEGMENTS[j][1]])
+           for j in pairs}
+    static = [j for j in pairs if rom[j] < min_range_deg]
+    if 2 * len(static) > len(pairs):
+        raise EstimationError(
+            f"too little motion: {len(static)} of {len(pairs)} joints rotate less than "
+            f"{min_range_deg:g}° ({', '.join(static)}); record a calibration motion of every "
+            "joint", field="motion")
+
+    plain = method in ("llsf", "gdke")
+    estimator = method if plain else (torso if method == "reduced" else "llsf")
+    loss = "huber" if method == "auto" else "linear"
+    do_smooth = (method == "auto") if smooth is None else smooth
+    highpass = round(highpass_s * recording.fps) if method == "auto" else 0
+
+    def joint(name: str, est: str, neighbours: tuple[NDArray[np.float64] | None,
+                                                     NDArray[np.float64] | None] = (None, None),
+              bone_length: float | None = None,
+              symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+              prior: tuple[NDArray[np.float64], float] | None = None,
+              quiet: bool = False) -> JointFit:
+        a, b = JOINT_SEGMENTS[name]
+        try:
+            fit = estimate_joint(
+                positions[a], rotations[a], positions[b], rotations[b], method=est,
+                loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
+                hinge_prior=0.0 if plain else 0.01, highpass=highpass,
+                bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
+                prior=prior if method == "auto" else None)
+        except EstimationError as exc:
+            raise EstimationError(f"{name}: {exc.detail}", field=name) from None
+        if name in static:
+            fit.quality["reliability"] = "prior"
+            source = ("anatomical priors" if prior is not None or neighbours[0] is not None
+                      else "the few frames available")
+            note = (f"rotates only {rom[name]:.1f}° (< {min_range_deg:g}°): located from "
+                    f"{source}, unreliable")
+            fit = replace(fit, warnings=(note, *fit.warnings))
+        else:
+            fit.quality["reliability"] = (
+                "prior-assisted" if fit.quality.get("data_weight", 1.0) < 0.5 else "data")
+        if not quiet:
+            warnings.extend(f"{name}: {w}" for w in fit.warnings)
+        return fit
+
+    report(0.05, "torso")
+    fits: dict[str, JointFit] = {}
+    joints: dict[str, NDArray[np.float64]] = {}
+    offsets: dict[str, JointOffset] = {}
+    quality: dict[str, dict[str, Any]] = {}
+    for k, name in enumerate(_TORSO_JOINTS):
+        sym = None
+        if name in _MIDLINE and method == "auto":
+            left, right = (fits[j].local_a for j in _MIDLINE[name])
+            across = left - right
+            sym = (0.5 * (left + right), across / max(float(np.linalg.norm(across)), 1e-9))
+        prior = _neck_prior(fits) if name == "neck" and method == "auto" else None
+        fit = joint(name, estimator, symmetry=sym, prior=prior)
+        fits[name] = fit
+        joints[name] = fit.positions
+        offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+        quality[name] = fit.quality
+        report(0.05 + 0.25 * (k + 1) / len(_TORSO_JOINTS), "torso")
+    if method == "auto":
+        # left/right symmetry: each shoulder (hip) is pulled toward the mirror image of the
+        # other about the trunk's mid-sagittal plane, along its weakly excited directions
+        for pair, seg in ((("l_shoulder", "r_shoulder"), "chest"),
+                          (("l_hip", "r_hip"), "pelvis")):
+            plane = _sagittal_plane(seg, fits)
+            mirrored = {a: _reflect(fits[b].local_a, plane) for a, b in (pair, pair[::-1])}
+            for name in pair:
+                fit = joint(name, estimator, prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]))
+                fits[name] = fit
+                joints[name] = fit.positions
+                offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+                quality[name] = fit.quality
+    joints["root"] = estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"])
+    joints["chest"] = estimate_chest(joints["waist"], joints["neck"], joints["l_shoulder"],
+                                     joints["r_shoulder"])
+    offsets["root"] = JointOffset("pelvis", (offsets["waist"].local + offsets["l_hip"].local
+                                             + offsets["r_hip"].local) / 3.0)
+    chest_local = rotations["chest"].inv().apply(joints["chest"] - positions["chest"])
+    offsets["chest"] = JointOffset("chest", chest_local.mean(axis=0))
+    quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
+    quality["chest"] = {"estimator": "eq. 1 of the paper",
+                        "alpha_m": float(np.linalg.norm(joints["chest"] - joints["waist"],
+                                                        axis=1).mean())}
+    lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
+    _check_units({"torso": lt}, warnings)  # before the limbs: their priors assume metres
+    std = standard_lengths(lt, anthropometry)
+
+    for k, (limb, (prox, mid, dist, upper, middle, distal, keys)) in enumerate(_LIMBS.items()):
+        stage = scaled(report, 0.3 + 0.6 * k / 4, 0.3 + 0.6 * (k + 1) / 4)
+        stage(0.0, "limbs")
+        if middle in positions and method != "reduced":
+            refit_wrist = not plain and limb.endswith("arm")
+            d_fit = joint(dist, estimator, quiet=refit_wrist)
+            nb = (None, None) if plain else (joints[prox], d_fit.positions)
+            m_fit = joint(mid, estimator, nb)
+            if refit_wrist and mid in static:
+                # an elbow located from priors would carry its error into the wrist's rule
+                warnings.extend(f"{dist}: {w}" for w in d_fit.warnings)
+            elif refit_wrist:
+                # the wrist's own hinge rule needs the elbow, and the forearm length when the
+                # wrist mostly twists about the forearm: the measured upper arm times the
+                # table's forearm / upper-arm ratio
+                upper_len = float(np.linalg.norm(m_fit.positions - joints[prox], axis=1).mean())
+                forearm = upper_len * std["forearm"] / std["upperarm"]
+                d_fit = joint(dist, estimator, (m_fit.positions, None), bone_length=forearm)
+            for name, fit in ((mid, m_fit), (dist, d_fit)):
+                joints[name] = fit.positions
+                offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+                quality[name] = fit.quality
+        else:
+            lf = estimate_limb(
+                joints[prox], positions[upper], rotations[upper], positions[distal],
+                rotations[distal], standard_lengths=(std[keys[0]], std[keys[1]]),
+                method="paper" if method == "reduced" else "improved",
+                optimizer=optimizer, w_s=w_s, w_l=w_l, progress=stage)
+            joints[mid] = lf.middle
+            joints[dist] = lf.distal
+            offsets[mid] = JointOffset(upper, lf.middle_local)
+            offsets[dist] = JointOffset(distal, lf.distal_local)
+            lq = dict(lf.quality)
+            lq.update({"estimator": f"limb-{lq.get('method', '')}", "cost": lf.cost,
+                       "n_evaluations": lf.n_evaluations})
+            quality[mid] = lq
+            quality[dist] = dict(lq)
+        stage(1.0, "limbs")
+
+    if do_smooth:
+        joints = {name: _smooth(path, recording.fps) for name, path in joints.items()}
+    bone_lengths = {seg: float(np.linalg.norm(joints[b] - joints[a], axis=1).mean())
+                    for seg, (a, b) in BONES.items()}
+    _check_units(bone_lengths, warnings)
+
+    report(0.9, "orientations")
+    orientations = estimate_orientations(joints, rotations, i0=i0, up=up_vec)
+    report(1.0, "orientations")
+    elapsed = _time.perf_counter() - started
+    return SkeletonResult(
+        method=method,
+        fps=recording.fps,
+        joints={name: joints[name] for name in JOINTS},
+        offsets={name: offsets[name] for name in JOINTS},
+        bone_lengths=bone_lengths,
+        orientations=orientations,
+        quality={name: quality[name] for name in JOINTS},
+        warnings=tuple(warnings),
+        timings={"estimate_s": elapsed},
+    )

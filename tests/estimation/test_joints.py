@@ -1,0 +1,224 @@
+"""Joint centres between two sensors: LLSF, GDKE, hinges, robust loss, gaps."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from estimation.errors import EstimationError, InputError
+from estimation.gaps import fill_gaps, gap_lengths
+from estimation.joints import estimate_joint
+
+RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
+
+
+def local_error_mm(fit_local: np.ndarray, true_local: np.ndarray) -> float:
+    return float(np.linalg.norm(fit_local - true_local) * 1000.0)
+
+
+@pytest.mark.parametrize("method", ["llsf", "gdke"])
+def test_recovers_ball_joint_centre_with_noise(rig_factory: RigFactory, method: str) -> None:
+    rig = rig_factory("ball", rom_deg=90.0, noise_m=0.002, noise_deg=0.5, seed=1)
+    fit = estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b,
+                         method=method, loss="linear")
+    assert local_error_mm(fit.local_a, rig.local_a) < 4.0
+    assert local_error_mm(fit.local_b, rig.local_b) < 4.0
+    path_error = np.linalg.norm(fit.positions - rig.centre, axis=1)
+    assert path_error.mean() < 0.004
+    assert fit.quality["estimator"] == method
+    assert not fit.quality["hinge"]
+    assert fit.quality["range_of_motion_deg"] > 60.0
+    assert 0.001 < fit.quality["rms_residual_m"] < 0.01  # noise of two 2 mm sensors
+
+
+def test_exact_without_noise(rig_factory: RigFactory) -> None:
+    rig = rig_factory("ball", rom_deg=40.0, seed=2)
+    fit = estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b,
+                         method="llsf")
+    assert local_error_mm(fit.local_a, rig.local_a) < 1e-6
+    assert fit.residuals.max() < 1e-9
+
+
+def test_gdke_bias_compensation_reduces_error_at_small_range(rig_factory: RigFactory) -> None:
+    errors = {True: [], False: []}
+    for seed in range(3):
+        rig = rig_factory("ball", rom_deg=30.0, noise_m=0.003, noise_deg=0.5, seed=seed)
+        for comp in (True, False):
+            fit = estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b,
+                                 rig.rotations_b, method="gdke", bias_compensation=comp,
+                                 loss="linear")
+            errors[comp].append(local_error_mm(fit.local_a, rig.local_a))
+    assert np.mean(errors[True]) < 0.8 * np.mean(errors[False])
+
+
+def test_hinge_is_detected_and_resolved_by_straight_limb_rule(rig_factory: RigFactory) -> None:
+    rig = rig_factory("hinge", rom_deg=70.0, noise_m=0.002, noise_deg=0.5, seed=3)
+    # neighbours on the bones: hip fixed in frame a and ankle fixed in frame b, both in the
+    # plane through the centre perpendicular to the axis (a straight limb at full extension)
+    perp = np.cross(rig.axis_a, [0.0, 0.0, 1.0])
+    perp /= np.linalg.norm(perp)
+    hip = rig.rotations_a.apply(rig.local_a + 0.4 * perp) + rig.positions_a
+    ankle_local_b = rig.local_b + 0.4 * rig.rotations_b[0].inv().apply(
+        rig.rotations_a[0].apply(-perp))
+    ankle = rig.rotations_b.apply(ankle_local_b) + rig.positions_b
+    args = (rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
+    plain = estimate_joint(*args, loss="linear", hinge_prior=0.0)
+    ruled = estimate_joint(*args, neighbours=(hip, ankle))
+    assert plain.quality["hinge"]
+    assert ruled.quality["hinge"]
+    assert plain.quality["hinge_ratio"] < 0.1
+    axis = np.asarray(ruled.quality["axis"])
+    assert abs(axis @ rig.axis_a) > np.cos(np.deg2rad(3.0))
+    assert ruled.quality["hinge_rule"] == "straight-limb"
+    assert local_error_mm(ruled.local_a, rig.local_a) < 5.0
+    # without a rule the centre slides along the axis
+    assert local_error_mm(ruled.local_a, rig.local_a) < local_error_mm(plain.local_a,
+                                                                        rig.local_a)
+    assert any("hinge" in w for w in ruled.warnings)
+
+
+def test_foot_of_perpendicular_rule_with_one_neighbour(rig_factory: RigFactory) -> None:
+    rig = rig_factory("hinge", rom_deg=70.0, noise_m=0.002, seed=4)
+    perp = np.cross(rig.axis_a, [0.0, 0.0, 1.0])
+    perp /= np.linalg.norm(perp)
+    elbow = rig.rotations_a.apply(rig.local_a + 0.3 * perp) + rig.positions_a
+    fit = estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b,
+                         neighbours=(elbow, None))
+    assert fit.quality["hinge_rule"] == "foot-of-perpendicular"
+    assert local_error_mm(fit.local_a, rig.local_a) < 5.0
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_robust_loss_beats_plain_on_outlier_frames(rig_factory: RigFactory, loss: str) -> None:
+    rig = rig_factory("ball", rom_deg=60.0, noise_m=0.002, seed=5)
+    rng = np.random.default_rng(0)
+    pb = rig.positions_b.copy()
+    bad = rng.choice(pb.shape[0], size=pb.shape[0] // 10, replace=False)
+    pb[bad] += rng.normal(scale=0.08, size=(bad.size, 3)) + 0.05  # slipped sensor
+    args = (rig.positions_a, rig.rotations_a, pb, rig.rotations_b)
+    plain = estimate_joint(*args, loss="linear")
+    robust = estimate_joint(*args, loss=loss)
+    e_plain = local_error_mm(plain.local_a, rig.local_a)
+    e_robust = local_error_mm(robust.local_a, rig.local_a)
+    assert e_robust < 0.5 * e_plain
+    assert e_robust < 5.0
+    assert robust.quality["outlier_fraction"] > 0.05
+
+
+def test_nan_samples_are_skipped_and_filled(rig_factory: RigFactory) -> None:
+    rig = rig_factory("ball", rom_deg=60.0, noise_m=0.001, seed=6)
+    pa = rig.positions_a.copy()
+    pa[50:60] = np.nan
+    fit = estimate_joint(pa, rig.rotations_a, rig.positions_b, rig.rotations_b)
+    assert np.isfinite(fit.positions).all()
+    # where a is missing the centre comes from b alone
+    assert np.linalg.norm(fit.positions[50:60] - rig.centre[50:60], axis=1).max() < 0.006
+    assert local_error_mm(fit.local_a, rig.local_a) < 3.0
+
+
+def test_too_little_motion_raises(rig_factory: RigFactory) -> None:
+    rig = rig_factory("ball", rom_deg=0.5, seed=7)
+    with pytest.raises(EstimationError, match="rotate only"):
+        estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
+
+
+def test_small_motion_warns(rig_factory: RigFactory) -> None:
+    rig = rig_factory("ball", rom_deg=10.0, seed=8)
+    fit = estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
+    assert any("small range of motion" in w for w in fit.warnings)
+
+
+def test_bad_arguments(rig_factory: RigFactory) -> None:
+    rig = rig_factory("ball", seed=9)
+    args = (rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
+    with pytest.raises(InputError, match="method"):
+        estimate_joint(*args, method="magic")
+    with pytest.raises(InputError, match="loss"):
+        estimate_joint(*args, loss="l3")
+    with pytest.raises(InputError, match="positions"):
+        estimate_joint(rig.positions_a[:-1], *args[1:])
+
+
+def test_fill_gaps_interpolates_positions_and_rotations() -> None:
+    t = np.linspace(0.0, 2.0, 201)
+    pos = np.column_stack([np.sin(t), np.cos(t), t])
+    rot = Rotation.from_rotvec(np.column_stack([0.5 * t, 0.2 * t, -0.3 * t]))
+    quat = rot.as_quat(scalar_first=True)
+    holes = np.zeros(t.size, dtype=bool)
+    holes[[0, 1, 40, 41, 42, 43, 120, 200]] = True
+    p = pos.copy()
+    q = quat.copy()
+    p[holes] = np.nan
+    q[holes] = np.nan
+    p_f, q_f, filled = fill_gaps(p, q, time=t)
+    assert np.array_equal(filled, holes)
+    assert np.isfinite(p_f).all()
+    assert np.isfinite(q_f).all()
+    interior = holes.copy()
+    interior[[0, 1, 200]] = False
+    assert np.abs(p_f[interior] - pos[interior]).max() < 1e-4
+    angle = (Rotation.from_quat(q_f[interior], scalar_first=True) * rot[interior].inv())
+    assert np.degrees(angle.magnitude()).max() < 0.01  # constant-rate rotation: slerp exact
+    assert np.allclose(p_f[0], pos[2])
+    assert np.allclose(p_f[200], pos[199])
+    assert gap_lengths(~holes).tolist() == [2, 4, 1, 1]
+
+
+def test_fill_gaps_multi_sensor_and_all_nan() -> None:
+    pos = np.zeros((20, 2, 3))
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (20, 2, 1))
+    pos[:, 0, 0] = np.arange(20)
+    pos[5:8, 0] = np.nan
+    p_f, _, filled = fill_gaps(pos, quat, method="linear")
+    assert filled[:, 0].sum() == 3
+    assert not filled[:, 1].any()
+    assert np.allclose(p_f[5:8, 0, 0], [5, 6, 7])
+    pos[:, 1] = np.nan
+    with pytest.raises(InputError, match="no valid sample"):
+        fill_gaps(pos, quat)
+
+
+def test_bone_length_rule_when_the_axis_runs_along_the_bone(rig_factory: RigFactory) -> None:
+    # a wrist that only twists about the forearm: the neighbour (elbow) lies on the axis
+    rig = rig_factory("hinge", rom_deg=80.0, noise_m=0.002, seed=10)
+    elbow_local = rig.local_a - 0.25 * rig.axis_a
+    elbow = rig.rotations_a.apply(elbow_local) + rig.positions_a
+    args = (rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
+    without = estimate_joint(*args, neighbours=(elbow, None))
+    assert without.quality["hinge"]
+    assert without.quality["hinge_rule"] is None
+    fit = estimate_joint(*args, neighbours=(elbow, None), bone_length=0.25)
+    assert fit.quality["hinge_rule"] == "bone-length"
+    assert local_error_mm(fit.local_a, rig.local_a) < 5.0
+    assert local_error_mm(fit.local_a, rig.local_a) < local_error_mm(without.local_a,
+                                                                      rig.local_a)
+
+
+def test_symmetry_plane_helps_an_ill_determined_direction(rig_factory: RigFactory) -> None:
+    normal = np.array([0.0, 1.0, 0.0])
+    gains = []
+    for seed in range(3):
+        rig = rig_factory("ball", rom_deg=12.0, noise_m=0.003, noise_deg=0.5, seed=20 + seed)
+        args = (rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
+        free = estimate_joint(*args)
+        tied = estimate_joint(*args, symmetry=(rig.local_a, normal), symmetry_weight=1.0)
+        gains.append(abs((free.local_a - rig.local_a) @ normal)
+                     - abs((tied.local_a - rig.local_a) @ normal))
+        assert abs((tied.local_a - rig.local_a) @ normal) < 0.002
+    assert np.mean(gains) > 0
+
+
+def test_highpass_removes_slow_slip(rig_factory: RigFactory) -> None:
+    for seed in range(2):
+        rig = rig_factory("ball", n_frames=600, rom_deg=40.0, noise_m=0.001, seed=seed)
+        t = np.linspace(0.0, 1.0, 600)
+        slipped = rig.positions_b + np.outer(np.sin(2 * np.pi * 0.3 * t), [0.02, 0.01, -0.016])
+        args = (rig.positions_a, rig.rotations_a, slipped, rig.rotations_b)
+        plain = estimate_joint(*args, loss="linear")
+        filtered = estimate_joint(*args, loss="linear", highpass=60)
+        assert local_error_mm(filtered.local_a, rig.local_a) < 0.5 * local_error_mm(
+            plain.local_a, rig.local_a)

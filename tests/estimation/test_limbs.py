@@ -1,0 +1,253 @@
+"""Limb joints without forearm/shank sensors (estimation.limbs) against synthetic truth."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from estimation import limbs
+from estimation.errors import InputError
+from estimation.limbs import estimate_limb, paper_cost, standard_lengths, torso_length
+
+THIGH, SHANK = 0.42, 0.40
+
+
+@dataclass
+class Leg:
+    hip: NDArray[np.float64]
+    upper_pos: NDArray[np.float64]
+    upper_rot: Rotation
+    distal_pos: NDArray[np.float64]
+    distal_rot: Rotation
+    knee: NDArray[np.float64]
+    ankle: NDArray[np.float64]
+    knee_local: NDArray[np.float64]
+    ankle_local: NDArray[np.float64]
+    axis_local: NDArray[np.float64]
+
+    def args(self) -> tuple[NDArray[np.float64], NDArray[np.float64], Rotation,
+                            NDArray[np.float64], Rotation]:
+        return self.hip, self.upper_pos, self.upper_rot, self.distal_pos, self.distal_rot
+
+
+def make_leg(n: int = 400, *, flexion_deg: float = 80.0, noise_m: float = 0.0,
+             noise_deg: float = 0.0, seed: int = 0) -> Leg:
+    """A hip–knee–ankle chain: pure hinge knee about the thigh's x axis, ball ankle, sensors
+    3–8 cm off the bones with random orientations. Knee and ankle are exact."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 60.0
+
+    def wave(amp_deg: float) -> NDArray[np.float64]:
+        f, ph = rng.uniform(0.3, 1.1, 2), rng.uniform(0, 2 * np.pi, 2)
+        w = np.sin(2 * np.pi * f[0] * t + ph[0]) + 0.5 * np.sin(2 * np.pi * f[1] * t + ph[1])
+        return np.asarray(np.radians(amp_deg) * w / 1.5)
+
+    hip = np.column_stack([0.3 * np.sin(0.5 * t), 0.9 + 0.02 * np.sin(3 * t), 0.2 * t])
+    thigh = Rotation.from_euler("YXZ", np.column_stack([wave(30), wave(40), wave(15)]))
+    knee_angle = np.radians(flexion_deg) * (0.5 + 0.5 * np.sin(2 * np.pi * 0.7 * t))
+    shank = thigh * Rotation.from_euler("x", knee_angle[:, None])
+    foot = shank * Rotation.from_euler("XZY", np.column_stack([wave(25), wave(12), wave(12)]))
+    knee = hip + thigh.apply([0.0, -THIGH, 0.0])
+    ankle = knee + shank.apply([0.0, -SHANK, 0.0])
+    upper_mount = np.array([0.05, -0.22, 0.04])
+    distal_mount = np.array([0.02, -0.03, 0.08])
+    s_u, s_d = Rotation.random(rng=rng), Rotation.random(rng=rng)
+    upper_rot = thigh * s_u
+    distal_rot = foot * s_d
+    upper_pos = hip + thigh.apply(upper_mount)
+    distal_pos = ankle + foot.apply(distal_mount)
+    if noise_m:
+        upper_pos = upper_pos + rng.normal(scale=noise_m, size=upper_pos.shape)
+        distal_pos = distal_pos + rng.normal(scale=noise_m, size=distal_pos.shape)
+    if noise_deg:
+        upper_rot = upper_rot * Rotation.from_rotvec(
+            rng.normal(scale=np.radians(noise_deg), size=(n, 3)))
+        distal_rot = distal_rot * Rotation.from_rotvec(
+            rng.normal(scale=np.radians(noise_deg), size=(n, 3)))
+    knee_local = s_u.inv().apply(np.array([0.0, -THIGH, 0.0]) - upper_mount)
+    ankle_local = s_d.inv().apply(-distal_mount)
+    return Leg(hip, upper_pos, upper_rot, distal_pos, distal_rot, knee, ankle, knee_local,
+               ankle_local, s_u.inv().apply([1.0, 0.0, 0.0]))
+
+
+def mean_error(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    return float(np.linalg.norm(a - b, axis=1).mean())
+
+
+def test_improved_recovers_exact_limb() -> None:
+    leg = make_leg()
+    # standard lengths 10 % off, as anthropometric tables are for real subjects
+    fit = estimate_limb(*leg.args(), standard_lengths=(0.9 * THIGH, 1.1 * SHANK),
+                        method="improved")
+    # measured: knee 1.5 mm; ankle 12 mm, the weak priors' pull along the shank, which a
+    # free shank length leaves to second-order effects of the ankle's rotation
+    assert np.linalg.norm(fit.middle_local - leg.knee_local) < 0.003
+    assert np.linalg.norm(fit.distal_local - leg.ankle_local) < 0.015
+    assert mean_error(fit.middle, leg.knee) < 0.003
+    assert mean_error(fit.distal, leg.ankle) < 0.015
+    assert fit.quality["lower_length_m"] == pytest.approx(SHANK, abs=0.015)
+    assert fit.quality["lower_length_sd_m"] < 1e-3
+    assert fit.quality["hinge_doubt"] < 0.05
+    axis = np.asarray(fit.quality["hinge_axis_local"])
+    assert abs(axis @ leg.axis_local) > 0.9999
+    assert fit.quality["flexion_range_deg"] == pytest.approx(80.0, abs=3.0)
+
+
+def test_improved_beats_paper_with_noise() -> None:
+    leg = make_leg(noise_m=0.002, noise_deg=0.5, seed=3)
+    lengths = (0.9 * THIGH, 1.1 * SHANK)
+    improved = estimate_limb(*leg.args(), standard_lengths=lengths, method="improved")
+    paper = estimate_limb(*leg.args(), standard_lengths=lengths, method="paper")
+    # measured: improved 5 / 15 mm, paper 108 / 22 mm (knee / ankle)
+    assert mean_error(improved.middle, leg.knee) < 0.010
+    assert mean_error(improved.distal, leg.ankle) < 0.020
+    err_improved = mean_error(improved.middle, leg.knee) + mean_error(improved.distal, leg.ankle)
+    err_paper = mean_error(paper.middle, leg.knee) + mean_error(paper.distal, leg.ankle)
+    assert err_improved < 0.3 * err_paper
+
+
+def test_motionless_knee_stays_bounded() -> None:
+    # no knee flexion: the data cannot place the knee; the priors must keep it sane
+    leg = make_leg(flexion_deg=0.0, noise_m=0.002, noise_deg=0.5, seed=1)
+    fit = estimate_limb(*leg.args(), standard_lengths=(THIGH, SHANK), method="improved")
+    # measured: 15 and 10 mm
+    assert mean_error(fit.middle, leg.knee) < 0.030
+    assert mean_error(fit.distal, leg.ankle) < 0.020
+
+
+def direct_paper_cost(theta: NDArray[np.float64], leg: Leg, lengths: tuple[float, float],
+                      w_s: float, w_l: float) -> float:
+    """Eqs. 2–5 written out in the world frame, independent of the implementation."""
+    knee = leg.upper_pos + leg.upper_rot.apply(theta[:3])
+    ankle = leg.distal_pos + leg.distal_rot.apply(theta[3:])
+    l_low = np.linalg.norm(ankle - knee, axis=1)
+    l_up = np.linalg.norm(leg.hip - knee, axis=1)
+    v = np.mean((l_low - l_low.mean()) ** 2)
+    e_s = theta[:3] @ theta[:3] + theta[3:] @ theta[3:]
+    e_l = np.mean((l_up - lengths[0]) ** 2 + (l_low - lengths[1]) ** 2)
+    return float(v + w_s * e_s + w_l * e_l)
+
+
+def test_paper_cost_is_eq5() -> None:
+    leg = make_leg(n=120, noise_m=0.002, seed=2)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        theta = rng.normal(scale=0.2, size=6)
+        got = paper_cost(theta, *leg.args(), standard_lengths=(0.4, 0.38), w_s=0.02, w_l=0.03)
+        assert got == pytest.approx(direct_paper_cost(theta, leg, (0.4, 0.38), 0.02, 0.03),
+                                    rel=1e-12)
+
+
+def test_paper_optimizers_reach_same_minimum() -> None:
+    leg = make_leg(n=300, noise_m=0.002, noise_deg=0.5, seed=4)
+    lengths = (0.9 * THIGH, 1.1 * SHANK)
+    ls = estimate_limb(*leg.args(), standard_lengths=lengths, method="paper")
+    nm = estimate_limb(*leg.args(), standard_lengths=lengths, method="paper",
+                       optimizer="nelder-mead")
+    assert ls.quality["optimizer"] == "least-squares"
+    assert nm.quality["optimizer"] == "nelder-mead"
+    assert abs(nm.cost - ls.cost) <= 1e-6 * ls.cost
+    assert np.allclose(nm.middle_local, ls.middle_local, atol=1e-5)
+    assert np.allclose(nm.distal_local, ls.distal_local, atol=1e-5)
+    assert ls.n_evaluations * 10 < nm.n_evaluations
+    theta = np.concatenate([ls.middle_local, ls.distal_local])
+    assert ls.cost == pytest.approx(direct_paper_cost(theta, leg, lengths, 0.01, 0.01),
+                                    rel=1e-10)
+    # the gradient of E vanishes at the solution: E rises in every direction
+    for direction in np.eye(6):
+        for sign in (1.0, -1.0):
+            shifted = direct_paper_cost(theta + sign * 1e-4 * direction, leg, lengths, 0.01,
+                                        0.01)
+            assert shifted > ls.cost
+
+
+def numeric_jacobian(fun: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                     x: NDArray[np.float64], h: float = 1e-6) -> NDArray[np.float64]:
+    cols = []
+    for i in range(x.size):
+        step = np.zeros_like(x)
+        step[i] = h
+        cols.append((fun(x + step) - fun(x - step)) / (2 * h))
+    return np.column_stack(cols)
+
+
+def test_paper_jacobian_matches_finite_differences() -> None:
+    leg = make_leg(n=80, noise_m=0.002, seed=6)
+    limb = limbs._prepare(*leg.args())
+    fun, jac = limbs._paper_residuals(limb, (0.4, 0.38), 0.01, 0.01)
+    x = np.concatenate([leg.knee_local, leg.ankle_local]) + 0.03
+    r = fun(x)
+    assert r @ r == pytest.approx(paper_cost(x, *leg.args(), standard_lengths=(0.4, 0.38)))
+    assert np.allclose(jac(x), numeric_jacobian(fun, x), rtol=1e-5, atol=1e-8)
+
+
+@pytest.mark.parametrize(("robust", "bounds_active"),
+                         [(None, False), (0.01, False), (0.01, True)])
+def test_improved_jacobian_matches_finite_differences(robust: float | None,
+                                                      bounds_active: bool) -> None:
+    leg = make_leg(n=80, noise_m=0.002, seed=7)
+    limb = limbs._prepare(*leg.args())
+    axis = np.array([0.6, 0.0, 0.8])
+    fun, jac = limbs._improved_problem(limb, (0.4, 0.38), axis, 0.03, 3e-4, 1e-4, 3e-4, robust)
+    x = np.concatenate([leg.knee_local + 0.02, leg.ankle_local - 0.01, [0.37]])
+    if bounds_active:  # shank 58 % too long, ankle 0.3 m from its sensor
+        x[3:6] *= 0.3 / np.linalg.norm(x[3:6])
+        x[6] = 0.6
+        assert np.count_nonzero(fun(x)[-3:]) == 2
+    assert np.allclose(jac(x), numeric_jacobian(fun, x), rtol=1e-5, atol=1e-8)
+
+
+def test_torso_length_and_standard_lengths() -> None:
+    n = 5
+    waist = np.tile([0.0, 1.0, 0.0], (n, 1))
+    l_hip = np.tile([0.1, 0.9, 0.0], (n, 1))
+    r_hip = np.tile([-0.1, 0.9, 0.0], (n, 1))
+    chest = np.tile([0.0, 1.4, 0.0], (n, 1))
+    chest[::2, 0] = 0.3  # |C − W| = 0.5 on even frames, 0.4 on odd: mean over frames
+    expected = 0.1 + (3 * 0.5 + 2 * 0.4) / 5
+    assert torso_length(waist, l_hip, r_hip, chest) == pytest.approx(expected)
+    winter = standard_lengths(0.576, "winter")
+    assert winter["thigh"] == pytest.approx(0.245 * 2.0)
+    assert winter["forearm"] == pytest.approx(0.146 * 2.0)
+    assert set(winter) == {"thigh", "shank", "upperarm", "forearm"}
+    aist = standard_lengths(0.5)
+    assert 0.3 < aist["thigh"] < 0.5
+    assert aist["upperarm"] < aist["thigh"]
+    own = standard_lengths(0.5, {"torso": 50.0, "thigh": 40.0, "shank": 38.0,
+                                 "upperarm": 30.0, "forearm": 25.0})
+    assert own == pytest.approx({"thigh": 0.4, "shank": 0.38, "upperarm": 0.3,
+                                 "forearm": 0.25})
+    with pytest.raises(InputError, match="unknown anthropometric table"):
+        standard_lengths(0.5, "martian")
+    with pytest.raises(InputError, match="lacks"):
+        standard_lengths(0.5, {"torso": 1.0, "thigh": 1.0})
+
+
+def test_bad_inputs_are_named() -> None:
+    leg = make_leg(n=50)
+    hip = leg.hip.copy()
+    hip[3, 1] = np.nan
+    with pytest.raises(InputError, match="proximal"):
+        estimate_limb(hip, *leg.args()[1:], standard_lengths=(0.4, 0.4))
+    with pytest.raises(InputError, match="method"):
+        estimate_limb(*leg.args(), standard_lengths=(0.4, 0.4), method="magic")
+    with pytest.raises(InputError, match="optimizer"):
+        estimate_limb(*leg.args(), standard_lengths=(0.4, 0.4), optimizer="bfgs")
+    with pytest.raises(InputError, match="frames"):
+        estimate_limb(leg.hip[:-1], *leg.args()[1:], standard_lengths=(0.4, 0.4))
+
+
+def test_progress_is_reported_in_order() -> None:
+    leg = make_leg(n=60)
+    seen: list[float] = []
+    estimate_limb(*leg.args(), standard_lengths=(0.4, 0.4), method="paper",
+                  optimizer="nelder-mead", progress=lambda f, stage: seen.append(f))
+    assert seen[0] == 0.0
+    assert seen[-1] == 1.0
+    assert all(b >= a for a, b in itertools.pairwise(seen))

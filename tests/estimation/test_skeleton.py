@@ -1,0 +1,205 @@
+"""estimate_skeleton on small simulated recordings: accuracy against exact truth, errors."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from estimation.errors import EstimationError, InputError
+from estimation.model import JOINTS
+from estimation.recording import SensorRecording
+from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
+from estimation.skeleton import estimate_chest, estimate_root, estimate_skeleton
+
+Sim = tuple[SensorRecording, SimulationTruth]
+TORSO = ("root", "waist", "chest", "neck", "l_shoulder", "r_shoulder", "l_hip", "r_hip")
+LIMB = ("l_elbow", "r_elbow", "l_wrist", "r_wrist", "l_knee", "r_knee", "l_ankle", "r_ankle")
+
+
+def mean_errors_mm(joints: Mapping[str, np.ndarray], truth: SimulationTruth) -> dict[str, float]:
+    return {j: float(np.linalg.norm(joints[j] - truth.joints[j], axis=1).mean() * 1000)
+            for j in JOINTS}
+
+
+def test_default_recovers_every_joint_with_15_sensors(sim15: Sim) -> None:
+    rec, truth = sim15
+    result = estimate_skeleton(rec)
+    assert set(result.joints) == set(JOINTS)
+    for path in result.joints.values():
+        assert path.shape == (rec.n_frames, 3)
+        assert np.isfinite(path).all()
+    errors = mean_errors_mm(result.joints, truth)
+    assert max(errors.values()) < 15.0, errors
+    assert np.median(list(errors.values())) < 8.0
+    for seg, true_length in truth.bone_lengths.items():
+        assert abs(result.bone_lengths[seg] - true_length) < 0.01, seg
+    for name in ("l_knee", "r_knee", "l_elbow", "r_elbow"):
+        assert result.quality[name]["hinge"], name
+        assert result.quality[name]["hinge_rule"] == "straight-limb"
+    assert result.timings["estimate_s"] > 0
+    assert set(result.offsets) == set(JOINTS)
+    assert result.offsets["l_knee"].sensor == "l_thigh"
+    assert set(result.orientations) >= {"pelvis", "chest", "l_thigh"}
+
+
+def test_default_beats_plain_llsf_on_hinges(sim15: Sim) -> None:
+    rec, truth = sim15
+    auto = mean_errors_mm(estimate_skeleton(rec).joints, truth)
+    llsf = mean_errors_mm(estimate_skeleton(rec, method="llsf").joints, truth)
+    hinges = ("l_knee", "r_knee", "l_elbow", "r_elbow")
+    assert sum(auto[j] for j in hinges) < 0.5 * sum(llsf[j] for j in hinges)
+    for j in TORSO:
+        assert llsf[j] < 12.0, j
+
+
+def test_gdke_runs_and_locates_torso(sim15: Sim) -> None:
+    rec, truth = sim15
+    errors = mean_errors_mm(estimate_skeleton(rec, method="gdke").joints, truth)
+    assert np.median([errors[j] for j in TORSO]) < 12.0
+
+
+def test_eleven_sensors(sim11: Sim) -> None:
+    rec, truth = sim11
+    assert len(rec.sensors) == 11
+    auto = mean_errors_mm(estimate_skeleton(rec).joints, truth)
+    paper = mean_errors_mm(estimate_skeleton(rec, method="reduced").joints, truth)
+    for j in TORSO:
+        assert auto[j] < 12.0, j
+        assert paper[j] < 12.0, j
+    assert np.median([auto[j] for j in LIMB]) < 30.0
+    assert np.median([auto[j] for j in LIMB]) < np.median([paper[j] for j in LIMB])
+
+
+def test_llsf_needs_all_sensors(sim11: Sim) -> None:
+    with pytest.raises(InputError, match="l_forearm") as info:
+        estimate_skeleton(sim11[0], method="llsf")
+    assert info.value.sensor == "l_forearm"
+    assert "l_hand" in info.value.detail  # names the sensors present
+
+
+def test_missing_sensor_names_it(sim15: Sim) -> None:
+    rec, _ = sim15
+    keep = [k for k, s in enumerate(rec.sensors) if s != "r_foot"]
+    cut = SensorRecording(tuple(rec.sensors[k] for k in keep), rec.positions[:, keep],
+                          rec.quaternions[:, keep], rec.fps, rec.time)
+    with pytest.raises(InputError, match="r_foot") as info:
+        estimate_skeleton(cut)
+    assert info.value.sensor == "r_foot"
+
+
+def test_all_nan_sensor(sim15: Sim) -> None:
+    rec, _ = sim15
+    pos = rec.positions.copy()
+    pos[:, rec.index("head")] = np.nan
+    with pytest.raises(InputError, match="head") as info:
+        estimate_skeleton(replace(rec, positions=pos))
+    assert info.value.sensor == "head"
+
+
+def test_too_little_motion() -> None:
+    still = example_motion(120, fps=60.0, seed=1, scale=0.0)
+    rec, _ = simulate_sensors(still, units_m=0.01, seed=2)
+    with pytest.raises(EstimationError, match=r"motion|rotate"):
+        estimate_skeleton(rec)
+
+
+def test_millimetres_read_as_metres(sim15: Sim) -> None:
+    rec, _ = sim15
+    with pytest.raises(EstimationError, match="millimetres") as info:
+        estimate_skeleton(replace(rec, positions=rec.positions * 1000.0))
+    assert info.value.field is not None
+
+
+def test_centimetres_read_as_metres(sim15: Sim) -> None:
+    rec, _ = sim15
+    with pytest.raises(EstimationError, match="centimetres"):
+        estimate_skeleton(replace(rec, positions=rec.positions * 100.0))
+
+
+def test_gaps_are_filled(sim15: Sim) -> None:
+    rec, truth = sim15
+    pos = rec.positions.copy()
+    quat = rec.quaternions.copy()
+    k = rec.index("l_forearm")
+    pos[100:130, k] = np.nan  # a 0.5 s hole in one sensor
+    quat[100:130, k] = np.nan
+    result = estimate_skeleton(replace(rec, positions=pos, quaternions=quat))
+    for path in result.joints.values():
+        assert np.isfinite(path).all()
+    err = np.linalg.norm(result.joints["l_wrist"][100:130] - truth.joints["l_wrist"][100:130],
+                         axis=1)
+    assert err.max() < 0.03
+
+
+def test_progress_is_reported(sim15: Sim) -> None:
+    rec, _ = sim15
+    seen: list[tuple[float, str]] = []
+    estimate_skeleton(rec, progress=lambda f, s: seen.append((f, s)))
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions)
+    assert fractions[0] == 0.0
+    assert fractions[-1] == 1.0
+    assert {"gaps", "torso", "limbs", "orientations"} <= {s for _, s in seen}
+
+
+def test_bad_options(sim15: Sim) -> None:
+    rec, _ = sim15
+    with pytest.raises(InputError, match="method"):
+        estimate_skeleton(rec, method="best")
+    with pytest.raises(InputError, match="optimizer"):
+        estimate_skeleton(rec, optimizer="bfgs")
+    with pytest.raises(InputError, match="up"):
+        estimate_skeleton(rec, up=(0, 0, 0))
+    with pytest.raises(InputError, match="i0"):
+        estimate_skeleton(rec, i0=10**6)
+
+
+def test_chest_and_root_follow_eq_1() -> None:
+    rng = np.random.default_rng(0)
+    n = 50
+    w = rng.normal(scale=0.01, size=(n, 3))
+    neck = w + np.array([0.0, 0.5, 0.0])
+    ls = w + np.array([0.2, 0.4, 0.05])
+    rs = w + np.array([-0.2, 0.4, 0.05])
+    chest = estimate_chest(w, neck, ls, rs)
+    # lines W–N (x=0, z=0) and LS–RS (y=0.4, z=0.05): common perpendicular at y=0.4
+    assert np.allclose(chest - w, [0.0, 0.4, 0.025])
+    root = estimate_root(w, w + np.array([0.1, -0.1, 0]), w + np.array([-0.1, -0.1, 0]))
+    assert np.allclose(root - w, [0.0, -0.2 / 3, 0.0])
+
+
+def test_partial_suit_uses_every_sensor_present(sim15: Sim) -> None:
+    rec, truth = sim15
+    keep = [k for k, s in enumerate(rec.sensors) if s != "l_forearm"]
+    cut = SensorRecording(tuple(rec.sensors[k] for k in keep), rec.positions[:, keep],
+                          rec.quaternions[:, keep], rec.fps, rec.time)
+    result = estimate_skeleton(cut)
+    assert result.quality["l_elbow"]["estimator"].startswith("limb")
+    assert result.quality["r_elbow"]["estimator"] == "llsf"
+    assert result.offsets["l_wrist"].sensor == "l_hand"
+    errors = mean_errors_mm(result.joints, truth)
+    assert errors["r_elbow"] < 10.0
+    assert errors["l_knee"] < 10.0
+
+
+def test_reduced_with_gdke_torso(sim11: Sim) -> None:
+    rec, truth = sim11
+    result = estimate_skeleton(rec, method="reduced", torso="gdke")
+    assert result.quality["waist"]["estimator"] == "gdke"
+    assert result.quality["l_knee"]["estimator"] == "limb-paper"
+    errors = mean_errors_mm(result.joints, truth)
+    assert np.median([errors[j] for j in TORSO]) < 15.0
+
+
+def test_millimetres_with_eleven_sensors(sim11: Sim) -> None:
+    rec, _ = sim11
+    with pytest.raises(EstimationError, match="millimetres"):
+        estimate_skeleton(replace(rec, positions=rec.positions * 1000.0))
+
+
+def test_warnings_are_not_repeated(sim15: Sim) -> None:
+    warnings = estimate_skeleton(sim15[0]).warnings
+    assert len(warnings) == len(set(warnings))
