@@ -94,6 +94,16 @@ def _solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]
     return c, np.sqrt(lam), vec[:, 0]
 
 
+def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Hamilton product of scalar-first quaternions, shape (N, 4)."""
+    pw, px, py, pz = p.T
+    qw, qx, qy, qz = q.T
+    return np.column_stack([pw * qw - px * qx - py * qy - pz * qz,
+                            pw * qx + px * qw + py * qz - pz * qy,
+                            pw * qy - px * qz + py * qw + pz * qx,
+                            pw * qz + px * qy - py * qx + pz * qw])
+
+
 def range_of_motion(rotations_a: Rotation, rotations_b: Rotation,
                     valid: NDArray[np.bool_] | None = None) -> float:
     """Range of the relative rotation of two bodies, degrees.
@@ -112,10 +122,20 @@ def range_of_motion(rotations_a: Rotation, rotations_b: Rotation,
         after a 9-frame moving average of the rotation vectors so that white orientation
         noise does not count as motion.
     """
-    rel = rotations_a.inv() * rotations_b
+    qa = rotations_a.as_quat(scalar_first=True)
+    qb = rotations_b.as_quat(scalar_first=True)
     if valid is not None:
-        rel = rel[np.asarray(valid, dtype=bool)]
-    dev = (rel.mean().inv() * rel).as_rotvec()
+        keep = np.asarray(valid, dtype=bool)
+        qa, qb = qa[keep], qb[keep]
+    qa = qa * np.array([1.0, -1.0, -1.0, -1.0])  # conjugate: inverse of a unit quaternion
+    rel = _quat_multiply(qa, qb)
+    # mean rotation: principal eigenvector of Σ q qᵀ (Markley et al. 2007; sign-invariant)
+    mean = np.linalg.eigh(rel.T @ rel)[1][:, -1] * np.array([1.0, -1.0, -1.0, -1.0])
+    dq = _quat_multiply(np.broadcast_to(mean, rel.shape), rel)
+    dq = dq * np.where(dq[:, :1] < 0.0, -1.0, 1.0)
+    vec_norm = np.linalg.norm(dq[:, 1:], axis=1)
+    angle = 2.0 * np.arctan2(vec_norm, dq[:, 0])
+    dev = dq[:, 1:] * (angle / np.maximum(vec_norm, 1e-300))[:, None]
     if dev.shape[0] >= 9:
         kernel = np.ones(9) / 9.0
         dev = np.column_stack([np.convolve(dev[:, k], kernel, mode="valid") for k in range(3)])

@@ -62,6 +62,10 @@ _LIMBS: Final[dict[str, tuple[str, str, str, str, str, str, tuple[str, str]]]] =
 }
 _TORSO_JOINTS: Final[tuple[str, ...]] = ("l_hip", "r_hip", "l_shoulder", "r_shoulder",
                                          "waist", "neck")
+# left/right joint pairs mirrored about the mid-sagittal plane of the segment carrying them
+_MIRRORED_PAIRS: Final[dict[tuple[str, str], str]] = {("l_shoulder", "r_shoulder"): "chest",
+                                                      ("l_hip", "r_hip"): "pelvis"}
+_MIRRORED: Final[frozenset[str]] = frozenset(j for pair in _MIRRORED_PAIRS for j in pair)
 # joint -> the pair of joints it sits midway between (sideways), in the same sensor frame
 _MIDLINE: Final[dict[str, tuple[str, str]]] = {"waist": ("l_hip", "r_hip"),
                                                "neck": ("l_shoulder", "r_shoulder")}
@@ -234,7 +238,8 @@ def estimate_skeleton(
         the best estimator per joint: robust LLSF (Huber IRLS) for joints between two
         sensors, hinge knees and elbows resolved by the straight-limb rule, twisting wrists
         by the bone-length rule (``joints.estimate_joint``), waist and neck weakly tied to
-        the mid-plane between the hips (shoulders), limbs whose middle sensor is missing by
+        the mid-plane between the hips (shoulders), anatomical priors weighted by each
+        joint's information (below), limbs whose middle sensor is missing by
         ``estimate_limb(method="improved")``, and zero-phase smoothing of the joint paths.
     optimizer : {"least-squares", "nelder-mead"}
         Minimiser of E for ``method="reduced"``.
@@ -255,8 +260,11 @@ def estimate_skeleton(
         system, cancelling sensor slip slower than the motion (0: off, the default; see
         ``joints.estimate_joint(highpass=...)``).
     min_range_deg : float
-        A joint whose two segments rotate less than this relative to each other cannot be
-        located: EstimationError naming it. 0 estimates it anyway.
+        A joint whose two segments rotate less than this relative to each other
+        (``joints.range_of_motion``) is still estimated, from the anatomical priors where
+        ``"auto"`` has them, but flagged: ``quality[joint]["reliability"] == "prior"`` and a
+        warning naming it. When more than half of the two-sensor joints are that still, the
+        recording as a whole is refused (EstimationError, ``field="motion"``).
     progress : callable, optional
         ``progress(fraction, stage)`` with stages ``gaps``, ``torso``, ``limbs``,
         ``orientations``.
@@ -272,11 +280,27 @@ def estimate_skeleton(
         A required sensor is missing (naming it and the sensors present), a sensor has no
         valid sample, an unknown option.
     EstimationError
-        Too little motion to locate a joint, or bone lengths outside human range (wrong
+        No sensor moves, or most joints rotate less than ``min_range_deg`` (too little
+        motion in the recording as a whole), or bone lengths outside human range (wrong
         units).
 
     Notes
     -----
+    Priors of ``"auto"`` (``joints.estimate_joint(prior=...)``: a Gaussian prior on the
+    centre, weighted by ``σ²/(N_eff s0²)`` against the data, so it acts only along the
+    directions the motion leaves undetermined):
+
+    - neck: ``NECK_RISE`` × shoulder width above the shoulders' midpoint, away from the
+      waist, in the chest sensor's frame (``s0 = PRIOR_SIGMA_M["neck"]``);
+    - shoulders and hips: the mirror image of the opposite joint about the trunk's
+      mid-sagittal plane (through the waist–neck line, normal along the left–right axis;
+      for the pelvis through the waist), ``s0 = PRIOR_SIGMA_M["mirror"]``. Left/right
+      symmetry of the skeleton does not depend on where the sensors sit.
+
+    Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
+    carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
+    rotates less than ``min_range_deg``).
+
     Miura, Kaiga, Tajima, Shibata & Tamamoto, "Sensor Number Reduction in Skeleton
     Estimation from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707 (2015);
     O'Brien et al., Graphics Interface 2000 (LLSF); Knight & Semwal, WSCG 2007 (GDKE).
@@ -364,15 +388,17 @@ def estimate_skeleton(
         except EstimationError as exc:
             raise EstimationError(f"{name}: {exc.detail}", field=name) from None
         if name in static:
-            fit.quality["reliability"] = "prior"
             source = ("anatomical priors" if prior is not None or neighbours[0] is not None
                       else "the few frames available")
             note = (f"rotates only {rom[name]:.1f}° (< {min_range_deg:g}°): located from "
                     f"{source}, unreliable")
-            fit = replace(fit, warnings=(note, *fit.warnings))
+            fit = replace(fit, quality={**fit.quality, "reliability": "prior"},
+                          warnings=(note, *(w for w in fit.warnings
+                                            if not w.startswith("small range"))))
         else:
-            fit.quality["reliability"] = (
-                "prior-assisted" if fit.quality.get("data_weight", 1.0) < 0.5 else "data")
+            assisted = fit.quality.get("data_weight", 1.0) < 0.5
+            fit = replace(fit, quality={**fit.quality, "reliability":
+                                        "prior-assisted" if assisted else "data"})
         if not quiet:
             warnings.extend(f"{name}: {w}" for w in fit.warnings)
         return fit
@@ -389,7 +415,9 @@ def estimate_skeleton(
             across = left - right
             sym = (0.5 * (left + right), across / max(float(np.linalg.norm(across)), 1e-9))
         prior = _neck_prior(fits) if name == "neck" and method == "auto" else None
-        fit = joint(name, estimator, symmetry=sym, prior=prior)
+        # shoulders and hips are refitted below with their mirror priors: warn only then
+        fit = joint(name, estimator, symmetry=sym, prior=prior,
+                    quiet=method == "auto" and name in _MIRRORED)
         fits[name] = fit
         joints[name] = fit.positions
         offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
@@ -398,8 +426,7 @@ def estimate_skeleton(
     if method == "auto":
         # left/right symmetry: each shoulder (hip) is pulled toward the mirror image of the
         # other about the trunk's mid-sagittal plane, along its weakly excited directions
-        for pair, seg in ((("l_shoulder", "r_shoulder"), "chest"),
-                          (("l_hip", "r_hip"), "pelvis")):
+        for pair, seg in _MIRRORED_PAIRS.items():
             plane = _sagittal_plane(seg, fits)
             mirrored = {a: _reflect(fits[b].local_a, plane) for a, b in (pair, pair[::-1])}
             for name in pair:

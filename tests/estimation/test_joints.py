@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation.errors import EstimationError, InputError
 from estimation.gaps import fill_gaps, gap_lengths
-from estimation.joints import estimate_joint
+from estimation.joints import effective_samples, estimate_joint, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
 
@@ -222,3 +222,59 @@ def test_highpass_removes_slow_slip(rig_factory: RigFactory) -> None:
         filtered = estimate_joint(*args, loss="linear", highpass=60)
         assert local_error_mm(filtered.local_a, rig.local_a) < 0.5 * local_error_mm(
             plain.local_a, rig.local_a)
+
+
+def _slipping_rig(rig_factory: RigFactory, rom_deg: float, seed: int) -> Any:
+    """A ball-joint rig with sensor noise and a slow 5 mm drift of sensor b on its body."""
+    rig = rig_factory("ball", n_frames=300, rom_deg=rom_deg, noise_m=0.002, noise_deg=0.5,
+                      seed=seed)
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 1.0, 300)[:, None]
+    slip = 0.005 * np.sin(2 * np.pi * 0.6 * t + rng.uniform(0, 2 * np.pi, size=(1, 3)))
+    return rig, rig.positions_b + rig.rotations_b.apply(slip), rng
+
+
+def test_prior_rescues_a_weakly_excited_joint(rig_factory: RigFactory) -> None:
+    # 3° of motion against 5 mm of slip: the data alone put the centre several cm off; a
+    # prior 15 mm from the truth (σ = 30 mm) brings it close
+    plain, with_prior = [], []
+    for seed in range(4):
+        rig, pb, rng = _slipping_rig(rig_factory, 3.0, seed)
+        off = rng.normal(size=3)
+        prior_point = rig.local_a + 0.015 * off / np.linalg.norm(off)
+        a = estimate_joint(rig.positions_a, rig.rotations_a, pb, rig.rotations_b)
+        b = estimate_joint(rig.positions_a, rig.rotations_a, pb, rig.rotations_b,
+                           prior=(prior_point, 0.03))
+        plain.append(local_error_mm(a.local_a, rig.local_a))
+        with_prior.append(local_error_mm(b.local_a, rig.local_a))
+        assert b.quality["data_weight"] < 0.5
+        assert b.quality["prior_sigma_m"] == 0.03
+    assert np.mean(plain) > 50.0
+    assert np.mean(with_prior) < 0.5 * np.mean(plain)
+
+
+def test_prior_does_not_move_a_well_excited_joint(rig_factory: RigFactory) -> None:
+    rig, pb, _ = _slipping_rig(rig_factory, 90.0, 5)
+    a = estimate_joint(rig.positions_a, rig.rotations_a, pb, rig.rotations_b)
+    # a prior 5 cm off the truth: 90° of motion outweighs it
+    b = estimate_joint(rig.positions_a, rig.rotations_a, pb, rig.rotations_b,
+                       prior=(rig.local_a + np.array([0.05, 0.0, 0.0]), 0.03))
+    assert local_error_mm(b.local_a, a.local_a) < 1.0
+    assert b.quality["data_weight"] > 0.95
+
+
+def test_effective_samples_of_white_and_slow_residuals() -> None:
+    rng = np.random.default_rng(0)
+    white = rng.normal(size=(1000, 3))
+    assert 700 < effective_samples(white, np.ones(1000)) <= 1000
+    t = np.arange(1000) / 100.0
+    slow = np.column_stack([np.sin(2 * np.pi * 0.2 * t + k) for k in range(3)])
+    assert effective_samples(slow + 0.01 * white, np.ones(1000)) < 20
+
+
+def test_range_of_motion_ignores_orientation_noise(rig_factory: RigFactory) -> None:
+    still = rig_factory("ball", rom_deg=0.0, noise_deg=0.5, seed=9)
+    moving = rig_factory("ball", rom_deg=40.0, noise_deg=0.5, seed=9)
+    # 0.5° of white noise on each sensor stays below the default 2° threshold
+    assert range_of_motion(still.rotations_a, still.rotations_b) < 2.0
+    assert 20.0 < range_of_motion(moving.rotations_a, moving.rotations_b) < 90.0

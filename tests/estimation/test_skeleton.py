@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from estimation.bvh import BvhMotion
 from estimation.errors import EstimationError, InputError
 from estimation.model import JOINTS
 from estimation.recording import SensorRecording
@@ -100,10 +101,66 @@ def test_all_nan_sensor(sim15: Sim) -> None:
 
 
 def test_too_little_motion() -> None:
+    # every joint still (sensor noise only): the recording as a whole is refused
     still = example_motion(120, fps=60.0, seed=1, scale=0.0)
     rec, _ = simulate_sensors(still, units_m=0.01, seed=2)
-    with pytest.raises(EstimationError, match=r"motion|rotate"):
+    with pytest.raises(EstimationError, match="too little motion") as info:
         estimate_skeleton(rec)
+    assert info.value.field == "motion"
+
+
+def freeze(motion: BvhMotion, nodes: tuple[str, ...], factor: float = 0.0) -> BvhMotion:
+    """Scale the rotation channels of some BVH nodes about their mean (0: motionless)."""
+    values = motion.values.copy()
+    for name in nodes:
+        j = motion.index(name)
+        start = sum(len(c) for c in motion.channels[:j])
+        cols = values[:, start:start + len(motion.channels[j])]
+        values[:, start:start + cols.shape[1]] = cols.mean(axis=0) + factor * (
+            cols - cols.mean(axis=0))
+    return motion.with_values(values)
+
+
+def test_most_joints_still_is_refused() -> None:
+    # only the arms move: 8 of the 14 two-sensor joints are still
+    motion = freeze(example_motion(240, fps=60.0, seed=3),
+                    ("Hips", "Chest", "Chest2", "Neck", "LeftHip", "LeftKnee", "LeftAnkle",
+                     "RightHip", "RightKnee", "RightAnkle"))
+    rec, _ = simulate_sensors(motion, units_m=0.01, seed=4)
+    with pytest.raises(EstimationError, match=r"8 of 14 joints .*l_knee"):
+        estimate_skeleton(rec)
+
+
+def test_one_still_joint_is_located_from_priors_with_a_warning() -> None:
+    # the head never moves on the chest: the recording is still estimated, the neck comes
+    # from the anatomical prior and is flagged
+    motion = freeze(example_motion(240, fps=60.0, seed=0), ("Neck",))
+    rec, truth = simulate_sensors(motion, units_m=0.01, seed=10)
+    result = estimate_skeleton(rec)
+    assert any(w.startswith("neck: rotates only") and "unreliable" in w
+               for w in result.warnings), result.warnings
+    assert result.quality["neck"]["reliability"] == "prior"
+    assert all(result.quality[j]["reliability"] != "prior"
+               for j in ("l_shoulder", "r_knee", "l_elbow"))
+    errors = mean_errors_mm(result.joints, truth)
+    plain = mean_errors_mm(estimate_skeleton(rec, method="llsf").joints, truth)
+    assert errors["neck"] < 15.0
+    assert errors["neck"] < 0.5 * plain["neck"], (errors["neck"], plain["neck"])
+
+
+def test_neck_prior_beats_plain_llsf_on_a_weakly_moving_neck() -> None:
+    # a short clip in which the head turns only ~8° on the chest, against 5 mm of slip
+    auto, plain = [], []
+    for seed in range(3):
+        motion = freeze(example_motion(240, fps=60.0, seed=seed), ("Neck",), 0.1)
+        rec, truth = simulate_sensors(motion, units_m=0.01, seed=seed + 10)
+        result = estimate_skeleton(rec)
+        assert 3.0 < result.quality["neck"]["range_of_motion_deg"] < 15.0
+        assert result.quality["neck"]["reliability"] != "prior"
+        auto.append(mean_errors_mm(result.joints, truth)["neck"])
+        plain.append(mean_errors_mm(estimate_skeleton(rec, method="llsf").joints,
+                                    truth)["neck"])
+    assert np.mean(auto) < 0.5 * np.mean(plain), (auto, plain)
 
 
 def test_millimetres_read_as_metres(sim15: Sim) -> None:
@@ -203,3 +260,20 @@ def test_millimetres_with_eleven_sensors(sim11: Sim) -> None:
 def test_warnings_are_not_repeated(sim15: Sim) -> None:
     warnings = estimate_skeleton(sim15[0]).warnings
     assert len(warnings) == len(set(warnings))
+
+
+def test_mirror_prior_locates_a_weakly_moving_shoulder() -> None:
+    # the left arm barely moves on the chest (~5°) while the right one swings freely: the
+    # left shoulder is pulled toward the mirror image of the right one
+    auto, plain = [], []
+    for seed in range(3):
+        motion = freeze(example_motion(240, fps=60.0, seed=seed), ("LeftShoulder",), 0.05)
+        rec, truth = simulate_sensors(motion, units_m=0.01, seed=seed + 10)
+        result = estimate_skeleton(rec)
+        assert result.quality["l_shoulder"]["range_of_motion_deg"] < 10.0
+        assert result.quality["l_shoulder"]["data_weight"] < 0.5
+        assert result.quality["r_shoulder"]["data_weight"] > 0.9
+        auto.append(mean_errors_mm(result.joints, truth)["l_shoulder"])
+        plain.append(mean_errors_mm(estimate_skeleton(rec, method="llsf").joints,
+                                    truth)["l_shoulder"])
+    assert np.mean(auto) < 0.5 * np.mean(plain), (auto, plain)
