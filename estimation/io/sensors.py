@@ -284,6 +284,19 @@ def _parse_csv_header(header: list[str], line: int) -> tuple[int | None, list[st
     return time_col, sensors, index
 
 
+def _csv_header(rows: Iterator[tuple[int, list[str]]],
+                meta: dict[str, str]) -> tuple[list[str], int]:
+    """The header row and its line, after leading ``# key: value`` comments (into ``meta``)."""
+    for line, row in rows:
+        if row[0].lstrip().startswith("#"):
+            found = _metadata(",".join(row))
+            if found:
+                meta[found[0]] = found[1]
+            continue
+        return row, line
+    raise InputError("the file is empty: no header line", line=1, field="header")
+
+
 def _csv_rows(handle: io.TextIOWrapper) -> Iterator[tuple[int, list[str]]]:
     """(line number, cells) of the non-empty rows, metadata comments excluded."""
     reader = csv.reader(handle)
@@ -348,19 +361,7 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
     meta: dict[str, str] = {}
     with _open_text(path) as handle:
         rows = _csv_rows(handle)
-        header: list[str] | None = None
-        header_line = 0
-        for line, row in rows:
-            if row[0].lstrip().startswith("#"):
-                found = _metadata(",".join(row))
-                if found:
-                    meta[found[0]] = found[1]
-                continue
-            header, header_line = row, line
-            break
-        if header is None:
-            raise InputError(f"{os.fspath(path)} is empty: no header line", line=1,
-                             field="header")
+        header, header_line = _csv_header(rows, meta)
         time_col, sensors, index = _parse_csv_header(header, header_line)
         n_cols = len(header)
         data: list[list[float]] = []
@@ -851,19 +852,7 @@ def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
 
 
 def _sniff_csv(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
-    header: list[str] | None = None
-    header_line = 0
-    rows = _csv_rows(handle)
-    for line, row in rows:
-        if row[0].lstrip().startswith("#"):
-            found = _metadata(",".join(row))
-            if found:
-                meta[found[0]] = found[1]
-            continue
-        header, header_line = row, line
-        break
-    if header is None:
-        raise InputError("empty file: no header line", line=1, field="header")
+    header, header_line = _csv_header(_csv_rows(handle), meta)
     time_col, sensors, _ = _parse_csv_header(header, header_line)
     times: list[float] = []
     frames = 0
