@@ -10,9 +10,11 @@ Run from the project root::
     .venv/bin/python benchmarks/skeleton_speed.py            # RT1 size, 3 runs
     .venv/bin/python benchmarks/skeleton_speed.py --runs 5 --scales 1 4 16
 
-Prints three tables: time per method; Nelder–Mead against the default least-squares
-optimizer of the paper's reduced method (time and cost evaluations per limb); and the default
-reduced method at 1×, 4×, 16× the frames (it should grow linearly).
+Prints three tables: time per method (with its stages: gap filling, torso joints, limbs,
+orientations, from the progress reports); Nelder–Mead against the default least-squares
+optimizer of the paper's reduced method (whole estimate and limb stage alone, as a ratio of
+medians and as the median of alternating pairs; cost evaluations and E per limb); and the
+default reduced method at 1×, 4×, 16× the frames (it should grow linearly).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import argparse
 import statistics
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -57,23 +59,45 @@ def recordings(clip: Path, n_frames: int, units_m: float
     return full, reduced
 
 
+STAGES = ("gaps", "torso", "limbs", "orientations")
+
+
 class StageClock:
-    """Progress callback that records when each stage is first reported."""
+    """Progress callback that records when each stage is first reported, and the last call."""
 
     def __init__(self) -> None:
         self.first: dict[str, float] = {}
+        self.last = 0.0
 
     def __call__(self, fraction: float, stage: str) -> None:
-        self.first.setdefault(stage, time.perf_counter())
+        now = time.perf_counter()
+        self.first.setdefault(stage, now)
+        self.last = now
 
     def limbs_s(self) -> float:
         return self.first["orientations"] - self.first["limbs"]
 
+    def stages_s(self) -> dict[str, float]:
+        """Seconds from each stage's first report to the next stage's (the last: to the
+        final report)."""
+        marks = [(s, self.first[s]) for s in STAGES if s in self.first]
+        ends = [t for _, t in marks[1:]] + [self.last]
+        return {s: end - start for (s, start), end in zip(marks, ends, strict=True)}
 
-def timed(recording: SensorRecording, runs: int, **options: Any
-          ) -> tuple[float, list[float], Any, float]:
-    """Median estimate_s over runs, the runs, the last result, median limb-stage seconds."""
+
+class Timing(NamedTuple):
+    median_s: float
+    runs_s: list[float]
+    result: Any
+    limbs_s: float
+    stages_s: dict[str, float]
+
+
+def timed(recording: SensorRecording, runs: int, **options: Any) -> Timing:
+    """Median estimate_s over runs, the runs, the last result, median limb-stage seconds and
+    median seconds per stage."""
     times, limb_times = [], []
+    stages: dict[str, list[float]] = {}
     result = None
     for _ in range(runs):
         clock = StageClock()
@@ -81,8 +105,11 @@ def timed(recording: SensorRecording, runs: int, **options: Any
         times.append(float(result.timings["estimate_s"]))
         if "limbs" in clock.first and "orientations" in clock.first:
             limb_times.append(clock.limbs_s())
+        for stage, seconds in clock.stages_s().items():
+            stages.setdefault(stage, []).append(seconds)
     limbs = statistics.median(limb_times) if limb_times else float("nan")
-    return statistics.median(times), times, result, limbs
+    return Timing(statistics.median(times), times, result, limbs,
+                  {s: statistics.median(v) for s, v in stages.items()})
 
 
 def table(header: list[str], rows: list[list[str]]) -> str:
@@ -120,19 +147,21 @@ def main() -> None:
         ("auto", "11", reduced, {"method": "auto"}),
     ]
     rows = []
-    results: dict[str, tuple[float, list[float], Any, float]] = {}
+    results: dict[str, Timing] = {}
     for label, sensors, rec, options in cases:
         results[f"{label}/{sensors}"] = out = timed(rec, args.runs, **options)
-        rows.append([label, sensors, f"{out[0]:.3f}", f"{out[3]:.3f}",
-                     " ".join(f"{t:.3f}" for t in out[1])])
-    print("Time per method (estimate_s and its limb stage, seconds)\n")
-    print(table(["method", "sensors", "median s", "limb stage s", "runs s"], rows))
+        rows.append([label, sensors, f"{out.median_s:.3f}", f"{out.limbs_s:.3f}",
+                     " ".join(f"{out.stages_s.get(s, float('nan')):.3f}" for s in STAGES),
+                     " ".join(f"{t:.3f}" for t in out.runs_s)])
+    print("Time per method (estimate_s and its stages, seconds; stages: "
+          + ", ".join(STAGES) + ")\n")
+    print(table(["method", "sensors", "median s", "limb stage s", "stages s", "runs s"], rows))
 
     nm = results["reduced, nelder-mead (paper)/11"]
     ls = results["reduced, least-squares (default)/11"]
     limb_rows = []
     for joint in LIMB_JOINTS:
-        qn, ql = nm[2].quality[joint], ls[2].quality[joint]
+        qn, ql = nm.result.quality[joint], ls.result.quality[joint]
         rel = abs(qn["cost"] - ql["cost"]) / ql["cost"]
         limb_rows.append([joint.split("_")[1] + (" (L)" if joint[0] == "l" else " (R)"),
                           f"{qn['n_evaluations']}", f"{ql['n_evaluations']}",
@@ -143,14 +172,15 @@ def main() -> None:
     for _ in range(args.runs):
         a = timed(reduced, 1, method="reduced", optimizer="nelder-mead")
         b = timed(reduced, 1, method="reduced")
-        pair_total.append(a[0] / b[0])
-        pair_limbs.append(a[3] / b[3])
-    print(f"\nNelder–Mead vs least-squares, same run: estimate_s {nm[0]:.3f} s / {ls[0]:.3f} s"
-          f" = {nm[0] / ls[0]:.1f}×; limb stage {nm[3]:.3f} s / {ls[3]:.3f} s = "
-          f"{nm[3] / ls[3]:.1f}×")
+        pair_total.append(a.median_s / b.median_s)
+        pair_limbs.append(a.limbs_s / b.limbs_s)
+    print(f"\nNelder–Mead vs least-squares, same run: estimate_s {nm.median_s:.3f} s / "
+          f"{ls.median_s:.3f} s = {nm.median_s / ls.median_s:.1f}×; limb stage "
+          f"{nm.limbs_s:.3f} s / {ls.limbs_s:.3f} s = {nm.limbs_s / ls.limbs_s:.1f}×")
     print(f"alternating pairs, median of per-pair ratios: estimate_s "
           f"{statistics.median(pair_total):.1f}×, limb stage {statistics.median(pair_limbs):.1f}×"
-          f" (pairs: {' '.join(f'{r:.1f}' for r in pair_limbs)})")
+          f" (pairs: {' '.join(f'{r:.1f}' for r in pair_total)} / "
+          f"{' '.join(f'{r:.1f}' for r in pair_limbs)})")
     print("(paper's Table 2, RT1: LLSF 6 s, LLSF + present 27 s)\n")
     print(table(["limb", "NM evaluations", "LS evaluations", "E (LS)", "|ΔE|/E"], limb_rows))
 
@@ -159,11 +189,11 @@ def main() -> None:
     for scale in args.scales:
         n = args.frames * scale
         _, rec = recordings(clip, n, args.units) if scale != 1 else (full, reduced)
-        median, _, _, limbs = timed(rec, args.runs, method="reduced")
-        auto = timed(rec, args.runs, method="auto")[0]
-        base = base or median / n
-        scale_rows.append([f"{scale}×", f"{n}", f"{median:.3f}", f"{limbs:.3f}",
-                           f"{median / n * 1e6:.1f}", f"{median / n / base:.2f}",
+        red = timed(rec, args.runs, method="reduced")
+        auto = timed(rec, args.runs, method="auto").median_s
+        base = base or red.median_s / n
+        scale_rows.append([f"{scale}×", f"{n}", f"{red.median_s:.3f}", f"{red.limbs_s:.3f}",
+                           f"{red.median_s / n * 1e6:.1f}", f"{red.median_s / n / base:.2f}",
                            f"{auto:.3f}"])
     print("\nDefault reduced method (least-squares) against recording length, 11 sensors\n")
     print(table(["scale", "frames", "reduced s", "limb stage s", "µs / frame",

@@ -9,9 +9,10 @@ Two estimators:
 
 ``method="paper"``
     The paper's cost ``E`` (eq. 5) minimised either by Nelder–Mead (``optimizer=
-    "nelder-mead"``, the paper's simplex method) or, by default, by Levenberg–Marquardt
-    (``scipy.optimize.least_squares``) with an analytic Jacobian on ``E`` written as a sum of
-    squares. Both reach the same minimum.
+    "nelder-mead"``, the paper's simplex method) or, by default, by Levenberg–Marquardt with
+    analytic derivatives of ``E`` written as a sum of squares (Gauss–Newton normal equations
+    plus the exact second-order term, 6 × 6 systems formed in one pass over the frames).
+    Both reach the same minimum.
 ``method="improved"``
     A free shank length instead of the variance, a soft-L1 robust loss against slip and outlier
     frames, a hinge rule that fixes the two directions the data cannot see (the flexion axis
@@ -32,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize
 from scipy.spatial.transform import Rotation
 
+from . import quaternions as quat
 from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
 from .progress import Progress, no_progress
@@ -196,10 +198,12 @@ def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: R
     if n < 3:
         raise EstimationError(f"{n} frames are too few to locate limb joints", field="frames")
     ru = upper_rotations.as_matrix()
-    # Rᵤᵀ(…) with einsum: one pass over the frames, cheaper than composing Rotations
     b = np.einsum("fji,fj->fi", ru, pd - pu)
-    q = np.einsum("fji,fjk->fik", ru, distal_rotations.as_matrix())
     h = np.einsum("fji,fj->fi", ru, hip - pu)
+    # Rᵤᵀ R_d through quaternions: 4× cheaper than a (F, 3, 3) matrix product, 20× cheaper
+    # than composing Rotation objects (see estimation.quaternions)
+    q = quat.as_matrix(quat.relative(upper_rotations.as_quat(scalar_first=True),
+                                     distal_rotations.as_quat(scalar_first=True)))
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
     return _Limb(b=b, q=q, h=h)
@@ -224,7 +228,7 @@ def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l:
     cache: dict[str, Any] = {}
 
     def geometry(theta: Float) -> tuple[Float, Float, Float, Float]:
-        # least_squares asks for the residuals and then the Jacobian at the same point
+        # the residuals and then the Jacobian are asked for at the same point
         if cache.get("theta") is not None and np.array_equal(cache["theta"], theta):
             return cache["value"]  # type: ignore[no-any-return]
         k, a = theta[:3], theta[3:]
@@ -262,6 +266,87 @@ def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l:
         return out
 
     return fun, jac
+
+
+Normal = tuple[float, Float, Float] | tuple[float, Float, Float, Float]
+"""``(E, g, H[, K])`` at a point: the cost, ``g = Jᵀr`` (half its gradient), ``H = JᵀJ`` and
+optionally ``K = JᵀJ + Σ r ∇²r`` (half the exact Hessian)."""
+
+
+def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
+                  exact: bool = True,
+                  ) -> tuple[Callable[[Float], float], Callable[[Float], Normal]]:
+    """``E`` and its Gauss–Newton normal equations, without the (2M + 7)-row Jacobian.
+
+    Returns ``cost(θ) → E`` and ``normal(θ) → (E, Jᵀr, JᵀJ)`` with ``r``, ``J`` those of
+    :func:`_paper_residuals`. With ``j_t = ∂l_t/∂θ = (−u_t, u_tᵀQ_t)`` (rows of an (M, 6)
+    array), ``ê_t`` the unit hip → knee direction and ``c_t = (1 + w)l_t − l̄ − wL``::
+
+        Jᵀr = (1/M) Σ c_t j_t + (w/M) Σ (l_{j−1,j}(t) − L_{j−1,j}) (ê_t, 0) + w_S θ
+        JᵀJ = ((1 + w)/M) Σ j_t j_tᵀ − j̄ j̄ᵀ + (w/M) Σ (ê_t, 0)(ê_t, 0)ᵀ + w_S I
+
+    (the variance's mean term collapses to ``−j̄ j̄ᵀ``), two (M, 6) × (M, 6) products
+    instead of a QR of (2M + 7) × 6. ``cost`` evaluates eq. 5 directly, as the Nelder–Mead
+    path does. With ``exact``, ``normal`` also returns half the exact Hessian
+    ``JᵀJ + Σ r_i ∇²r_i``: the residuals (frame-to-frame scatter of l) do not vanish at the
+    minimum, so Gauss–Newton alone converges only linearly (5–9 full-size iterations
+    measured on the RT1-size benchmark), Newton quadratically.
+    """
+    m = limb.n
+    l_up, l_low = lengths
+    last: dict[str, Any] = {}
+
+    def geometry(theta: Float) -> tuple[Float, Float, Float, Float, float]:
+        # normal() is asked for at the point cost() has just accepted
+        if last.get("theta") is not None and np.array_equal(last["theta"], theta):
+            return last["value"]  # type: ignore[no-any-return]
+        k, a = theta[:3], theta[3:]
+        d = limb.distal(a) - k
+        ll = _norm(d)
+        e = k - limb.h
+        lu = _norm(e)
+        dev = ll - np.einsum("f->", ll) / m
+        value = float((np.einsum("f,f->", dev, dev)
+                       + w_l * (np.einsum("f,f->", lu - l_up, lu - l_up)
+                                + np.einsum("f,f->", ll - l_low, ll - l_low))) / m
+                      + w_s * np.einsum("i,i->", theta, theta))
+        last["theta"], last["value"] = theta.copy(), (d, ll, e, lu, value)
+        return d, ll, e, lu, value
+
+    def cost(theta: Float) -> float:
+        return geometry(theta)[4]
+
+    def normal(theta: Float) -> Normal:
+        d, ll, e, lu, value = geometry(theta)
+        inv_l = 1.0 / ll
+        u = d * inv_l[:, None]
+        j = np.empty((m, 6))
+        j[:, :3] = -u
+        j[:, 3:] = np.einsum("fi,fij->fj", u, limb.q)
+        j_bar = np.einsum("fi->i", j) / m
+        c = ((1.0 + w_l) * ll - (np.einsum("f->", ll) / m + w_l * l_low)) / m
+        inv_lu = 1.0 / lu
+        e_hat = e * inv_lu[:, None]
+        cu = w_l / m * (lu - l_up)
+        g = np.einsum("fi,f->i", j, c) + w_s * theta
+        g[:3] += np.einsum("fi,f->i", e_hat, cu)
+        h = (1.0 + w_l) / m * (j.T @ j) - np.outer(j_bar, j_bar) + w_s * np.eye(6)
+        h[:3, :3] += w_l / m * (e_hat.T @ e_hat)
+        if not exact:
+            return value, g, h
+        # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
+        # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
+        # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
+        cl = c * inv_l
+        second = np.sum(cl) * np.eye(6) - (j * cl[:, None]).T @ j
+        cross = np.einsum("f,fij->ij", cl, limb.q)
+        second[:3, 3:] -= cross
+        second[3:, :3] -= cross.T
+        cul = cu * inv_lu
+        second[:3, :3] += np.sum(cul) * np.eye(3) - (e_hat * cul[:, None]).T @ e_hat
+        return value, g, h, h + second
+
+    return cost, normal
 
 
 def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,
@@ -317,6 +402,19 @@ def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
     return np.concatenate([k0, a0])
 
 
+_RTOL = 1e-10
+"""Relative change of E (and of its linear model) at which least-squares fits stop: E then
+lies within ~1e-12 (relative) of its minimum, far inside the 1e-6 agreement with Nelder–Mead
+that the tests and benchmarks check."""
+
+_NEWTON_CONSTANT = 1e4
+"""Bound on C in "the next Newton decrease is about C·δ² after a decrease δ" (relative to E),
+used to stop without a last pass over the frames; C up to ~200 was seen on the simulated
+clips."""
+
+_ROUGH_START = 1e-3
+"""Initial Levenberg–Marquardt damping for starts from geometry (Nielsen's suggestion)."""
+
 _COARSE_FRAMES = 400
 """Least-squares fits first converge on every k-th frame (about this many frames), then
 polish on all frames: the final point is the minimum of the full cost, reached with a few
@@ -330,23 +428,153 @@ def _coarse(limb: _Limb) -> _Limb | None:
     return _Limb(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
 
 
+def _levenberg_marquardt(cost: Callable[[Float], float], normal: Callable[[Float], Normal],
+                         x0: Float, *, rtol: float = _RTOL, max_iter: int = 200,
+                         damping: float = 1e-6) -> tuple[Float, int, bool]:
+    """Minimise a sum of squares ``E(θ) = Σ r(θ)²`` by Levenberg–Marquardt.
+
+    Parameters
+    ----------
+    cost : callable
+        ``θ (P,) → E``.
+    normal : callable
+        ``θ (P,) → (E, Jᵀr (P,), JᵀJ (P, P)[, K (P, P)])``: the Gauss–Newton normal
+        equations and optionally half the exact Hessian ``K``, used (Newton–LM) wherever
+        ``K + μD`` is positive definite.
+    x0 : ndarray, shape (P,)
+        Start.
+    rtol : float
+        Stop when an accepted step lowered E by at most ``rtol·E`` and the model predicted
+        no more (MINPACK's ``ftol`` test); when the model predicts a decrease of at most
+        ``rtol·E`` (no step can lower E by more); or when a Newton step (exact curvature)
+        that the model predicted within 10 % lowered E by at most ``√(rtol/C)·E`` with
+        ``C = 1e4`` (quadratic convergence: the next step would gain at most ``rtol·E``).
+    max_iter : int
+        Maximum number of normal-equation evaluations.
+    damping : float
+        Initial ``μ`` (relative to ``D``): small for starts near the minimum (a converged
+        subsample fit), larger for rough geometric starts.
+
+    Returns
+    -------
+    x : ndarray, shape (P,)
+    n_evaluations : int
+        Evaluations of ``cost`` plus of ``normal``.
+    converged : bool
+
+    Notes
+    -----
+    With P ≤ 7 the ``P × P`` system ``(JᵀJ + μD) s = −Jᵀr`` (``D`` the diagonal of ``JᵀJ``:
+    Marquardt's scaling, as ``x_scale="jac"`` in scipy) is solved directly. MINPACK's QR of
+    the N × P Jacobian, which ``scipy.optimize.least_squares(method="lm")`` runs at every
+    iteration, cost more than the residuals themselves at N ≈ 12,600 (6,283 frames). The
+    damping ``μ`` follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for non-linear
+    least squares problems", 2nd ed., 2004, §3.2); it starts small because every start here
+    comes from a converged fit on a subsample or from geometry, so the first steps are
+    Gauss–Newton steps.
+    """
+    x = np.array(x0, dtype=float)
+    e, g, h, curv = _unpack(normal(x))
+    n_eval = 1
+    mu, nu = damping, 2.0
+    for _ in range(max_iter):
+        diag = np.diag(h)
+        diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
+        done = False
+        while True:
+            step, model = _damped_step(curv, h, mu * diag, g)
+            # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
+            # M + μD is positive definite
+            predicted = float(-2.0 * (g @ step) - step @ model @ step)
+            if not np.isfinite(predicted):
+                return x, n_eval, False
+            if predicted <= rtol * e:
+                # nothing left to gain: x is the minimum up to rounding
+                return x, n_eval, True
+            x_new = x + step
+            e_new = cost(x_new)
+            n_eval += 1
+            if e_new < e:
+                rho = (e - e_new) / predicted
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                done = e - e_new <= rtol * e and predicted <= rtol * e
+                if model is curv and abs(rho - 1.0) < 0.1 \
+                        and e - e_new <= np.sqrt(rtol / _NEWTON_CONSTANT) * e:
+                    # Newton converges quadratically once its model holds (ρ ≈ 1): after a
+                    # decrease of δ·E the next one is about C·δ²·E ≤ rtol·E
+                    done = True
+                x = x_new
+                break
+            mu *= nu
+            nu *= 2.0
+            if mu > 1e16:
+                return x, n_eval, True
+        if done:
+            return x, n_eval, True
+        e, g, h, curv = _unpack(normal(x))
+        n_eval += 1
+    return x, n_eval, False
+
+
+def _unpack(n: Normal) -> tuple[float, Float, Float, Float | None]:
+    return (n[0], n[1], n[2], n[3]) if len(n) == 4 else (n[0], n[1], n[2], None)
+
+
+def _damped_step(curv: Float | None, h: Float, damping: Float, g: Float,
+                 ) -> tuple[Float, Float]:
+    """Solve ``(M + diag(damping)) s = −g`` with ``M`` the exact curvature when given and
+    the damped system is positive definite there, else ``M = JᵀJ``; returns ``s`` and ``M``."""
+    for model in (curv, h):
+        if model is None:
+            continue
+        a = model + np.diag(damping)
+        if not np.all(np.isfinite(a)):
+            continue
+        try:
+            np.linalg.cholesky(a)
+        except np.linalg.LinAlgError:
+            continue
+        return np.asarray(np.linalg.solve(a, -g), dtype=np.float64), model
+    return np.full(g.shape, np.nan), h
+
+
+def _normal_from_residuals(fun: Callable[[Float], Float], jac: Callable[[Float], Float],
+                           ) -> tuple[Callable[[Float], float], Callable[[Float], Normal]]:
+    """``cost`` and ``normal`` for :func:`_levenberg_marquardt` from residuals and their
+    Jacobian (the Jacobian is small enough here to form)."""
+    last: dict[str, Any] = {}
+
+    def residuals(theta: Float) -> Float:
+        if last.get("theta") is None or not np.array_equal(last["theta"], theta):
+            last["theta"], last["r"] = theta.copy(), fun(theta)
+        return last["r"]  # type: ignore[no-any-return]
+
+    def cost(theta: Float) -> float:
+        r = residuals(theta)
+        return float(r @ r)
+
+    def normal(theta: Float) -> Normal:
+        r = residuals(theta)
+        j = jac(theta)
+        return float(r @ r), j.T @ r, j.T @ j
+
+    return cost, normal
+
+
 def _fit_paper_ls(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
-                  w_l: float) -> tuple[Float, int, bool]:
+                  w_l: float) -> tuple[Float, int, bool, float]:
     n_eval = 0
     coarse = _coarse(limb)
     if coarse is not None:
-        fun, jac = _paper_residuals(coarse, lengths, w_s, w_l)
-        sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac",
-                            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=500)
-        x0 = np.asarray(sol.x, dtype=float)
-        n_eval += int(sol.nfev + sol.njev)
-    fun, jac = _paper_residuals(limb, lengths, w_s, w_l)
-    # 1e-10: E within ~1e-12 (relative) of its minimum, far inside the 1e-6 agreement with
-    # Nelder–Mead that the tests and benchmarks check
-    sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac",
-                        ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=500)
-    n_eval += int(sol.nfev + sol.njev)
-    return np.asarray(sol.x, dtype=float), n_eval, bool(sol.status > 0)
+        x0, n_coarse, _ = _levenberg_marquardt(*_paper_normal(coarse, lengths, w_s, w_l), x0,
+                                               damping=_ROUGH_START)
+        n_eval += n_coarse
+    cost, normal = _paper_normal(limb, lengths, w_s, w_l)
+    x, n_full, ok = _levenberg_marquardt(cost, normal, x0,
+                                         damping=_ROUGH_START if coarse is None else 1e-6)
+    # E at x: the last point evaluated, cached (no extra pass over the frames)
+    return x, n_eval + n_full, ok, cost(x)
 
 
 def _fit_paper_nm(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
@@ -543,6 +771,8 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
         for _ in range(_ALTERNATE):
             fun, jac = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
                                          w_line, w_length, w_distal, robust_scale)
+            # MINPACK's trust region from these rough starts: the objective has several
+            # local minima and its steps decide the basin (cheap on the subsample)
             sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
                                 ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
             n_eval += int(sol.nfev + sol.njev)
@@ -565,10 +795,8 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
     fun, jac = _improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
                                  w_length, w_distal, robust_scale)
     if coarse is not limb:
-        sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
-                            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
-        n_eval += int(sol.nfev + sol.njev)
-        x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
+        x, more, ok = _levenberg_marquardt(*_normal_from_residuals(fun, jac), x)
+        n_eval += more
     r = fun(x)
     v = limb.distal(x[3:6]) - x[:3]
     v -= np.outer(v @ axis, axis)
@@ -614,10 +842,10 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     method : {"improved", "paper"}
         ``"paper"``: minimise the paper's E (eq. 5). ``"improved"``: see the module docstring.
     optimizer : {"least-squares", "nelder-mead"}
-        For ``method="paper"``: trust-region least squares with an analytic Jacobian
-        (default) or Nelder–Mead on E (the paper's simplex method). Both start from the same
-        geometric initial point and reach the same minimum. ``"improved"`` always uses least
-        squares.
+        For ``method="paper"``: Levenberg–Marquardt with analytic derivatives (default) or
+        Nelder–Mead on E (the paper's simplex method). Both start from the same geometric
+        initial point and reach the same minimum. ``"improved"`` always uses
+        Levenberg–Marquardt.
     w_s, w_l : float
         Weights of the paper's eqs. 3 and 4 (0.01 in the paper; lengths in metres).
     robust_scale : float or None, default 0.01
@@ -671,8 +899,14 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     simulated clips (see ``docs/skeleton-limbs.md``).
 
     Least-squares fits first converge on a subsample of about 400 frames and are then
-    polished on all frames (``ftol = xtol = gtol = 1e-10``), so the full-size Jacobian is
-    built only a few times.
+    polished on all frames, stopping when E changes by less than 1e-10 (relative). The
+    full-frame fits solve the 6 × 6 (7 × 7) normal equations directly instead of running
+    MINPACK's QR on the (2F + 7)-row Jacobian: for the paper's E the normal equations and the
+    exact Hessian come from per-frame sums (``_paper_normal``), so the full-size polish is
+    two Newton steps, each one pass over the frames; the improved objective's Jacobian is
+    formed and multiplied out. The improved method's alternations from rough starts keep
+    MINPACK (``scipy.optimize.least_squares``) on the subsample: its objective has several
+    local minima and the optimizer's steps decide which one a start falls into.
     """
     report = progress or no_progress
     if method not in ("paper", "improved"):
@@ -693,7 +927,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
         theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
         quality["optimizer"] = "nelder-mead"
     else:
-        theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l)
+        theta, n_eval, ok, cost = _fit_paper_ls(limb, x0, lengths, w_s, w_l)
         quality["optimizer"] = "least-squares"
         if method == "improved":
             report(0.3, "limbs")
@@ -706,12 +940,11 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
                                                    robust_scale)
             n_eval += more
             quality.update(extra)
-    fun, _ = _paper_residuals(limb, lengths, w_s, w_l)
-    r = fun(theta)
+    if method == "improved" or optimizer == "nelder-mead":
+        cost = _paper_normal(limb, lengths, w_s, w_l, exact=False)[0](theta)
     k, a = theta[:3], theta[3:]
-    x = limb.distal(a)
-    ll = np.linalg.norm(x - k, axis=1)
-    lu = np.linalg.norm(limb.h - k, axis=1)
+    ll = _norm(limb.distal(a) - k)
+    lu = _norm(limb.h - k)
     quality.update({
         "upper_length_m": float(lu.mean()),
         "lower_length_m": float(ll.mean()),
@@ -724,4 +957,4 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     middle = np.asarray(upper_positions, dtype=float) + upper_rot.apply(k)
     distal = np.asarray(distal_positions, dtype=float) + distal_rotations.apply(a)
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
-                   cost=float(r @ r), n_evaluations=n_eval, quality=quality)
+                   cost=cost, n_evaluations=n_eval, quality=quality)

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation.errors import InputError
 from estimation.model import SEGMENTS
-from estimation.orientations import _quaternions, estimate_orientations
+from estimation.orientations import estimate_orientations
 
 # Upright rest pose, facing +z, left = +x, metres.
 REST = {
@@ -183,14 +183,3 @@ def test_bad_inputs() -> None:
         estimate_orientations(missing, sensors)
     with pytest.raises(InputError, match="calibration"):
         estimate_orientations(joints, sensors, calibration="sideways")
-
-
-def test_matrix_to_quaternion_matches_scipy_including_half_turns() -> None:
-    rots = Rotation.concatenate([
-        Rotation.random(2000, rng=7),
-        Rotation.from_rotvec(np.pi * np.eye(3)),
-        Rotation.from_rotvec([[0.0, 0.0, 0.0], [np.pi - 1e-9, 0.0, 0.0]]),
-    ])
-    q = _quaternions(rots.as_matrix())
-    ref = rots.as_quat(scalar_first=True)
-    assert np.allclose(np.abs(np.einsum("ij,ij->i", q, ref)), 1.0, atol=1e-12)

@@ -1,0 +1,271 @@
+"""Vectorised rotation helpers on scalar-first quaternion arrays ``(..., 4)`` = ``(w, x, y, z)``.
+
+``scipy.spatial.transform.Rotation`` stays the project's rotation type (conversions, single
+rotations, public signatures). On long arrays of rotations some of its operations are slow
+in scipy 1.17: for 6,283 rotations, measured here, ``Rotation.__mul__`` takes 2.7–4 ms,
+``as_rotvec`` 2.9 ms and ``from_matrix`` 2.1 ms, whereas the numpy expressions below take
+0.1–0.35 ms (8–20× faster), and ``as_quat``, ``from_quat``, ``as_matrix`` cost 0.03–0.1 ms.
+Hot paths that compose or compare rotations frame by frame therefore work on quaternion
+arrays (or on ``(F, 3, 3)`` matrices) with these functions.
+
+Conventions: quaternions are unit, scalar first, and map the body frame to the world frame
+like a ``Rotation``; ``q`` and ``−q`` are the same rotation. Every function broadcasts over
+the leading axes and returns new arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "from_matrix", "from_rotvec", "mean",
+           "multiply", "relative", "rotate"]
+
+Float = NDArray[np.float64]
+
+
+def _q(q: ArrayLike) -> Float:
+    arr = np.asarray(q, dtype=float)
+    if arr.shape[-1:] != (4,):
+        raise ValueError(f"quaternions must have shape (..., 4), got {arr.shape}")
+    return arr
+
+
+def multiply(p: ArrayLike, q: ArrayLike) -> Float:
+    """Hamilton product ``p ⊗ q``: the rotation ``q`` followed by ``p``.
+
+    Parameters
+    ----------
+    p, q : array_like, shape (..., 4)
+        Scalar-first quaternions (broadcast against each other).
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        The same as ``(Rotation(p) * Rotation(q)).as_quat(scalar_first=True)`` up to sign.
+    """
+    a, b = _q(p), _q(q)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def conjugate(q: ArrayLike) -> Float:
+    """Conjugate ``(w, −x, −y, −z)``: the inverse rotation of a unit quaternion.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+    """
+    out = np.array(_q(q), dtype=float)
+    out[..., 1:] *= -1.0
+    return out
+
+
+def relative(qa: ArrayLike, qb: ArrayLike) -> Float:
+    """Rotation of body b in body a's frame, ``qa⁻¹ ⊗ qb`` (``Ra.inv() * Rb``).
+
+    Parameters
+    ----------
+    qa, qb : array_like, shape (..., 4)
+        Body → world rotations.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+    """
+    a, b = _q(qa), _q(qb)
+    aw, ax, ay, az = a[..., 0], -a[..., 1], -a[..., 2], -a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def rotate(q: ArrayLike, v: ArrayLike) -> Float:
+    """Apply rotations to vectors, ``R(q) v`` (``Rotation.apply``).
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+        Unit quaternions.
+    v : array_like, shape (..., 3)
+        Vectors (broadcast against ``q``'s leading axes).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``v + 2w (u × v) + 2 u × (u × v)`` with ``u`` the vector part of ``q``.
+    """
+    qq = _q(q)
+    vec = np.asarray(v, dtype=float)
+    u = qq[..., 1:]
+    t = 2.0 * np.cross(u, vec)
+    return np.asarray(vec + qq[..., :1] * t + np.cross(u, t))
+
+
+def as_matrix(q: ArrayLike) -> Float:
+    """Rotation matrices of unit quaternions.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Body → world matrices (columns are the body axes in the world frame).
+    """
+    qq = _q(q)
+    w, x, y, z = qq[..., 0], qq[..., 1], qq[..., 2], qq[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    rows = [1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy),
+            2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx),
+            2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)]
+    return np.stack(rows, axis=-1).reshape(*qq.shape[:-1], 3, 3)
+
+
+def from_matrix(m: ArrayLike) -> Float:
+    """Unit quaternions of rotation matrices that are orthonormal by construction.
+
+    Parameters
+    ----------
+    m : array_like, shape (..., 3, 3)
+        Proper rotation matrices. They are not re-orthogonalised (``Rotation.from_matrix``
+        does that, at 2 ms per 6,283 matrices); a skewed matrix gives a nearby rotation.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Scalar-first, normalised, with ``w ≥ 0``.
+
+    Notes
+    -----
+    Shepperd's method (J. Guidance Control 1(3):223–224, 1978): each quaternion is computed
+    from the largest of ``w², x², y², z²``, which keeps it accurate for every rotation.
+    """
+    mm = np.asarray(m, dtype=float)
+    if mm.shape[-2:] != (3, 3):
+        raise ValueError(f"matrices must have shape (..., 3, 3), got {mm.shape}")
+    lead = mm.shape[:-2]
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = mm.reshape(-1, 9).T
+    # 4·(w², x², y², z²) on the diagonal of 4 q qᵀ; each of its rows is a multiple of q,
+    # and the row of the largest diagonal entry is the accurate one
+    d0 = 1.0 + m00 + m11 + m22
+    d1 = 1.0 + m00 - m11 - m22
+    d2 = 1.0 - m00 + m11 - m22
+    d3 = 1.0 - m00 - m11 + m22
+    wx, wy, wz = m21 - m12, m02 - m20, m10 - m01
+    xy, xz, yz = m01 + m10, m02 + m20, m12 + m21
+    p1 = (d1 > d0) & (d1 >= d2) & (d1 >= d3)
+    p2 = ~p1 & (d2 > d0) & (d2 >= d3)
+    p3 = ~p1 & ~p2 & (d3 > d0)
+    q = np.stack([np.where(p1, wx, np.where(p2, wy, np.where(p3, wz, d0))),
+                  np.where(p1, d1, np.where(p2, xy, np.where(p3, xz, wx))),
+                  np.where(p1, xy, np.where(p2, d2, np.where(p3, yz, wy))),
+                  np.where(p1, xz, np.where(p2, yz, np.where(p3, d3, wz)))], axis=1)
+    q *= (np.where(q[:, 0] < 0, -1.0, 1.0) / np.sqrt(np.einsum("fi,fi->f", q, q)))[:, None]
+    return np.asarray(q.reshape(*lead, 4))
+
+
+def angle(q: ArrayLike) -> Float:
+    """Rotation angle of each quaternion, radians in ``[0, π]``.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``2 atan2(|(x, y, z)|, |w|)`` (the same as ``Rotation.magnitude()``; accurate near 0
+        and π, unlike ``2 arccos|w|``).
+    """
+    qq = _q(q)
+    s = np.sqrt(np.einsum("...i,...i->...", qq[..., 1:], qq[..., 1:]))
+    return np.asarray(2.0 * np.arctan2(s, np.abs(qq[..., 0])))
+
+
+def as_rotvec(q: ArrayLike) -> Float:
+    """Rotation vectors (axis × angle, radians) of unit quaternions (``Rotation.as_rotvec``).
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Angles in ``[0, π]``.
+    """
+    qq = _q(q)
+    sign = np.where(qq[..., :1] < 0, -1.0, 1.0)
+    v = qq[..., 1:] * sign
+    s = np.sqrt(np.einsum("...i,...i->...", v, v))
+    theta = 2.0 * np.arctan2(s, np.abs(qq[..., 0]))
+    # θ / sin(θ/2), with its series below 1e-4 rad where the quotient loses digits
+    small = theta < 1e-4
+    safe = np.where(small, 1.0, np.sin(0.5 * theta))
+    scale = np.where(small, 2.0 + theta * theta / 12.0, theta / safe)
+    return np.asarray(v * scale[..., None])
+
+
+def from_rotvec(v: ArrayLike) -> Float:
+    """Unit quaternions of rotation vectors (``Rotation.from_rotvec``).
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Axis × angle, radians.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        ``(cos(θ/2), sin(θ/2) v/θ)``.
+    """
+    vec = np.asarray(v, dtype=float)
+    if vec.shape[-1:] != (3,):
+        raise ValueError(f"rotation vectors must have shape (..., 3), got {vec.shape}")
+    theta = np.sqrt(np.einsum("...i,...i->...", vec, vec))
+    # sin(θ/2)/θ, with its series below 1e-4 rad
+    small = theta < 1e-4
+    safe = np.where(small, 1.0, theta)
+    scale = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * theta) / safe)
+    return np.concatenate([np.cos(0.5 * theta)[..., None], vec * scale[..., None]], axis=-1)
+
+
+def mean(q: ArrayLike, weights: ArrayLike | None = None) -> Float:
+    """Chordal L2 mean of rotations (``Rotation.mean``).
+
+    Parameters
+    ----------
+    q : array_like, shape (N, 4)
+        Unit quaternions.
+    weights : array_like, shape (N,), optional
+        Non-negative weights.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        The unit eigenvector of ``Σ w_i q_i q_iᵀ`` with the largest eigenvalue, ``w ≥ 0``.
+
+    Notes
+    -----
+    Markley, Cheng, Crassidis & Oshman, "Averaging quaternions", J. Guidance Control Dyn.
+    30(4):1193–1197, 2007. Independent of the sign of each ``q_i``.
+    """
+    qq = _q(q).reshape(-1, 4)
+    w = np.ones(qq.shape[0]) if weights is None else np.asarray(weights, dtype=float)
+    k = (qq * w[:, None]).T @ qq
+    _, vecs = np.linalg.eigh(k)
+    out = vecs[:, -1]
+    return np.asarray(out if out[0] >= 0 else -out)

@@ -1,0 +1,98 @@
+"""Quaternion-array helpers (estimation.quaternions) against scipy's Rotation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from estimation import quaternions as quat
+
+
+def _same_rotation(p: NDArray[np.float64], q: NDArray[np.float64], atol: float = 1e-12) -> None:
+    """Equal up to the sign of each quaternion."""
+    dot = np.abs(np.einsum("...i,...i->...", p, q))
+    np.testing.assert_allclose(dot, 1.0, atol=atol)
+
+
+@pytest.fixture
+def rots() -> tuple[Rotation, Rotation]:
+    a = Rotation.random(500, rng=np.random.default_rng(1))
+    b = Rotation.random(500, rng=np.random.default_rng(2))
+    return a, b
+
+
+def _wxyz(r: Rotation) -> NDArray[np.float64]:
+    return np.asarray(r.as_quat(scalar_first=True))
+
+
+def test_multiply_conjugate_relative_match_scipy(rots: tuple[Rotation, Rotation]) -> None:
+    a, b = rots
+    _same_rotation(quat.multiply(_wxyz(a), _wxyz(b)), _wxyz(a * b))
+    _same_rotation(quat.conjugate(_wxyz(a)), _wxyz(a.inv()))
+    _same_rotation(quat.relative(_wxyz(a), _wxyz(b)), _wxyz(a.inv() * b))
+    # one rotation against many broadcasts
+    _same_rotation(quat.multiply(_wxyz(a[0]), _wxyz(b)), _wxyz(a[0] * b))
+
+
+def test_rotate_and_matrix_match_scipy(rots: tuple[Rotation, Rotation]) -> None:
+    a, _ = rots
+    v = np.random.default_rng(3).normal(size=(500, 3))
+    np.testing.assert_allclose(quat.rotate(_wxyz(a), v), a.apply(v), atol=1e-12)
+    np.testing.assert_allclose(quat.rotate(_wxyz(a), v[0]), a.apply(v[0]), atol=1e-12)
+    np.testing.assert_allclose(quat.as_matrix(_wxyz(a)), a.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(quat.as_matrix(_wxyz(a)[:7].reshape(7, 1, 4)),
+                               a[:7].as_matrix()[:, None], atol=1e-12)
+
+
+def test_from_matrix_round_trip_including_half_turns(rots: tuple[Rotation, Rotation]) -> None:
+    a, _ = rots
+    # every branch of Shepperd's method: identity-like, and half turns about x, y and z
+    special = Rotation.from_rotvec(np.array([[0, 0, 0], [np.pi, 0, 0], [0, np.pi, 0],
+                                             [0, 0, np.pi], [1e-9, 0, 0],
+                                             [np.pi - 1e-9, 0, 0]], dtype=float))
+    axes = np.random.default_rng(5).normal(size=(200, 3))
+    half_turns = Rotation.from_rotvec(np.pi * axes / np.linalg.norm(axes, axis=1)[:, None])
+    for r in (a, special, half_turns):
+        q = quat.from_matrix(r.as_matrix())
+        assert np.all(q[:, 0] >= 0)
+        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-14)
+        _same_rotation(q, _wxyz(r))
+    assert quat.from_matrix(np.eye(3)).shape == (4,)
+
+
+def test_angle_and_rotvec_match_scipy(rots: tuple[Rotation, Rotation]) -> None:
+    a, b = rots
+    rel = a.inv() * b
+    np.testing.assert_allclose(quat.angle(_wxyz(rel)), rel.magnitude(), atol=1e-12)
+    np.testing.assert_allclose(quat.as_rotvec(_wxyz(rel)), rel.as_rotvec(), atol=1e-12)
+    # sign of q does not matter; small angles keep their digits
+    tiny = Rotation.from_rotvec([[1e-9, -2e-9, 3e-9], [0.0, 0.0, 0.0], [0.0, 2e-5, 0.0]])
+    np.testing.assert_allclose(quat.as_rotvec(-_wxyz(tiny)), tiny.as_rotvec(), rtol=1e-9,
+                               atol=1e-20)
+    np.testing.assert_allclose(quat.angle(-_wxyz(tiny)), tiny.magnitude(), rtol=1e-9,
+                               atol=1e-20)
+    for r in (rel, tiny):
+        _same_rotation(quat.from_rotvec(r.as_rotvec()), _wxyz(r))
+        np.testing.assert_allclose(quat.as_rotvec(quat.from_rotvec(r.as_rotvec())),
+                                   r.as_rotvec(), atol=1e-12)
+
+
+def test_mean_matches_scipy(rots: tuple[Rotation, Rotation]) -> None:
+    a, _ = rots
+    near = Rotation.from_rotvec([0.3, -0.2, 0.5]) * Rotation.from_rotvec(
+        np.random.default_rng(4).normal(scale=0.2, size=(300, 3)))
+    for r in (a, near):
+        q = _wxyz(r)
+        q[::2] *= -1.0  # the mean ignores each quaternion's sign
+        _same_rotation(quat.mean(q), _wxyz(r.mean()), atol=1e-10)
+    w = np.linspace(0.0, 1.0, 300)
+    _same_rotation(quat.mean(_wxyz(near), w), _wxyz(near.mean(weights=w)), atol=1e-10)
+
+
+def test_shape_errors() -> None:
+    with pytest.raises(ValueError, match=r"\(\.\.\., 4\)"):
+        quat.multiply(np.zeros((2, 3)), np.zeros((2, 4)))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3, 3\)"):
+        quat.from_matrix(np.zeros((2, 3)))
