@@ -4,21 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import CubicSpline
-from scipy.spatial.transform import Rotation
 
 from .errors import InputError
+from .quaternions import as_rotvec, from_rotvec, multiply, relative
 
 
 def _neighbours(valid: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Index of the last valid sample at or before, and the first at or after, each frame
-    (ends clamp to the nearest valid sample)."""
-    n = valid.size
-    idx = np.arange(n)
-    prev = np.maximum.accumulate(np.where(valid, idx, -1))
-    nxt = np.minimum.accumulate(np.where(valid, idx, n)[::-1])[::-1]
-    prev = np.where(prev < 0, nxt, prev)
-    nxt = np.where(nxt >= n, prev, nxt)
+    """Index of the last valid sample at or before, and the first at or after, each frame,
+    along axis 0; -1 (n) where there is none."""
+    n = valid.shape[0]
+    idx = np.arange(n).reshape((n,) + (1,) * (valid.ndim - 1))
+    prev = np.maximum.accumulate(np.where(valid, idx, -1), axis=0)
+    nxt = np.minimum.accumulate(np.where(valid, idx, n)[::-1], axis=0)[::-1]
     return prev, nxt
 
 
@@ -70,34 +67,59 @@ def fill_gaps(
     single = positions.ndim == 2
     pos = np.array(positions[:, None] if single else positions, dtype=float)
     quat = np.array(quaternions[:, None] if single else quaternions, dtype=float)
-    n_frames, n_sensors = pos.shape[:2]
+    n_frames = pos.shape[0]
     t = np.arange(n_frames, dtype=float) if time is None else np.asarray(time, dtype=float)
     valid = np.isfinite(pos).all(axis=-1) & np.isfinite(quat).all(axis=-1)
     norms = np.linalg.norm(np.where(valid[..., None], quat, 1.0), axis=-1)
     valid &= norms > 1e-9
-    for s in range(n_sensors):
-        ok = valid[:, s]
-        if ok.all():
-            continue
-        if not ok.any():
-            raise InputError(f"sensor column {s} has no valid sample", sensor=str(s))
-        prev, nxt = _neighbours(ok)
-        bad = np.flatnonzero(~ok)
-        span = (t[nxt[bad]] - t[prev[bad]])
-        frac = np.where(span > 0, (t[bad] - t[prev[bad]]) / np.where(span > 0, span, 1.0), 0.0)
-        good = np.flatnonzero(ok)
-        interior = (bad > good[0]) & (bad < good[-1])
-        if method == "cubic" and good.size >= 4:
-            spline = CubicSpline(t[good], pos[good, s])
-            pos[bad, s] = np.where(interior[:, None], spline(t[bad]), pos[prev[bad], s])
-        else:
-            p0, p1 = pos[prev[bad], s], pos[nxt[bad], s]
-            pos[bad, s] = p0 + frac[:, None] * (p1 - p0)
-        r0 = Rotation.from_quat(quat[prev[bad], s], scalar_first=True)
-        r1 = Rotation.from_quat(quat[nxt[bad], s], scalar_first=True)
-        step = Rotation.from_rotvec(frac[:, None] * (r0.inv() * r1).as_rotvec())
-        quat[bad, s] = (r0 * step).as_quat(scalar_first=True)
+    empty = ~valid.any(axis=0)
+    if empty.any():
+        s = int(np.flatnonzero(empty)[0])
+        raise InputError(f"sensor column {s} has no valid sample", sensor=str(s))
+    prev, nxt = _neighbours(valid)
+    frame, sensor = np.nonzero(~valid)
+    i0, i1 = prev[frame, sensor], nxt[frame, sensor]
+    interior = (i0 >= 0) & (i1 < n_frames)
+    # outside the valid range, repeat the nearest valid sample
+    i0 = np.where(i0 < 0, i1, i0)
+    i1 = np.where(i1 >= n_frames, i0, i1)
+    span = t[i1] - t[i0]
+    frac = np.where(span > 0, (t[frame] - t[i0]) / np.where(span > 0, span, 1.0), 0.0)
+    p0, p1 = pos[i0, sensor], pos[i1, sensor]
+    filled_pos = p0 + frac[:, None] * (p1 - p0)
+    if method == "cubic":
+        # local cubic through two valid samples each side of the gap: one vectorised step
+        # for all sensors instead of a global spline per sensor
+        before = np.where(interior & (i0 > 0), prev[np.maximum(i0 - 1, 0), sensor], -1)
+        after = np.where(interior & (i1 < n_frames - 1),
+                         nxt[np.minimum(i1 + 1, n_frames - 1), sensor], n_frames)
+        cubic = (before >= 0) & (after < n_frames)
+        if cubic.any():
+            knots = np.stack([before[cubic], i0[cubic], i1[cubic], after[cubic]], axis=1)
+            filled_pos[cubic] = _lagrange(t[knots], pos[knots, sensor[cubic, None]],
+                                          t[frame[cubic]])
+    pos[frame, sensor] = filled_pos
+    q0, q1 = quat[i0, sensor], quat[i1, sensor]
+    q0 = q0 / np.linalg.norm(q0, axis=-1, keepdims=True)
+    q1 = q1 / np.linalg.norm(q1, axis=-1, keepdims=True)
+    quat[frame, sensor] = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
     filled = ~valid
     if single:
         return pos[:, 0], quat[:, 0], filled[:, 0]
     return pos, quat, filled
+
+
+def _lagrange(knots_t: NDArray[np.float64], knots_p: NDArray[np.float64],
+              t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Cubic through four (time, point) knots per row, evaluated at ``t``.
+
+    ``knots_t`` (G, 4), ``knots_p`` (G, 4, 3), ``t`` (G,) → (G, 3).
+    """
+    out = np.zeros((t.size, knots_p.shape[-1]))
+    for k in range(4):
+        weight = np.ones(t.size)
+        for m in range(4):
+            if m != k:
+                weight *= (t - knots_t[:, m]) / (knots_t[:, k] - knots_t[:, m])
+        out += weight[:, None] * knots_p[:, k]
+    return out

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
+from . import quaternions as quat
 from .errors import EstimationError, InputError
 
 _LOSSES = ("linear", "huber", "cauchy")
@@ -94,24 +95,15 @@ def _solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]
     return c, np.sqrt(lam), vec[:, 0]
 
 
-def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton product of scalar-first quaternions, shape (N, 4)."""
-    pw, px, py, pz = p.T
-    qw, qx, qy, qz = q.T
-    return np.column_stack([pw * qw - px * qx - py * qy - pz * qz,
-                            pw * qx + px * qw + py * qz - pz * qy,
-                            pw * qy - px * qz + py * qw + pz * qx,
-                            pw * qz + px * qy - py * qx + pz * qw])
-
-
-def range_of_motion(rotations_a: Rotation, rotations_b: Rotation,
+def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
+                    rotations_b: Rotation | NDArray[np.float64],
                     valid: NDArray[np.bool_] | None = None) -> float:
     """Range of the relative rotation of two bodies, degrees.
 
     Parameters
     ----------
-    rotations_a, rotations_b : Rotation, length F
-        Sensor → world rotations of the two bodies.
+    rotations_a, rotations_b : Rotation of length F, or ndarray, shape (F, 4)
+        Sensor → world rotations of the two bodies (arrays: scalar-first quaternions).
     valid : ndarray of bool, shape (F,), optional
         Frames to use (default: all).
 
@@ -122,24 +114,20 @@ def range_of_motion(rotations_a: Rotation, rotations_b: Rotation,
         after a 9-frame moving average of the rotation vectors so that white orientation
         noise does not count as motion.
     """
-    qa = rotations_a.as_quat(scalar_first=True)
-    qb = rotations_b.as_quat(scalar_first=True)
+    qa = (rotations_a if isinstance(rotations_a, np.ndarray)
+          else rotations_a.as_quat(scalar_first=True))
+    qb = (rotations_b if isinstance(rotations_b, np.ndarray)
+          else rotations_b.as_quat(scalar_first=True))
     if valid is not None:
         keep = np.asarray(valid, dtype=bool)
         qa, qb = qa[keep], qb[keep]
-    qa = qa * np.array([1.0, -1.0, -1.0, -1.0])  # conjugate: inverse of a unit quaternion
-    rel = _quat_multiply(qa, qb)
-    # mean rotation: principal eigenvector of Σ q qᵀ (Markley et al. 2007; sign-invariant)
-    mean = np.linalg.eigh(rel.T @ rel)[1][:, -1] * np.array([1.0, -1.0, -1.0, -1.0])
-    dq = _quat_multiply(np.broadcast_to(mean, rel.shape), rel)
-    dq = dq * np.where(dq[:, :1] < 0.0, -1.0, 1.0)
-    vec_norm = np.linalg.norm(dq[:, 1:], axis=1)
-    angle = 2.0 * np.arctan2(vec_norm, dq[:, 0])
-    dev = dq[:, 1:] * (angle / np.maximum(vec_norm, 1e-300))[:, None]
+    rel = quat.relative(qa, qb)
+    dev = quat.as_rotvec(quat.relative(quat.mean(rel), rel))
     if dev.shape[0] >= 9:
-        kernel = np.ones(9) / 9.0
-        dev = np.column_stack([np.convolve(dev[:, k], kernel, mode="valid") for k in range(3)])
-    return float(2.0 * np.degrees(np.percentile(np.linalg.norm(dev, axis=1), 95)))
+        # 9-frame moving average of the three components at once (cumulative sums)
+        c = np.cumsum(np.concatenate([np.zeros((1, 3)), dev]), axis=0)
+        dev = (c[9:] - c[:-9]) / 9.0
+    return float(2.0 * np.degrees(np.percentile(np.sqrt(np.einsum("fi,fi->f", dev, dev)), 95)))
 
 
 def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float64]) -> float:
@@ -252,6 +240,7 @@ def estimate_joint(
     hinge_ratio: float = 0.3,
     hinge_prior: float = 0.005,
     min_range_deg: float = 2.0,
+    range_of_motion_deg: float | None = None,
     warn_range_deg: float = 20.0,
     huber_k: float = 2.0,
     n_iterations: int = 4,
@@ -291,6 +280,9 @@ def estimate_joint(
         below ``hinge_ratio`` times the second smallest.
     min_range_deg, warn_range_deg : float
         Relative rotation range below which the fit fails (EstimationError) or warns.
+    range_of_motion_deg : float, optional
+        The range already measured by ``range_of_motion`` on the same valid frames (saves
+        computing it twice).
     hinge_prior : float
         Weight of the hinge rule against the data along the weakest direction: the final
         position along the axis is ``β·LLSF + (1 − β)·rule`` with ``β = λ / (λ + hinge_prior)``
@@ -398,7 +390,8 @@ def estimate_joint(
     d = pb - pa
 
     w0 = both.astype(float)
-    rom = range_of_motion(rotations_a, rotations_b, both)
+    rom = (range_of_motion(rotations_a, rotations_b, both) if range_of_motion_deg is None
+           else range_of_motion_deg)
     warnings: list[str] = []
     if rom < min_range_deg:
         raise EstimationError(

@@ -347,7 +347,7 @@ def estimate_skeleton(
         if longest > 0.5 * recording.fps:
             warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
                             "interpolated")
-    spread = max(float(np.ptp(pos[:, k], axis=0).max()) for k in range(len(use)))
+    spread = float((pos.max(axis=0) - pos.min(axis=0)).max())
     if spread == 0.0:
         raise EstimationError("no sensor moves: a recording with motion of every joint is "
                               "needed", field="motion")
@@ -356,8 +356,9 @@ def estimate_skeleton(
     # flagged; only a recording in which most joints barely rotate is refused
     pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
              and (method != "reduced" or j in _TORSO_JOINTS)]
-    rom = {j: range_of_motion(rotations[JOINT_SEGMENTS[j][0]], rotations[JOINT_SEGMENTS[j][1]])
-           for j in pairs}
+    column = {s: k for k, s in enumerate(use)}
+    rom = {j: range_of_motion(quat[:, column[a]], quat[:, column[b]], ok[a] & ok[b])
+           for j in pairs for a, b in (JOINT_SEGMENTS[j],)}
     static = [j for j in pairs if rom[j] < min_range_deg]
     if 2 * len(static) > len(pairs):
         raise EstimationError(
@@ -384,7 +385,7 @@ def estimate_skeleton(
                 loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
                 hinge_prior=0.0 if plain else 0.01, highpass=highpass,
                 bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
-                prior=prior if method == "auto" else None)
+                prior=prior if method == "auto" else None, range_of_motion_deg=rom.get(name))
         except EstimationError as exc:
             raise EstimationError(f"{name}: {exc.detail}", field=name) from None
         if name in static:
