@@ -215,6 +215,23 @@ def start_worker(tmp_path_factory: pytest.TempPathFactory
     launcher.close()
 
 
+def upload(client: httpx.Client, data: bytes, **params: str) -> dict[str, Any]:
+    """Upload ``data`` as a recording; its JSON (asserts 201)."""
+    r = client.post("/v1/recordings", content=data, params=params)
+    assert r.status_code == 201, r.text
+    body: dict[str, Any] = r.json()
+    return body
+
+
+def submit(client: httpx.Client, body: dict[str, Any], **headers: str) -> dict[str, Any]:
+    """Submit a job; its JSON (asserts 202 and the Location header)."""
+    r = client.post("/v1/jobs", json=body, headers=headers)
+    assert r.status_code == 202, r.text
+    assert r.headers["location"] == f"/v1/jobs/{r.json()['id']}"
+    job: dict[str, Any] = r.json()
+    return job
+
+
 def wait_for_job(client: httpx.Client, job_id: str, *, timeout: float = 90.0,
                  until: tuple[str, ...] = ("succeeded", "failed", "cancelled"),
                  ) -> dict[str, Any]:

@@ -21,7 +21,14 @@ import pytest
 import redis
 import sqlalchemy
 
-from tests.e2e.conftest import Launcher, ManagedProcess, ServerProcess, wait_for_job
+from tests.e2e.conftest import (
+    Launcher,
+    ManagedProcess,
+    ServerProcess,
+    submit,
+    upload,
+    wait_for_job,
+)
 
 if TYPE_CHECKING:
     from tests.e2e.services import S3Server
@@ -81,20 +88,6 @@ def cluster(tmp_path_factory: pytest.TempPathFactory, distributed_env: dict[str,
         yield Cluster(launcher, env, api, workers, s3, prefix)
     finally:
         launcher.close()
-
-
-def upload(client: httpx.Client, data: bytes, **params: str) -> dict[str, Any]:
-    r = client.post("/v1/recordings", content=data, params=params)
-    assert r.status_code == 201, r.text
-    body: dict[str, Any] = r.json()
-    return body
-
-
-def submit(client: httpx.Client, body: dict[str, Any], **headers: str) -> dict[str, Any]:
-    r = client.post("/v1/jobs", json=body, headers=headers)
-    assert r.status_code == 202, r.text
-    job: dict[str, Any] = r.json()
-    return job
 
 
 def wait_running(client: httpx.Client, job_id: str, *, not_on: int | None = None,

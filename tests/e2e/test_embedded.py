@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.e2e.conftest import Launcher, ServerProcess, wait_for_job
+from tests.e2e.conftest import Launcher, ServerProcess, submit, upload, wait_for_job
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,21 +38,6 @@ def client(server: ServerProcess) -> Iterator[httpx.Client]:
     """A client of the embedded server."""
     with server.client() as c:
         yield c
-
-
-def upload(client: httpx.Client, data: bytes, **params: str) -> dict[str, Any]:
-    r = client.post("/v1/recordings", content=data, params=params)
-    assert r.status_code == 201, r.text
-    body: dict[str, Any] = r.json()
-    return body
-
-
-def submit(client: httpx.Client, body: dict[str, Any], **headers: str) -> dict[str, Any]:
-    r = client.post("/v1/jobs", json=body, headers=headers)
-    assert r.status_code == 202, r.text
-    assert r.headers["location"] == f"/v1/jobs/{r.json()['id']}"
-    job: dict[str, Any] = r.json()
-    return job
 
 
 def events(client: httpx.Client, job_id: str) -> list[tuple[str, dict[str, Any]]]:
