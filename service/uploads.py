@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import queue
 import shutil
+import threading
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -18,7 +20,9 @@ from estimation.errors import BonefitError, InputError
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
 from .problems import Problem
 
-FLUSH_BYTES = 1024 * 1024
+BLOCK_BYTES = 2 * 1024 * 1024
+POOL_BLOCKS = 6
+_DONE = None
 
 
 def too_large(limit: int) -> Problem:
@@ -28,7 +32,13 @@ def too_large(limit: int) -> Problem:
 
 
 class UploadSink:
-    """Hashes and writes chunks to a file, off the event loop, refusing more than ``limit``."""
+    """Hashes and writes chunks to a file off the event loop, refusing more than ``limit``.
+
+    Chunks are copied into a small pool of ``BLOCK_BYTES`` buffers; one thread hashes them and
+    another writes them while the event loop keeps receiving (hashing and writing release the
+    GIL), and the loop waits only when every buffer is in use. Copying frees each received chunk
+    at once, so its memory is reused for the next one instead of a stream of fresh pages.
+    """
 
     def __init__(self, path: Path, limit: int) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -37,8 +47,22 @@ class UploadSink:
         self.size = 0
         self.sha256 = hashlib.sha256()
         self._pending: list[bytes] = []
-        self._pending_size = 0
-        self._fh: IO[bytes] = path.open("wb")
+        self._buf: bytearray | None = None
+        self._fill = 0
+        self._free: queue.SimpleQueue[bytearray] = queue.SimpleQueue()
+        for _ in range(POOL_BLOCKS):
+            self._free.put(bytearray(BLOCK_BYTES))
+        self._full: queue.SimpleQueue[tuple[bytearray, int] | None] = queue.SimpleQueue()
+        self._hashed: queue.SimpleQueue[tuple[bytearray, int] | None] = queue.SimpleQueue()
+        self._error: BaseException | None = None
+        self._stopped = False
+        self._fh: IO[bytes] = path.open("wb", buffering=0)
+        # two stages, so that hashing one block overlaps with writing the one before
+        self._threads = [threading.Thread(target=self._hash_all, name="upload-hash", daemon=True),
+                         threading.Thread(target=self._write_all, name="upload-write",
+                                          daemon=True)]
+        for thread in self._threads:
+            thread.start()
 
     def feed(self, data: bytes) -> None:
         """Accept a chunk (raises the 413 problem past the limit)."""
@@ -46,27 +70,74 @@ class UploadSink:
         if self.size > self.limit:
             raise too_large(self.limit)
         self._pending.append(data)
-        self._pending_size += len(data)
 
-    def _write(self, data: bytes) -> None:
-        self.sha256.update(data)
-        self._fh.write(data)
+    def _hash_all(self) -> None:
+        while (item := self._full.get()) is not _DONE:
+            if not self._stopped:
+                self.sha256.update(memoryview(item[0])[:item[1]])
+            self._hashed.put(item)
+        self._hashed.put(_DONE)
+
+    def _write_all(self) -> None:
+        while (item := self._hashed.get()) is not _DONE:
+            buf, length = item
+            if self._error is None and not self._stopped:
+                try:
+                    view = memoryview(buf)[:length]
+                    while view:
+                        view = view[self._fh.write(view) or 0:]
+                except BaseException as exc:  # reported to the request by drain or close
+                    self._error = exc
+            self._free.put(buf)
+
+    async def _take(self) -> bytearray:
+        try:
+            return self._free.get_nowait()
+        except queue.Empty:  # backpressure: the disk is behind the network
+            return await anyio.to_thread.run_sync(self._free.get)
+
+    def _hand_over(self) -> None:
+        if self._error is not None:
+            raise self._error
+        if self._buf is not None and self._fill:
+            self._full.put((self._buf, self._fill))
+            self._buf, self._fill = None, 0
 
     async def drain(self, *, force: bool = False) -> None:
-        """Write what was fed once a megabyte is pending (or now, with ``force``)."""
-        if self._pending_size >= FLUSH_BYTES or (force and self._pending):
-            data = b"".join(self._pending)
-            self._pending.clear()
-            self._pending_size = 0
-            await anyio.to_thread.run_sync(self._write, data)
+        """Copy what was fed into the buffers, handing on full ones (the last too with
+        ``force``)."""
+        for data in self._pending:
+            view = memoryview(data)
+            while view:
+                if self._buf is None:
+                    self._buf = await self._take()
+                n = min(len(view), BLOCK_BYTES - self._fill)
+                self._buf[self._fill:self._fill + n] = view[:n]
+                self._fill += n
+                view = view[n:]
+                if self._fill == BLOCK_BYTES:
+                    self._hand_over()
+        self._pending.clear()
+        if force:
+            self._hand_over()
 
     async def close(self) -> None:
-        """Flush and close the file."""
+        """Flush, wait for the threads, and close the file."""
         await self.drain(force=True)
+        self._full.put(_DONE)
+        for thread in self._threads:
+            await anyio.to_thread.run_sync(thread.join)
         self._fh.close()
+        if self._error is not None:
+            raise self._error
 
     def discard(self) -> None:
-        """Close and delete the file."""
+        """Stop the threads, close and delete the file."""
+        if self._threads[0].is_alive():
+            self._stopped = True  # the threads skip what is still queued
+            self._full.put(_DONE)
+        for thread in self._threads:
+            thread.join()
         self._fh.close()
         self.path.unlink(missing_ok=True)
 

@@ -8,6 +8,7 @@ The formats are described in ``docs/skeleton-io.md``.
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import csv
 import io
@@ -820,8 +821,8 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
 def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
     """Quick summary of a recording without loading it.
 
-    Streams through the file once (counting lines) and parses only the header and the first
-    few time stamps, so it is cheap on large uploads. It does not validate the data rows.
+    Parses only the header and the first few time stamps and counts the other lines in large
+    binary blocks, so it is cheap on large uploads. It does not validate the data rows.
 
     Parameters
     ----------
@@ -845,26 +846,33 @@ def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
     if fmt == "npz":
         return _sniff_npz(path)
     meta: dict[str, str] = {}
+    if fmt == "csv":
+        return _sniff_csv(path, meta)
     with _open_text(path) as handle:
-        if fmt == "csv":
-            return _sniff_csv(handle, meta)
         return _sniff_tracker(handle, meta)
 
 
-def _sniff_csv(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
-    header, header_line = _csv_header(_csv_rows(handle), meta)
-    time_col, sensors, _ = _parse_csv_header(header, header_line)
-    times: list[float] = []
-    frames = 0
-    for text in handle:
-        stripped = text.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        frames += 1
-        if time_col is not None and len(times) < 50:
-            cells = stripped.split(",")
-            with contextlib.suppress(IndexError, ValueError):
-                times.append(float(cells[time_col]))
+def _sniff_csv(path: PathLike, meta: dict[str, str]) -> dict[str, Any]:
+    with _open_text(path) as handle:
+        header, header_line = _csv_header(_csv_rows(handle), meta)
+        time_col, sensors, _ = _parse_csv_header(header, header_line)
+        times: list[float] = []
+        frames = 0
+        for text in handle:
+            if not _sniff_is_row(text):
+                continue
+            frames += 1
+            if time_col is not None and len(times) < 50:
+                cells = text.strip().split(",")
+                with contextlib.suppress(IndexError, ValueError):
+                    times.append(float(cells[time_col]))
+            if time_col is None or len(times) >= 50:
+                # a header cell with a line break spans lines: count the rest as text then
+                one_line = not any("\n" in c or "\r" in c for c in header)
+                counted = _sniff_rows_after(path, header_line) if one_line else None
+                frames = counted if counted is not None else frames + sum(
+                    _sniff_is_row(rest) for rest in handle)
+                break
     fps: float | None = None
     if "fps" in meta:
         fps = _parse_fps(meta["fps"])
@@ -875,6 +883,85 @@ def _sniff_csv(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]
             fps = None
     return {"format": "csv", "frames": frames, "sensors": sensors, "fps": fps,
             "units": meta.get("units", "m")}
+
+
+_SNIFF_BLOCK: Final = 1024 * 1024
+_SNIFF_PREFIX: Final = 1024 * 1024
+# bytes that may start a line that is blank, a comment, or begins with (Unicode) whitespace
+_SNIFF_SPECIAL: Final = np.zeros(256, dtype=bool)
+_SNIFF_SPECIAL[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32, ord("#")]] = True
+_SNIFF_SPECIAL[128:] = True
+_SNIFF_SPACE: Final = b" \t\x0b\x0c\x1c\x1d\x1e\x1f"
+
+
+def _sniff_is_row(text: str) -> bool:
+    """Whether a line is a data row (neither blank nor a ``#`` comment)."""
+    stripped = text.strip()
+    return bool(stripped) and not stripped.startswith("#")
+
+
+def _sniff_is_row_bytes(line: bytes) -> bool:
+    """``_sniff_is_row`` of an undecoded line."""
+    return _sniff_is_row(line.decode("utf-8", "replace"))
+
+
+def _sniff_rows_after(path: PathLike, skip: int) -> int | None:
+    """Data rows after the first ``skip`` lines, counted in binary blocks; None when those
+    lines do not fit in the first megabyte."""
+    with open(path, "rb") as fh:
+        prefix = fh.read(_SNIFF_PREFIX)
+        lines = prefix.splitlines(keepends=True)  # \n, \r and \r\n, like the text reader
+        if len(lines) <= skip:
+            return None
+        fh.seek(sum(len(line) for line in lines[:skip]))
+        return _sniff_count_rows(fh)
+
+
+def _sniff_count_rows(fh: io.BufferedReader) -> int:
+    """Data rows from the position of ``fh`` to its end.
+
+    Splits at every \\r and \\n (a \\r\\n then leaves an empty line, which is no row). A line
+    whose first byte is ASCII, not whitespace and not ``#`` is a row; only the others (blank,
+    comment, leading whitespace, non-ASCII) are decoded and looked at one by one.
+    """
+    rows = 0
+    carry = b""
+    # reused buffers: fresh pages for every block cost more than the counting itself
+    buf = bytearray(_SNIFF_BLOCK)
+    is_end = np.empty(_SNIFF_BLOCK, dtype=bool)
+    is_cr = np.empty(_SNIFF_BLOCK, dtype=bool)
+    while n := fh.readinto(buf):
+        data = np.frombuffer(buf, dtype=np.uint8, count=n)
+        np.equal(data, 10, out=is_end[:n])
+        if buf.find(b"\r", 0, n) >= 0:
+            np.equal(data, 13, out=is_cr[:n])
+            np.logical_or(is_end[:n], is_cr[:n], out=is_end[:n])
+        ends = np.flatnonzero(is_end[:n])
+        if ends.size == 0:
+            carry = _sniff_line_lead(carry + buf[:n])
+            continue
+        rows += _sniff_is_row_bytes(carry + buf[:ends[0]])
+        starts = ends[:-1] + 1
+        nonempty = ends[1:] > starts
+        special = _SNIFF_SPECIAL[data[starts]] & nonempty
+        rows += int(np.count_nonzero(nonempty)) - int(np.count_nonzero(special))
+        for i in np.flatnonzero(special).tolist():
+            rows += _sniff_is_row_bytes(bytes(buf[starts[i]:ends[i + 1]]))
+        carry = _sniff_line_lead(bytes(buf[ends[-1] + 1:n]))
+    return rows + (_sniff_is_row_bytes(carry) if carry else 0)
+
+
+def _sniff_line_lead(line: bytes) -> bytes:
+    """An unfinished line cut to what decides whether it is a row (its first non-space
+    character), so that a huge line does not pile up in memory."""
+    if len(line) <= 4096:
+        return line
+    line = line.lstrip(_SNIFF_SPACE)
+    if not line or line[0] < 128:
+        return line[:1]
+    decoder = codecs.getincrementaldecoder("utf-8")("replace")
+    lead = decoder.decode(line).lstrip()
+    return lead[0].encode() if lead else decoder.getstate()[0]
 
 
 def _sniff_tracker(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
