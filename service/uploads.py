@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import importlib
 import queue
 import shutil
 import threading
@@ -16,6 +15,7 @@ import anyio.to_thread
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 
 from estimation.errors import BonefitError, InputError
+from estimation.io.kinematics import sniff_kinematics
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
 from .problems import Problem
@@ -251,13 +251,6 @@ def _sniff_accelerations(path: Path) -> dict[str, Any]:
     return {"format": "accelerations-csv", "frames": frames, "columns": header}
 
 
-def _kinematics_sniffer() -> Any:
-    try:
-        return importlib.import_module("estimation.io.kinematics").sniff_kinematics
-    except (ImportError, AttributeError):
-        return None
-
-
 def sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, Any]]:
     """The API format name and quick summary of the file; InputError when it is unreadable."""
     try:
@@ -278,14 +271,11 @@ def _sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, A
     if fmt in SENSOR_FORMATS:
         summary = sniff_recording(path, SENSOR_FORMATS[fmt])
         return fmt, summary
-    sniff_kinematics = _kinematics_sniffer()
     if fmt in KINEMATICS_FORMATS:
-        if sniff_kinematics is None:
-            raise InputError(f"format {fmt!r} is not supported by this server", field="format")
         summary = dict(sniff_kinematics(path, KINEMATICS_FORMATS[fmt]))
         return fmt, summary
     suffix = Path(filename or "").suffix.lower()
-    if suffix in (".bvh", ".mvnx") and sniff_kinematics is not None:
+    if suffix in (".bvh", ".mvnx"):
         summary = dict(sniff_kinematics(path, "auto"))
         return by_name.get(str(summary.get("format")), suffix[1:]), summary
     try:

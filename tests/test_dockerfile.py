@@ -20,6 +20,9 @@ from types import ModuleType
 from typing import Any
 
 import pytest
+import yaml
+
+from service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKERFILES = [ROOT / "Dockerfile", ROOT / "scripts" / "container" / "python-base.Dockerfile"]
@@ -101,7 +104,6 @@ def test_dockerignore_keeps_the_context_small() -> None:
 
 
 def load_compose() -> dict[str, Any]:
-    yaml = pytest.importorskip("yaml")
     loaded: dict[str, Any] = yaml.safe_load((ROOT / "compose.yaml").read_text())
     return loaded
 
@@ -130,8 +132,7 @@ def test_compose_has_the_distributed_set_up() -> None:
 
 
 def test_compose_settings_are_ones_the_service_reads() -> None:
-    settings = pytest.importorskip("service.settings")
-    known = {f"BONEFIT_{name.upper()}" for name in settings.Settings.model_fields}
+    known = {f"BONEFIT_{name.upper()}" for name in Settings.model_fields}
     env = load_compose()["services"]["api"]["environment"]
     assert set(env) <= known, set(env) - known
 

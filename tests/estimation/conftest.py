@@ -112,3 +112,15 @@ def clean15(example_clip: BvhMotion) -> tuple[SensorRecording, SimulationTruth]:
     return simulate_sensors(example_clip, units_m=0.01, n_sensors=15, seed=11,
                             position_noise_m=0.0, orientation_noise_deg=0.0, slip_m=0.0,
                             drop_fraction=0.0)
+
+
+def two_feet_motion(values: NDArray[np.float64], fps: float) -> BvhMotion:
+    """A hips-and-two-feet BVH (cm, root with position channels) driven by ``values`` (F, 12)."""
+    names = ("Hips", "LeftFoot", "LeftFoot_end", "RightFoot", "RightFoot_end")
+    parents = (-1, 0, 1, 0, 3)
+    offsets = np.array([[0, 90, 0], [10, -80, 0], [0, -7, 15], [-10, -80, 0], [0, -7, 15]],
+                       dtype=float)
+    channels = (("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation",
+                 "Yrotation"), ("Zrotation", "Xrotation", "Yrotation"), (),
+                ("Zrotation", "Xrotation", "Yrotation"), ())
+    return BvhMotion(names, parents, offsets, channels, 1.0 / fps, values)

@@ -22,6 +22,7 @@ from estimation.io.kinematics import (
 )
 from estimation.simulate.inertial import simulate_walker
 from estimation.translation import estimate_translation
+from tests.estimation.conftest import two_feet_motion
 
 
 @pytest.fixture(scope="module")
@@ -168,13 +169,6 @@ def test_sniff_streams_a_summary(walker: KinematicsRecording, tmp_path: Path) ->
 
 
 def small_bvh() -> BvhMotion:
-    names = ("Hips", "LeftFoot", "LeftFoot_end", "RightFoot", "RightFoot_end")
-    parents = (-1, 0, 1, 0, 3)
-    offsets = np.array([[0, 90, 0], [10, -80, 0], [0, -7, 15], [-10, -80, 0], [0, -7, 15]],
-                       dtype=float)
-    channels = (("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation",
-                 "Yrotation"), ("Zrotation", "Xrotation", "Yrotation"), (),
-                ("Zrotation", "Xrotation", "Yrotation"), ())
     n = 120
     t = np.arange(n) / 60.0
     values = np.zeros((n, 12))
@@ -183,7 +177,7 @@ def small_bvh() -> BvhMotion:
     values[:, 5] = 20 * np.sin(t)  # yaw
     values[:, 7] = 15 * np.sin(3 * t)  # left foot pitch
     values[:, 10] = -15 * np.sin(3 * t)
-    return BvhMotion(names, parents, offsets, channels, 1.0 / 60.0, values)
+    return two_feet_motion(values, 60.0)
 
 
 def test_bvh_with_accelerations(tmp_path: Path) -> None:

@@ -8,22 +8,16 @@ import pytest
 from estimation.bvh import BvhMotion, forward_kinematics
 from estimation.io.kinematics import GRAVITY
 from estimation.simulate.inertial import simulate_inertial, simulate_walker
+from tests.estimation.conftest import two_feet_motion
 
 
 def standing_then_walking(n: int = 240, fps: float = 120.0) -> BvhMotion:
-    names = ("Hips", "LeftFoot", "LeftFoot_end", "RightFoot", "RightFoot_end")
-    parents = (-1, 0, 1, 0, 3)
-    offsets = np.array([[0, 90, 0], [10, -80, 0], [0, -7, 15], [-10, -80, 0], [0, -7, 15]],
-                       dtype=float)
-    channels = (("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation",
-                 "Yrotation"), ("Zrotation", "Xrotation", "Yrotation"), (),
-                ("Zrotation", "Xrotation", "Yrotation"), ())
     t = np.arange(n) / fps
     values = np.zeros((n, 12))
     values[:, 0] = np.where(t < 1.0, 0.0, 100 * (t - 1.0) ** 2)  # still, then accelerate
     values[:, 1] = 90
     values[:, 4] = np.where(t < 1.0, 0.0, 10 * (t - 1.0))  # then pitch
-    return BvhMotion(names, parents, offsets, channels, 1.0 / fps, values)
+    return two_feet_motion(values, fps)
 
 
 def test_strips_the_root_and_keeps_the_truth() -> None:
