@@ -108,6 +108,21 @@ def wait_healthy(base_url: str, proc: Process, timeout: float = 60.0) -> None:
     raise RuntimeError(f"the server never became healthy: {proc.log.read_text()[-2000:]}")
 
 
+def wait_settled(pids: Sequence[int], timeout: float = 60.0) -> None:
+    """Wait until the processes ``pids`` (and their descendants) are idle: less than 5 % of a
+    CPU over half a second, so that workers still importing numpy do not share the CPU with
+    what is measured next."""
+    deadline = time.monotonic() + timeout
+    def everything() -> list[int]:
+        return [p for pid in pids for p in tree(pid)]
+    while time.monotonic() < deadline:
+        before = cpu_seconds(everything())
+        time.sleep(0.5)
+        if cpu_seconds(everything()) - before < 0.025:
+            return
+    raise RuntimeError(f"the server processes never became idle within {timeout:.0f} s")
+
+
 @contextlib.contextmanager
 def running_server(data_dir: Path, *, workers: int = 2, no_worker: bool = False,
                    extra_env: dict[str, str] | None = None,
@@ -130,6 +145,7 @@ def running_server(data_dir: Path, *, workers: int = 2, no_worker: bool = False,
             server.workers.append(spawn([*bonefit_command(), "worker", "--data-dir", str(own)],
                                         {**env, "BONEFIT_DATA_DIR": str(own)},
                                         own / "worker.log"))
+        wait_settled([server.pid, *(w.pid for w in server.workers)])
         yield server
     finally:
         server.stop()

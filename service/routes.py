@@ -140,7 +140,7 @@ async def upload_recording(
         # the readers name the file in their messages: give it the client's name
         path = sink.path.rename(spool / (filename or f"recording{suffix}"))
         sink.path = path
-        fmt, summary = await run_in_threadpool(sniff, path, format, filename)
+        fmt, summary = await run_in_threadpool(sniff, path, format, filename, sink.rows.rows)
         key = f"{tenant_prefix(who)}/recordings/{rec_id}{suffix}"
         rec = Recording(id=rec_id, tenant=who, key=key,
                         filename=filename, content_type=content_type, format=fmt,

@@ -7,7 +7,7 @@ import queue
 import shutil
 import threading
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import IO, Any
 
@@ -16,6 +16,7 @@ from python_multipart.multipart import MultipartParser, MultipartState, parse_op
 
 from estimation.errors import BonefitError, InputError
 from estimation.io.kinematics import sniff_kinematics
+from estimation.io.sensors import RowCounter, sniff_recording
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
 from .problems import Problem
@@ -32,12 +33,14 @@ def too_large(limit: int) -> Problem:
 
 
 class UploadSink:
-    """Hashes and writes chunks to a file off the event loop, refusing more than ``limit``.
+    """Hashes, counts the rows of, and writes chunks to a file off the event loop, refusing
+    more than ``limit``.
 
-    Chunks are copied into a small pool of ``BLOCK_BYTES`` buffers; one thread hashes them and
-    another writes them while the event loop keeps receiving (hashing and writing release the
-    GIL), and the loop waits only when every buffer is in use. Copying frees each received chunk
-    at once, so its memory is reused for the next one instead of a stream of fresh pages.
+    Chunks are copied into a small pool of ``BLOCK_BYTES`` buffers that pass through a
+    pipeline of threads, one per stage (hash, count rows, write: each releases the GIL), while
+    the event loop keeps receiving; the loop waits only when every buffer is in use. Copying
+    frees each received chunk at once, so its memory is reused for the next one instead of a
+    stream of fresh pages. Counting rows as they arrive spares the summary a second pass.
     """
 
     def __init__(self, path: Path, limit: int) -> None:
@@ -46,21 +49,23 @@ class UploadSink:
         self.limit = limit
         self.size = 0
         self.sha256 = hashlib.sha256()
+        self.rows = RowCounter()
         self._pending: list[bytes] = []
         self._buf: bytearray | None = None
         self._fill = 0
         self._free: queue.SimpleQueue[bytearray] = queue.SimpleQueue()
         for _ in range(POOL_BLOCKS):
             self._free.put(bytearray(BLOCK_BYTES))
-        self._full: queue.SimpleQueue[tuple[bytearray, int] | None] = queue.SimpleQueue()
-        self._hashed: queue.SimpleQueue[tuple[bytearray, int] | None] = queue.SimpleQueue()
         self._error: BaseException | None = None
         self._stopped = False
         self._fh: IO[bytes] = path.open("wb", buffering=0)
-        # two stages, so that hashing one block overlaps with writing the one before
-        self._threads = [threading.Thread(target=self._hash_all, name="upload-hash", daemon=True),
-                         threading.Thread(target=self._write_all, name="upload-write",
-                                          daemon=True)]
+        stages = [self._hash, self._count, self._write]
+        self._queues: list[queue.SimpleQueue[tuple[bytearray, int] | None]] = [
+            queue.SimpleQueue() for _ in stages]
+        self._threads = [
+            threading.Thread(target=self._run_stage, args=(i, stage), daemon=True,
+                             name=f"upload{stage.__name__}")
+            for i, stage in enumerate(stages)]
         for thread in self._threads:
             thread.start()
 
@@ -71,24 +76,32 @@ class UploadSink:
             raise too_large(self.limit)
         self._pending.append(data)
 
-    def _hash_all(self) -> None:
-        while (item := self._full.get()) is not _DONE:
-            if not self._stopped:
-                self.sha256.update(memoryview(item[0])[:item[1]])
-            self._hashed.put(item)
-        self._hashed.put(_DONE)
+    def _hash(self, buf: bytearray, length: int) -> None:
+        self.sha256.update(memoryview(buf)[:length])
 
-    def _write_all(self) -> None:
-        while (item := self._hashed.get()) is not _DONE:
-            buf, length = item
+    def _count(self, buf: bytearray, length: int) -> None:
+        self.rows.feed(buf, length)
+
+    def _write(self, buf: bytearray, length: int) -> None:
+        view = memoryview(buf)[:length]
+        while view:
+            view = view[self._fh.write(view) or 0:]
+
+    def _run_stage(self, index: int, stage: Callable[[bytearray, int], None]) -> None:
+        source = self._queues[index]
+        last = index == len(self._queues) - 1
+        while (item := source.get()) is not _DONE:
             if self._error is None and not self._stopped:
                 try:
-                    view = memoryview(buf)[:length]
-                    while view:
-                        view = view[self._fh.write(view) or 0:]
+                    stage(*item)
                 except BaseException as exc:  # reported to the request by drain or close
                     self._error = exc
-            self._free.put(buf)
+            if last:
+                self._free.put(item[0])
+            else:
+                self._queues[index + 1].put(item)
+        if not last:
+            self._queues[index + 1].put(_DONE)
 
     async def _take(self) -> bytearray:
         try:
@@ -100,7 +113,7 @@ class UploadSink:
         if self._error is not None:
             raise self._error
         if self._buf is not None and self._fill:
-            self._full.put((self._buf, self._fill))
+            self._queues[0].put((self._buf, self._fill))
             self._buf, self._fill = None, 0
 
     async def drain(self, *, force: bool = False) -> None:
@@ -124,7 +137,7 @@ class UploadSink:
     async def close(self) -> None:
         """Flush, wait for the threads, and close the file."""
         await self.drain(force=True)
-        self._full.put(_DONE)
+        self._queues[0].put(_DONE)
         for thread in self._threads:
             await anyio.to_thread.run_sync(thread.join)
         self._fh.close()
@@ -135,7 +148,7 @@ class UploadSink:
         """Stop the threads, close and delete the file."""
         if self._threads[0].is_alive():
             self._stopped = True  # the threads skip what is still queued
-            self._full.put(_DONE)
+            self._queues[0].put(_DONE)
         for thread in self._threads:
             thread.join()
         self._fh.close()
@@ -251,10 +264,12 @@ def _sniff_accelerations(path: Path) -> dict[str, Any]:
     return {"format": "accelerations-csv", "frames": frames, "columns": header}
 
 
-def sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, Any]]:
-    """The API format name and quick summary of the file; InputError when it is unreadable."""
+def sniff(path: Path, fmt: str, filename: str | None,
+          counted_rows: int | None = None) -> tuple[str, dict[str, Any]]:
+    """The API format name and quick summary of the file (``counted_rows``: its rows, counted
+    while it was received); InputError when it is unreadable."""
     try:
-        return _sniff(path, fmt, filename)
+        return _sniff(path, fmt, filename, counted_rows)
     except BonefitError:
         raise
     except Exception as exc:  # whatever a reader trips on in a client's file, the file is bad
@@ -262,14 +277,13 @@ def sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, An
                          field="file") from None
 
 
-def _sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, Any]]:
-    from estimation.io.sensors import sniff_recording
-
+def _sniff(path: Path, fmt: str, filename: str | None,
+           counted_rows: int | None) -> tuple[str, dict[str, Any]]:
     if fmt == "accelerations-csv":
         return fmt, _sniff_accelerations(path)
     by_name = {v: k for k, v in KINEMATICS_FORMATS.items()}
     if fmt in SENSOR_FORMATS:
-        summary = sniff_recording(path, SENSOR_FORMATS[fmt])
+        summary = sniff_recording(path, SENSOR_FORMATS[fmt], counted_rows=counted_rows)
         return fmt, summary
     if fmt in KINEMATICS_FORMATS:
         summary = dict(sniff_kinematics(path, KINEMATICS_FORMATS[fmt]))
@@ -279,11 +293,9 @@ def _sniff(path: Path, fmt: str, filename: str | None) -> tuple[str, dict[str, A
         summary = dict(sniff_kinematics(path, "auto"))
         return by_name.get(str(summary.get("format")), suffix[1:]), summary
     try:
-        summary = sniff_recording(path, "auto")
+        summary = sniff_recording(path, "auto", counted_rows=counted_rows)
         return {v: k for k, v in SENSOR_FORMATS.items()}[summary["format"]], summary
     except InputError as first:
-        if sniff_kinematics is None:
-            raise
         try:
             summary = dict(sniff_kinematics(path, "auto"))
         except InputError:

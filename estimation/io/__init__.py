@@ -14,6 +14,7 @@ from .kinematics import (
     write_translation,
 )
 from .sensors import (
+    RowCounter,
     example_path,
     parse_stations,
     read_recording,
@@ -33,6 +34,7 @@ from .skeleton import (
 
 __all__ = [
     "KinematicsRecording",
+    "RowCounter",
     "example_path",
     "parse_stations",
     "read_kinematics",

@@ -818,7 +818,8 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
     return read_sensor_npz(path, units=units, fps=fps)
 
 
-def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
+def sniff_recording(path: PathLike, format: str = "auto", *,
+                    counted_rows: int | None = None) -> dict[str, Any]:
     """Quick summary of a recording without loading it.
 
     Parses only the header and the first few time stamps and counts the other lines in large
@@ -828,6 +829,10 @@ def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
     ----------
     path : path
     format : {"auto", "csv", "tracker", "npz"}
+    counted_rows : int, optional
+        The file's rows as a `RowCounter` fed the whole file counted them (a caller that
+        received the file in blocks, such as the service, counts while receiving); a CSV is
+        then not read past its header and first time stamps.
 
     Returns
     -------
@@ -847,12 +852,13 @@ def sniff_recording(path: PathLike, format: str = "auto") -> dict[str, Any]:
         return _sniff_npz(path)
     meta: dict[str, str] = {}
     if fmt == "csv":
-        return _sniff_csv(path, meta)
+        return _sniff_csv(path, meta, counted_rows)
     with _open_text(path) as handle:
         return _sniff_tracker(handle, meta)
 
 
-def _sniff_csv(path: PathLike, meta: dict[str, str]) -> dict[str, Any]:
+def _sniff_csv(path: PathLike, meta: dict[str, str],
+               counted_rows: int | None = None) -> dict[str, Any]:
     with _open_text(path) as handle:
         header, header_line = _csv_header(_csv_rows(handle), meta)
         time_col, sensors, _ = _parse_csv_header(header, header_line)
@@ -869,7 +875,7 @@ def _sniff_csv(path: PathLike, meta: dict[str, str]) -> dict[str, Any]:
             if time_col is None or len(times) >= 50:
                 # a header cell with a line break spans lines: count the rest as text then
                 one_line = not any("\n" in c or "\r" in c for c in header)
-                counted = _sniff_rows_after(path, header_line) if one_line else None
+                counted = _sniff_rows_after(path, header_line, counted_rows) if one_line else None
                 frames = counted if counted is not None else frames + sum(
                     _sniff_is_row(rest) for rest in handle)
                 break
@@ -905,50 +911,82 @@ def _sniff_is_row_bytes(line: bytes) -> bool:
     return _sniff_is_row(line.decode("utf-8", "replace"))
 
 
-def _sniff_rows_after(path: PathLike, skip: int) -> int | None:
-    """Data rows after the first ``skip`` lines, counted in binary blocks; None when those
-    lines do not fit in the first megabyte."""
+def _sniff_rows_after(path: PathLike, skip: int, counted_rows: int | None = None) -> int | None:
+    """Data rows after the first ``skip`` lines, counted in binary blocks (or taken from
+    ``counted_rows``, the rows of the whole file); None when those lines do not fit in the
+    first megabyte."""
     with open(path, "rb") as fh:
         prefix = fh.read(_SNIFF_PREFIX)
         lines = prefix.splitlines(keepends=True)  # \n, \r and \r\n, like the text reader
         if len(lines) <= skip:
             return None
+        if counted_rows is not None:
+            head = RowCounter()
+            head.feed(b"".join(lines[:skip]))
+            return counted_rows - head.rows
         fh.seek(sum(len(line) for line in lines[:skip]))
-        return _sniff_count_rows(fh)
+        counter = RowCounter()
+        # one reused buffer: fresh pages for every block cost more than the counting itself
+        buf = bytearray(_SNIFF_BLOCK)
+        while n := fh.readinto(buf):
+            counter.feed(buf, n)
+        return counter.rows
 
 
-def _sniff_count_rows(fh: io.BufferedReader) -> int:
-    """Data rows from the position of ``fh`` to its end.
+class RowCounter:
+    """Counts the data rows of a text file fed to it in blocks of bytes, as they arrive.
 
-    Splits at every \\r and \\n (a \\r\\n then leaves an empty line, which is no row). A line
-    whose first byte is ASCII, not whitespace and not ``#`` is a row; only the others (blank,
-    comment, leading whitespace, non-ASCII) are decoded and looked at one by one.
+    Splits at every \\r and \\n (a \\r\\n then leaves an empty line, which is no row). A
+    line whose first byte is ASCII, not whitespace and not ``#`` is a row; only the others
+    (blank, comment, leading whitespace, non-ASCII) are decoded and looked at one by one. The
+    service feeds it an upload while receiving it, so that the summary needs no second pass.
+
+    Examples
+    --------
+    >>> counter = RowCounter()
+    >>> counter.feed(b"time,a\\n0,1\\n# note\\n\\n1,")
+    >>> counter.feed(b"2\\n")
+    >>> counter.rows
+    3
     """
-    rows = 0
-    carry = b""
-    # reused buffers: fresh pages for every block cost more than the counting itself
-    buf = bytearray(_SNIFF_BLOCK)
-    is_end = np.empty(_SNIFF_BLOCK, dtype=bool)
-    is_cr = np.empty(_SNIFF_BLOCK, dtype=bool)
-    while n := fh.readinto(buf):
-        data = np.frombuffer(buf, dtype=np.uint8, count=n)
-        np.equal(data, 10, out=is_end[:n])
-        if buf.find(b"\r", 0, n) >= 0:
-            np.equal(data, 13, out=is_cr[:n])
-            np.logical_or(is_end[:n], is_cr[:n], out=is_end[:n])
-        ends = np.flatnonzero(is_end[:n])
+
+    def __init__(self) -> None:
+        self._rows = 0
+        self._carry = b""
+        self._is_end = np.empty(0, dtype=bool)
+        self._is_cr = np.empty(0, dtype=bool)
+
+    @property
+    def rows(self) -> int:
+        """Rows so far, the unfinished last line included."""
+        return self._rows + (_sniff_is_row_bytes(self._carry) if self._carry else 0)
+
+    def feed(self, block: bytes | bytearray, length: int | None = None) -> None:
+        """Count the rows that ``block`` (its first ``length`` bytes) completes."""
+        n = len(block) if length is None else min(length, len(block))
+        if n == 0:
+            return
+        if self._is_end.size < n:  # reused: fresh pages for every block cost more than counting
+            self._is_end = np.empty(n, dtype=bool)
+            self._is_cr = np.empty(n, dtype=bool)
+        data = np.frombuffer(block, dtype=np.uint8, count=n)
+        is_end = self._is_end[:n]
+        np.equal(data, 10, out=is_end)
+        if block.find(b"\r", 0, n) >= 0:
+            np.equal(data, 13, out=self._is_cr[:n])
+            np.logical_or(is_end, self._is_cr[:n], out=is_end)
+        ends = np.flatnonzero(is_end)
         if ends.size == 0:
-            carry = _sniff_line_lead(carry + buf[:n])
-            continue
-        rows += _sniff_is_row_bytes(carry + buf[:ends[0]])
+            self._carry = _sniff_line_lead(self._carry + bytes(block[:n]))
+            return
+        self._rows += _sniff_is_row_bytes(self._carry + bytes(block[:ends[0]]))
         starts = ends[:-1] + 1
         nonempty = ends[1:] > starts
         special = _SNIFF_SPECIAL[data[starts]] & nonempty
-        rows += int(np.count_nonzero(nonempty)) - int(np.count_nonzero(special))
+        self._rows += int(np.count_nonzero(nonempty)) - int(np.count_nonzero(special))
         for i in np.flatnonzero(special).tolist():
-            rows += _sniff_is_row_bytes(bytes(buf[starts[i]:ends[i + 1]]))
-        carry = _sniff_line_lead(bytes(buf[ends[-1] + 1:n]))
-    return rows + (_sniff_is_row_bytes(carry) if carry else 0)
+            self._rows += _sniff_is_row_bytes(bytes(block[starts[i]:ends[i + 1]]))
+        self._carry = _sniff_line_lead(bytes(block[ends[-1] + 1:n]))
 
 
 def _sniff_line_lead(line: bytes) -> bytes:

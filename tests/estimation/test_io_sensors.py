@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from estimation.errors import InputError
 from estimation.io.sensors import (
+    RowCounter,
     detect_format,
     example_path,
     parse_stations,
@@ -458,3 +462,41 @@ def test_binary_junk_gives_a_short_named_error(tmp_path: Path) -> None:
         read_recording(tmp_path / "nul.csv")
     with pytest.raises(InputError, match="directory"):
         read_recording(tmp_path)
+
+
+@settings(max_examples=300, deadline=None)
+@given(lines=st.lists(st.sampled_from(["0,1,2", "", "  ", "# note", " 3,4", "\t#x", "é,1",
+                                       " é", "x"]), max_size=40),
+       ends=st.lists(st.sampled_from(["\n", "\r\n", "\r"]), min_size=1, max_size=3),
+       cuts=st.lists(st.integers(min_value=0, max_value=400), max_size=6))
+def test_row_counter_matches_the_text_reader_whatever_the_blocks(
+        lines: list[str], ends: list[str], cuts: list[int]) -> None:
+    text = "".join(line + ends[i % len(ends)] for i, line in enumerate(lines))
+    if lines and cuts and cuts[0] % 2:
+        text = text.rstrip("\r\n")  # a last line without its line end counts too
+    data = text.encode()
+    expected = sum(1 for line in re.split(r"\r\n|\r|\n", text)
+                   if line.strip() and not line.strip().startswith("#"))
+    counter = RowCounter()
+    start = 0
+    for cut in sorted(min(c, len(data)) for c in cuts):
+        counter.feed(data[start:cut])
+        start = max(start, cut)
+    buf = bytearray(data[start:]) + b"junk past the length"
+    counter.feed(buf, len(data) - start)
+    assert counter.rows == expected
+
+
+def test_sniff_takes_the_rows_counted_while_receiving(tmp_path: Path) -> None:
+    rec = small_recording(n_frames=120)
+    path = tmp_path / "r.csv"
+    write_sensor_csv(rec, path)
+    with path.open("a") as fh:
+        fh.write("# trailing comment\n\n")
+    counter = RowCounter()
+    data = path.read_bytes()
+    for start in range(0, len(data), 1000):
+        counter.feed(data[start:start + 1000])
+    assert sniff_recording(path, counted_rows=counter.rows)["frames"] == 120
+    # the count is used as given: a wrong one shows that the file was not read again
+    assert sniff_recording(path, counted_rows=counter.rows + 5)["frames"] == 125

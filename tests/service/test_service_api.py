@@ -43,6 +43,17 @@ def test_upload_streams_hashes_and_sniffs(client: TestClient, runtime: Runtime) 
     assert not list((runtime.settings.data_dir / "uploads").iterdir())  # no temporary left
 
 
+def test_upload_counts_rows_while_receiving_in_any_chunks(client: TestClient) -> None:
+    head, _, rows = sensor_csv(frames=5000).partition(b"\n")
+    lines = rows.splitlines(keepends=True)
+    data = head + b"\n# units: m\n" + b"".join(lines[:2500]) + b"\n# a pause\n\r\n" + b"".join(
+        lines[2500:])
+    chunks = (data[i:i + 70_001] for i in range(0, len(data), 70_001))  # lines cut anywhere
+    r = client.post("/v1/recordings?format=sensor-csv", content=chunks)
+    assert r.status_code == 201, r.text
+    assert r.json()["summary"]["frames"] == 5000
+
+
 def test_multipart_upload(client: TestClient) -> None:
     data = sensor_csv(frames=4)
     r = client.post("/v1/recordings", files={"file": ("walk.csv", data, "text/csv")},
