@@ -224,6 +224,23 @@ def machine() -> str:
     return f"machine: {os.cpu_count()} CPUs, load average {load} (1, 5, 15 min) at start"
 
 
+def cpu_ticks() -> tuple[int, int]:
+    """(stolen, total) CPU ticks since boot, from /proc/stat: a virtual machine's host takes
+    "steal" time when it is busy, which slows whatever is measured then."""
+    try:
+        fields = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    except (OSError, ValueError):
+        return 0, 0
+    return (fields[7] if len(fields) > 7 else 0), sum(fields[:8])
+
+
+def steal_note(start: tuple[int, int]) -> str:
+    """The share of CPU time stolen by the host since ``start`` (from `cpu_ticks`)."""
+    stolen, total = cpu_ticks()
+    share = (stolen - start[0]) / max(total - start[1], 1)
+    return f"CPU steal during the measurement: {share:.0%} of CPU time (0 on a quiet host)"
+
+
 def table(title: str, header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
     """A Markdown table (pastes into docs/deployment.md and the README as is)."""
     cells = [[str(c) for c in header], *[[str(c) for c in row] for row in rows]]

@@ -10,19 +10,24 @@ Ogiela): `estimate_translation`. File formats live in `estimation.io`, synthetic
 with exact ground truth in `estimation.simulate`.
 """
 
-from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
-from .errors import BonefitError, EstimationError, InputError
-from .gaps import fill_gaps
-from .io.kinematics import KinematicsRecording
-from .joints import JointFit, estimate_joint
-from .limbs import LimbFit, estimate_limb, standard_lengths, torso_length
-from .model import DROPPED_IN_REDUCED, JOINTS, REDUCED_SEGMENTS, SEGMENTS
-from .orientations import estimate_orientations
-from .progress import Progress
-from .recording import SensorRecording
-from .results import JointOffset, SkeletonResult
-from .skeleton import estimate_chest, estimate_root, estimate_skeleton
-from .translation import ContactOptions, TranslationResult, estimate_translation
+from typing import TYPE_CHECKING
+
+from ._lazy import lazy_attributes
+
+if TYPE_CHECKING:
+    from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+    from .errors import BonefitError, EstimationError, InputError
+    from .gaps import fill_gaps
+    from .io.kinematics import KinematicsRecording
+    from .joints import JointFit, estimate_joint
+    from .limbs import LimbFit, estimate_limb, standard_lengths, torso_length
+    from .model import DROPPED_IN_REDUCED, JOINTS, REDUCED_SEGMENTS, SEGMENTS
+    from .orientations import estimate_orientations
+    from .progress import Progress
+    from .recording import SensorRecording
+    from .results import JointOffset, SkeletonResult
+    from .skeleton import estimate_chest, estimate_root, estimate_skeleton
+    from .translation import ContactOptions, TranslationResult, estimate_translation
 
 __all__ = [
     "DROPPED_IN_REDUCED",
@@ -56,3 +61,20 @@ __all__ = [
     "torso_length",
     "write_bvh",
 ]
+
+# names above are imported from their submodule on first use (see _lazy)
+__getattr__, __dir__ = lazy_attributes(__name__, {
+    "bvh": ("BvhMotion", "forward_kinematics", "read_bvh", "write_bvh"),
+    "errors": ("BonefitError", "EstimationError", "InputError"),
+    "gaps": ("fill_gaps",),
+    "io.kinematics": ("KinematicsRecording",),
+    "joints": ("JointFit", "estimate_joint"),
+    "limbs": ("LimbFit", "estimate_limb", "standard_lengths", "torso_length"),
+    "model": ("DROPPED_IN_REDUCED", "JOINTS", "REDUCED_SEGMENTS", "SEGMENTS"),
+    "orientations": ("estimate_orientations",),
+    "progress": ("Progress",),
+    "recording": ("SensorRecording",),
+    "results": ("JointOffset", "SkeletonResult"),
+    "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
+    "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
+})

@@ -13,12 +13,15 @@ import os
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from .errors import InputError
+
+if TYPE_CHECKING:  # scipy is imported where it is used: the readers serve processes without it
+    from scipy.spatial.transform import Rotation
 
 _AXES = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
 _ROT_AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
@@ -97,6 +100,8 @@ class BvhMotion:
 
     def local_rotations(self) -> list[Rotation]:
         """Rotation of each node relative to its parent, one Rotation of length F per node."""
+        from scipy.spatial.transform import Rotation
+
         rots = []
         for j, chans in enumerate(self.channels):
             order = "".join(_ROT_AXES[c] for c in chans if c in _ROT_AXES)

@@ -5,32 +5,37 @@ Kinematics recordings (translation input): kinematics CSV, BVH + accelerations, 
 Results: skeleton JSON/CSV/BVH; translation JSON/CSV/BVH/MVNX.
 """
 
-from .kinematics import (
-    KinematicsRecording,
-    read_kinematics,
-    sniff_kinematics,
-    translation_to_dict,
-    write_kinematics_csv,
-    write_translation,
-)
-from .sensors import (
-    RowCounter,
-    example_path,
-    parse_stations,
-    read_recording,
-    sniff_recording,
-    write_sensor_csv,
-    write_sensor_npz,
-)
-from .skeleton import (
-    read_skeleton_json,
-    skeleton_from_dict,
-    skeleton_to_bvh,
-    skeleton_to_dict,
-    write_skeleton_bvh,
-    write_skeleton_csv,
-    write_skeleton_json,
-)
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_attributes
+
+if TYPE_CHECKING:
+    from .kinematics import (
+        KinematicsRecording,
+        read_kinematics,
+        sniff_kinematics,
+        translation_to_dict,
+        write_kinematics_csv,
+        write_translation,
+    )
+    from .sensors import (
+        RowCounter,
+        example_path,
+        parse_stations,
+        read_recording,
+        sniff_recording,
+        write_sensor_csv,
+        write_sensor_npz,
+    )
+    from .skeleton import (
+        read_skeleton_json,
+        skeleton_from_dict,
+        skeleton_to_bvh,
+        skeleton_to_dict,
+        write_skeleton_bvh,
+        write_skeleton_csv,
+        write_skeleton_json,
+    )
 
 __all__ = [
     "KinematicsRecording",
@@ -54,3 +59,13 @@ __all__ = [
     "write_skeleton_json",
     "write_translation",
 ]
+
+# names above are imported from their submodule on first use (see _lazy)
+__getattr__, __dir__ = lazy_attributes(__name__, {
+    "kinematics": ("KinematicsRecording", "read_kinematics", "sniff_kinematics",
+                   "translation_to_dict", "write_kinematics_csv", "write_translation"),
+    "sensors": ("RowCounter", "example_path", "parse_stations", "read_recording",
+                "sniff_recording", "write_sensor_csv", "write_sensor_npz"),
+    "skeleton": ("read_skeleton_json", "skeleton_from_dict", "skeleton_to_bvh", "skeleton_to_dict",
+                 "write_skeleton_bvh", "write_skeleton_csv", "write_skeleton_json"),
+})

@@ -14,6 +14,7 @@ import csv
 import io
 import json
 import math
+import mmap
 import os
 import zipfile
 from collections.abc import Iterator, Mapping
@@ -22,7 +23,6 @@ from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from ..model import SEGMENTS
@@ -615,6 +615,8 @@ def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | No
         ok = np.isfinite(angles).all(axis=-1)
         xyzw = np.full((angles.shape[0], 4), np.nan)
         if ok.any():
+            from scipy.spatial.transform import Rotation  # only here: sniffing needs no scipy
+
             xyzw[ok] = Rotation.from_euler("ZYX", angles[ok], degrees=True).as_quat()
         quats = xyzw[:, [3, 0, 1, 2]].reshape(n_frames, len(order), 4)
     rec = SensorRecording(sensors, positions, quats, rate, _time_from_fps(n_frames, rate))
@@ -961,7 +963,7 @@ class RowCounter:
         """Rows so far, the unfinished last line included."""
         return self._rows + (_sniff_is_row_bytes(self._carry) if self._carry else 0)
 
-    def feed(self, block: bytes | bytearray, length: int | None = None) -> None:
+    def feed(self, block: bytes | bytearray | mmap.mmap, length: int | None = None) -> None:
         """Count the rows that ``block`` (its first ``length`` bytes) completes."""
         n = len(block) if length is None else min(length, len(block))
         if n == 0:
