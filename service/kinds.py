@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,18 @@ class Input:
 
     path: Path
     format: str
+
+
+NUMERICAL_MODULES = ("estimation.skeleton", "estimation.translation", "estimation.io.sensors",
+                     "estimation.io.skeleton", "estimation.io.kinematics")
+"""What the run functions import: the API process never needs them (nor scipy)."""
+
+
+def preload() -> None:
+    """Import the estimation code the kinds run, so that a worker's first job does not wait
+    for numpy and scipy to load (~0.5 s)."""
+    for name in NUMERICAL_MODULES:
+        importlib.import_module(name)
 
 
 Runner = Callable[[Mapping[str, Input], Any, Progress, Path], dict[str, Path]]

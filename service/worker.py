@@ -23,7 +23,7 @@ from estimation.errors import BonefitError
 
 from .artifacts import tenant_prefix
 from .jobs import Job
-from .kinds import Input, Kind, default_kinds
+from .kinds import Input, Kind, default_kinds, preload
 from .problems import PROBLEM_TYPE, from_bonefit_error
 from .runtime import Runtime, open_runtime
 from .settings import Settings
@@ -334,6 +334,7 @@ def run_worker(settings: Settings, *, parent_pid: int | None = None,
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    preload()
     log.info("worker %s ready (queue %s)", worker.id, settings.resolved_queue_url.split("@")[-1])
     worker.serve(parent_pid=parent_pid)
     return 0

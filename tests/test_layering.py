@@ -68,3 +68,12 @@ def test_api_process_does_not_load_scipy() -> None:
             "assert not loaded, loaded[:5]\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def test_worker_preload_loads_what_the_kinds_run() -> None:
+    code = ("import sys\nfrom service.kinds import preload\npreload()\n"
+            "assert 'scipy.spatial.transform' in sys.modules\n"
+            "assert 'estimation.skeleton' in sys.modules and 'estimation.translation' in "
+            "sys.modules\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
