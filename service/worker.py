@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -323,9 +324,38 @@ class _Lease:
         self.check()
 
 
+def private_tmp(data_dir: Path) -> Path:
+    """This process's own temporary directory, ``data_dir/tmp/<host>-<pid>``, made after
+    removing the ones of this host's processes that died without cleaning up (kill -9)."""
+    root = data_dir / "tmp"
+    root.mkdir(parents=True, exist_ok=True)
+    host = socket.gethostname()
+    for entry in root.iterdir():
+        owner, _, pid = entry.name.rpartition("-")
+        if owner == host and pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(entry, ignore_errors=True)
+    own = root / f"{host}-{os.getpid()}"
+    shutil.rmtree(own, ignore_errors=True)  # a recycled pid's leftovers
+    own.mkdir()
+    return own
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
 def run_worker(settings: Settings, *, parent_pid: int | None = None,
                kinds: Mapping[str, Kind] | None = None) -> int:
     """The body of ``bonefit worker --concurrency 1``: serve until SIGTERM/SIGINT."""
+    # job folders and downloaded inputs go here, so that a killed worker's are found again
+    tmp = private_tmp(settings.data_dir)
+    tempfile.tempdir = str(tmp)
     worker = Worker(open_runtime(settings), kinds)
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -336,7 +366,10 @@ def run_worker(settings: Settings, *, parent_pid: int | None = None,
     signal.signal(signal.SIGINT, on_signal)
     preload()
     log.info("worker %s ready (queue %s)", worker.id, settings.resolved_queue_url.split("@")[-1])
-    worker.serve(parent_pid=parent_pid)
+    try:
+        worker.serve(parent_pid=parent_pid)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return 0
 
 

@@ -173,6 +173,10 @@ def test_job_survives_kill_9_of_its_worker(server: ServerProcess, client: httpx.
         time.sleep(0.2)
     assert len(server.worker_pids()) == 2  # the pool replaced the dead worker
     assert pid not in server.worker_pids()
+    # the killed worker's job folder went with it: the replacement removed it at start
+    left = sorted(p.name.rpartition("-")[2] for p in (server.data_dir / "tmp").iterdir())
+    assert str(pid) not in left
+    assert set(left) <= {str(p) for p in server.worker_pids()}
 
 
 def test_malformed_recordings_and_params(client: httpx.Client, sensor_csv_bytes: bytes) -> None:

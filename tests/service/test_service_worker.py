@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import socket
+import subprocess
+import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -10,7 +14,7 @@ from typing import Any
 from estimation.progress import Progress
 from service.kinds import Input, Kind, SkeletonParams
 from service.runtime import Runtime
-from service.worker import Worker, purge, reap
+from service.worker import Worker, private_tmp, purge, reap
 from tests.service.helpers import TestClient, drain, sensor_csv, submit, upload
 
 
@@ -222,3 +226,17 @@ def test_serve_loop_runs_jobs_until_shutdown(client: TestClient, runtime: Runtim
         worker.shutdown(grace=0)
         thread.join(5)
     assert not thread.is_alive()
+
+
+def test_private_tmp_removes_what_dead_processes_of_this_host_left(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead = int(done.stdout)
+    host = socket.gethostname()
+    for name in (f"{host}-{dead}", f"{host}-1", f"elsewhere-{dead}"):
+        (tmp_path / "tmp" / name / "job").mkdir(parents=True)
+    own = private_tmp(tmp_path)
+    assert own == tmp_path / "tmp" / f"{host}-{os.getpid()}"
+    assert own.is_dir()
+    assert sorted(p.name for p in (tmp_path / "tmp").iterdir()) == sorted(
+        [f"{host}-1", f"elsewhere-{dead}", own.name])  # alive, or another machine's
