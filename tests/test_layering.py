@@ -42,6 +42,12 @@ def test_checker_catches_a_forbidden_import(tmp_path: Path) -> None:
     assert imported_top_levels(bad) == {"fastapi", "service", "numpy"}
 
 
+def run_fresh(code: str) -> None:
+    """Run ``code`` in a new interpreter (nothing imported yet); fail with its stderr."""
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
 def test_public_names_resolve_and_load_lazily() -> None:
     code = (
         "import sys, estimation, estimation.io\n"
@@ -57,8 +63,7 @@ def test_public_names_resolve_and_load_lazily() -> None:
         "    assert 'no_such_name' in str(exc)\n"
         "else:\n"
         "    raise AssertionError('an unknown name resolved')\n")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
+    run_fresh(code)
 
 
 def test_api_process_does_not_load_scipy() -> None:
@@ -66,8 +71,7 @@ def test_api_process_does_not_load_scipy() -> None:
     code = ("import sys, service.app, service.cli, service.routes, service.uploads\n"
             "loaded = sorted(m for m in sys.modules if m.split('.')[0] == 'scipy')\n"
             "assert not loaded, loaded[:5]\n")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
+    run_fresh(code)
 
 
 def test_worker_preload_loads_what_the_kinds_run() -> None:
@@ -75,5 +79,4 @@ def test_worker_preload_loads_what_the_kinds_run() -> None:
             "assert 'scipy.spatial.transform' in sys.modules\n"
             "assert 'estimation.skeleton' in sys.modules and 'estimation.translation' in "
             "sys.modules\n")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
+    run_fresh(code)
