@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _rows as rows
 from .errors import InputError
 from .quaternions import as_rotvec, from_rotvec, multiply, relative
 
@@ -69,9 +70,8 @@ def fill_gaps(
     quat = np.array(quaternions[:, None] if single else quaternions, dtype=float)
     n_frames = pos.shape[0]
     t = np.arange(n_frames, dtype=float) if time is None else np.asarray(time, dtype=float)
-    valid = np.isfinite(pos).all(axis=-1) & np.isfinite(quat).all(axis=-1)
-    norms = np.linalg.norm(np.where(valid[..., None], quat, 1.0), axis=-1)
-    valid &= norms > 1e-9
+    valid = rows.finite(pos) & rows.finite(quat)
+    valid &= rows.norms(np.where(valid[..., None], quat, 1.0)) > 1e-9
     empty = ~valid.any(axis=0)
     if empty.any():
         s = int(np.flatnonzero(empty)[0])
@@ -100,8 +100,8 @@ def fill_gaps(
                                           t[frame[cubic]])
     pos[frame, sensor] = filled_pos
     q0, q1 = quat[i0, sensor], quat[i1, sensor]
-    q0 = q0 / np.linalg.norm(q0, axis=-1, keepdims=True)
-    q1 = q1 / np.linalg.norm(q1, axis=-1, keepdims=True)
+    q0 = q0 / rows.norms(q0)[:, None]
+    q1 = q1 / rows.norms(q1)[:, None]
     quat[frame, sensor] = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
     filled = ~valid
     if single:

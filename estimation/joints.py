@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
+from . import _rows as rows
 from . import quaternions as quat
 from .errors import EstimationError, InputError
 
@@ -49,7 +50,7 @@ class JointFit:
 
 def _fill_nan_positions(p: NDArray[np.float64]) -> tuple[NDArray[np.float64],
                                                          NDArray[np.bool_]]:
-    ok = np.asarray(np.isfinite(p).all(axis=1), dtype=bool)
+    ok = rows.finite(p)
     if ok.all():
         return p, ok
     if not ok.any():
@@ -216,7 +217,7 @@ def _axis_shift(rule_points: tuple[NDArray[np.float64] | None, NDArray[np.float6
             continue
         v = pt - centre
         h = np.einsum("ti,ti->t", v, axis_world)
-        perp = np.linalg.norm(v - h[:, None] * axis_world, axis=1)
+        perp = rows.norms(v - h[:, None] * axis_world)
         coords.append(h)
         radii.append(float(np.mean(perp[use])))
     if len(coords) == 1:
@@ -448,10 +449,10 @@ def estimate_joint(
         if it == iterations:
             break
         if highpass > 1:
-            r = np.linalg.norm(big_a @ c - big_y, axis=1)
+            r = rows.norms(big_a @ c - big_y)
         else:
-            r = np.linalg.norm(np.einsum("tij,j->ti", ra, c[:3]) + pa
-                               - np.einsum("tij,j->ti", rb, c[3:]) - pb, axis=1)
+            r = rows.norms(np.einsum("tij,j->ti", ra, c[:3]) + pa
+                              - np.einsum("tij,j->ti", rb, c[3:]) - pb)
         w = _weights(r, w0, loss, huber_k)
     hinge_value = float(sv[0] / sv[1]) if sv[1] > 0 else 0.0
     hinge = hinge_value < hinge_ratio
@@ -463,8 +464,9 @@ def estimate_joint(
         c = np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
     # world direction in which the centre moves per unit of the weakest singular vector
     move = 0.5 * (np.einsum("tij,j->ti", ra, weak[:3]) + np.einsum("tij,j->ti", rb, weak[3:]))
-    step = float(np.mean(np.linalg.norm(move[both], axis=1)))
-    axis_world = move / np.maximum(np.linalg.norm(move, axis=1), 1e-12)[:, None]
+    move_norm = rows.norms(move)
+    step = float(np.mean(move_norm[both]))
+    axis_world = move / np.maximum(move_norm, 1e-12)[:, None]
     axis_a = weak[:3] / max(float(np.linalg.norm(weak[:3])), 1e-12)
     rule = None
     shift = 0.0
@@ -479,7 +481,7 @@ def estimate_joint(
             assert pt is not None
             bone = centre - pt
             cos = np.abs(np.einsum("ti,ti->t", bone, axis_world)) / np.maximum(
-                np.linalg.norm(bone, axis=1), 1e-12)
+                rows.norms(bone), 1e-12)
             if float(np.median(cos[both])) > 0.5:
                 if bone_length is None:
                     rule, shift = None, 0.0
@@ -500,7 +502,7 @@ def estimate_joint(
 
     rec_a = np.einsum("tij,j->ti", ra, c[:3]) + pa
     rec_b = np.einsum("tij,j->ti", rb, c[3:]) + pb
-    residuals = np.linalg.norm(rec_a - rec_b, axis=1)
+    residuals = rows.norms(rec_a - rec_b)
     wa = ok_a.astype(float)
     wb = ok_b.astype(float)
     neither = (wa + wb) == 0

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize
 from scipy.spatial.transform import Rotation
 
+from . import _rows as rows
 from . import quaternions as quat
 from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
@@ -103,8 +104,8 @@ def torso_length(waist: ArrayLike, l_hip: ArrayLike, r_hip: ArrayLike,
     """
     w, lh, rh, c = (np.asarray(v, dtype=float).reshape(-1, 3)
                     for v in (waist, l_hip, r_hip, chest))
-    lower = np.linalg.norm(w - 0.5 * (lh + rh), axis=-1)
-    upper = np.linalg.norm(c - w, axis=-1)
+    lower = rows.norms(w - 0.5 * (lh + rh))
+    upper = rows.norms(c - w)
     value = float(np.mean(lower + upper))
     if not np.isfinite(value):
         raise EstimationError("torso length is undefined (NaN in the torso joints)",
@@ -172,11 +173,6 @@ class _Limb:
         return np.asarray(self.b + np.einsum("fij,j->fi", self.q, a))
 
 
-def _norm(v: Float) -> Float:
-    """Row norms of an (F, 3) array (faster than np.linalg.norm for this shape)."""
-    return np.asarray(np.sqrt(np.einsum("fi,fi->f", v, v)))
-
-
 def _as_frames(name: str, value: ArrayLike) -> Float:
     arr = np.asarray(value, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -233,9 +229,9 @@ def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l:
             return cache["value"]  # type: ignore[no-any-return]
         k, a = theta[:3], theta[3:]
         d = limb.distal(a) - k
-        ll = _norm(d)
+        ll = rows.norms(d)
         e = limb.h - k
-        lu = _norm(e)
+        lu = rows.norms(e)
         cache["theta"], cache["value"] = theta.copy(), (d, ll, e, lu)
         return d, ll, e, lu
 
@@ -302,9 +298,9 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
             return last["value"]  # type: ignore[no-any-return]
         k, a = theta[:3], theta[3:]
         d = limb.distal(a) - k
-        ll = _norm(d)
+        ll = rows.norms(d)
         e = k - limb.h
-        lu = _norm(e)
+        lu = rows.norms(e)
         dev = ll - np.einsum("f->", ll) / m
         value = float((np.einsum("f,f->", dev, dev)
                        + w_l * (np.einsum("f,f->", lu - l_up, lu - l_up)
@@ -395,7 +391,7 @@ def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
     direction = -h_bar / norm if norm > 1e-9 else np.array([0.0, -1.0, 0.0])
     k0 = h_bar + lengths[0] * direction
     to_sensor = limb.b - k0
-    dist = np.linalg.norm(to_sensor, axis=1, keepdims=True)
+    dist = rows.norms(to_sensor)[:, None]
     ankle_upper = k0 + lengths[1] * to_sensor / np.maximum(dist, 1e-9)
     # Ankle into the distal frame: a = Qᵀ(x − b), averaged over frames.
     a0 = np.einsum("fji,fj->i", limb.q, ankle_upper - limb.b) / limb.n
@@ -584,8 +580,8 @@ def _fit_paper_nm(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: flo
     def cost(theta: Float) -> float:
         # E directly (eq. 5), no residual vector: the cheapest honest evaluation
         k, a = theta[:3], theta[3:]
-        ll = _norm(limb.distal(a) - k)
-        lu = _norm(limb.h - k)
+        ll = rows.norms(limb.distal(a) - k)
+        lu = rows.norms(limb.h - k)
         dev = ll - ll.mean()
         e_var = np.einsum("f,f->", dev, dev) / limb.n
         e_len = (np.einsum("f,f->", lu - l_up, lu - l_up)
@@ -678,7 +674,7 @@ def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_
 
     def fun(theta: Float) -> Float:
         k, a, length = theta[:3], theta[3:6], theta[6]
-        ll = _norm(limb.distal(a) - k)
+        ll = rows.norms(limb.distal(a) - k)
         r = ll - length
         if robust_scale is not None:
             r, _ = _soft_l1(r, robust_scale)
@@ -700,7 +696,7 @@ def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_
     def jac(theta: Float) -> Float:
         k, a, length = theta[:3], theta[3:6], theta[6]
         d = limb.distal(a) - k
-        ll = _norm(d)
+        ll = rows.norms(d)
         u = d / ll[:, None]
         j = np.zeros((m + 13 + (m if q_dev is not None else 0), 7))
         if q_dev is not None:
@@ -777,7 +773,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
     # little); the best one is polished on every frame.
     for start in starts:
         axis, doubt = _hinge_axis(limb, start[3:6])
-        length = float(_norm(limb.distal(start[3:6]) - start[:3]).mean())
+        length = float(rows.norms(limb.distal(start[3:6]) - start[:3]).mean())
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
@@ -813,7 +809,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
     r = fun(x)
     v = limb.distal(x[3:6]) - x[:3]
     v -= np.outer(v @ axis, axis)
-    v /= np.maximum(_norm(v), 1e-12)[:, None]
+    v /= np.maximum(rows.norms(v), 1e-12)[:, None]
     mean_dir = v.mean(axis=0)
     angles = np.degrees(np.arccos(np.clip(v @ (mean_dir / np.linalg.norm(mean_dir)), -1, 1)))
     side = np.sign(np.cross(v, mean_dir) @ axis)
@@ -961,8 +957,8 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     if method == "improved" or optimizer == "nelder-mead":
         cost = _paper_normal(limb, lengths, w_s, w_l, exact=False)[0](theta)
     k, a = theta[:3], theta[3:]
-    ll = _norm(limb.distal(a) - k)
-    lu = _norm(limb.h - k)
+    ll = rows.norms(limb.distal(a) - k)
+    lu = rows.norms(limb.h - k)
     quality.update({
         "upper_length_m": float(lu.mean()),
         "lower_length_m": float(ll.mean()),

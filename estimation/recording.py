@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _rows as rows
 from .errors import InputError
 
 
@@ -69,6 +70,4 @@ class SensorRecording:
 
     def valid(self) -> NDArray[np.bool_]:
         """Mask (F, S) of samples with a finite position and orientation."""
-        finite = (np.isfinite(self.positions).all(axis=-1)
-                  & np.isfinite(self.quaternions).all(axis=-1))
-        return np.asarray(finite, dtype=bool)
+        return rows.finite(self.positions) & rows.finite(self.quaternions)

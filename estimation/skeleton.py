@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
+from . import _rows as rows
 from .errors import EstimationError, InputError
 from .gaps import fill_gaps, gap_lengths
 from .joints import JointFit, estimate_joint, range_of_motion
@@ -113,7 +114,7 @@ def estimate_chest(waist: NDArray[np.float64], neck: NDArray[np.float64],
     t = np.where(parallel, e / np.where(c > 0, c, 1.0), (a * e - b * d) / safe)
     q = 0.5 * ((w + s[:, None] * d1) + (ls + t[:, None] * d2))
     v = q - w
-    dist = np.linalg.norm(v, axis=1)
+    dist = rows.norms(v)
     alpha = float(np.mean(dist))
     return np.asarray(w + v / np.where(dist > 0, dist, 1.0)[:, None] * alpha)
 
@@ -466,7 +467,7 @@ def estimate_skeleton(
                 # the wrist's own hinge rule needs the elbow, and the forearm length when the
                 # wrist mostly twists about the forearm: the measured upper arm times the
                 # table's forearm / upper-arm ratio
-                upper_len = float(np.linalg.norm(m_fit.positions - joints[prox], axis=1).mean())
+                upper_len = float(rows.norms(m_fit.positions - joints[prox]).mean())
                 forearm = upper_len * std["forearm"] / std["upperarm"]
                 d_fit = joint(dist, estimator, (m_fit.positions, None), bone_length=forearm)
             for name, fit in ((mid, m_fit), (dist, d_fit)):
@@ -492,7 +493,7 @@ def estimate_skeleton(
 
     if do_smooth:
         joints = {name: _smooth(path, recording.fps) for name, path in joints.items()}
-    bone_lengths = {seg: float(np.linalg.norm(joints[b] - joints[a], axis=1).mean())
+    bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
 
