@@ -124,7 +124,8 @@ async def upload_recording(
     filename = _clean_filename(filename)
     suffix = _suffix(filename)
     spool = settings.data_dir / "uploads" / rec_id
-    sink = UploadSink(spool / "upload.part", limit)
+    # only a sensor CSV's summary uses the row count
+    sink = UploadSink(spool / "upload.part", limit, count_rows=format in ("auto", "sensor-csv"))
     try:
         if multipart:
             part_name, part_type = await receive_multipart(request.stream(), content_type, sink)
@@ -140,7 +141,8 @@ async def upload_recording(
         # the readers name the file in their messages: give it the client's name
         path = sink.path.rename(spool / (filename or f"recording{suffix}"))
         sink.path = path
-        fmt, summary = await run_in_threadpool(sniff, path, format, filename, sink.rows.rows)
+        fmt, summary = await run_in_threadpool(sniff, path, format, filename,
+                                                 sink.rows.rows if sink.rows else None)
         key = f"{tenant_prefix(who)}/recordings/{rec_id}{suffix}"
         rec = Recording(id=rec_id, tenant=who, key=key,
                         filename=filename, content_type=content_type, format=fmt,

@@ -62,19 +62,20 @@ class UploadSink:
     pipeline of threads, one per stage (hash, count rows, write: each releases the GIL), while
     the event loop keeps receiving; the loop waits only when every buffer is in use. Copying
     frees each received chunk at once, so its memory is reused for the next one instead of a
-    stream of fresh pages. Counting rows as they arrive spares the summary a second pass.
+    stream of fresh pages. Counting rows as they arrive (``count_rows``: when the file may be
+    a sensor CSV) spares the summary a second pass.
     Whole blocks are written with ``O_DIRECT`` where the file system allows it: an upload is
     read once, later, by a worker, so copying it into the page cache would only cost CPU
     (a third of a second per GiB here) and evict what is worth caching.
     """
 
-    def __init__(self, path: Path, limit: int) -> None:
+    def __init__(self, path: Path, limit: int, *, count_rows: bool = True) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
         self.limit = limit
         self.size = 0
         self.sha256 = hashlib.sha256()
-        self.rows = RowCounter()
+        self.rows = RowCounter() if count_rows else None
         self._pending: list[bytes] = []
         self._buf: mmap.mmap | None = None
         self._fill = 0
@@ -86,7 +87,7 @@ class UploadSink:
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         self._direct = _open_direct(path)
         self._offset = 0
-        stages = [self._hash, self._count, self._write]
+        stages = [self._hash, *([self._count] if count_rows else []), self._write]
         self._queues: list[queue.SimpleQueue[tuple[mmap.mmap, int] | None]] = [
             queue.SimpleQueue() for _ in stages]
         self._threads = [
@@ -107,6 +108,7 @@ class UploadSink:
         self.sha256.update(memoryview(buf)[:length])
 
     def _count(self, buf: mmap.mmap, length: int) -> None:
+        assert self.rows is not None
         self.rows.feed(buf, length)
 
     def _write(self, buf: mmap.mmap, length: int) -> None:

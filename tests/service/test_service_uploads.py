@@ -21,8 +21,9 @@ def body(size: int) -> bytes:
     return (data + line * (size // len(line) + 1))[:size]
 
 
-def sink_through(path: Path, data: bytes, chunk: int, limit: int | None = None) -> UploadSink:
-    sink = UploadSink(path, limit or len(data))
+def sink_through(path: Path, data: bytes, chunk: int, limit: int | None = None,
+                 count_rows: bool = True) -> UploadSink:
+    sink = UploadSink(path, limit or len(data), count_rows=count_rows)
 
     async def run() -> None:
         for start in range(0, len(data), chunk):
@@ -67,6 +68,7 @@ def test_every_byte_lands_hashed_and_counted(tmp_path: Path, monkeypatch: pytest
     assert path.read_bytes() == data
     assert sink.size == len(data)
     assert sink.sha256.hexdigest() == hashlib.sha256(data).hexdigest()
+    assert sink.rows is not None
     assert sink.rows.rows == data.count(b"\n") + (not data.endswith(b"\n"))
     assert bool(refused) == (direct == "refuses-writes")
 
@@ -78,3 +80,13 @@ def test_over_the_limit_is_refused_and_leaves_nothing(tmp_path: Path) -> None:
         sink_through(path, data, chunk=65_536, limit=BLOCK_BYTES)
     assert caught.value.status == 413
     assert not path.exists()
+
+
+def test_rows_are_not_counted_when_the_file_cannot_be_a_sensor_csv(tmp_path: Path) -> None:
+    data = body(BLOCK_BYTES + 99)
+    path = tmp_path / "up.npz"
+    sink = sink_through(path, data, chunk=65_536, count_rows=False)
+    assert sink.rows is None
+    assert len(sink._threads) == 2  # hash and write only
+    assert path.read_bytes() == data
+    assert sink.sha256.hexdigest() == hashlib.sha256(data).hexdigest()
