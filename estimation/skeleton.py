@@ -66,6 +66,7 @@ _TORSO_JOINTS: Final[tuple[str, ...]] = ("l_hip", "r_hip", "l_shoulder", "r_shou
 # left/right joint pairs mirrored about the mid-sagittal plane of the segment carrying them
 _MIRRORED_PAIRS: Final[dict[tuple[str, str], str]] = {("l_shoulder", "r_shoulder"): "chest",
                                                       ("l_hip", "r_hip"): "pelvis"}
+_SLIP_JOINTS: Final[frozenset[str]] = frozenset(("l_wrist", "r_wrist"))
 _MIRRORED: Final[frozenset[str]] = frozenset(j for pair in _MIRRORED_PAIRS for j in pair)
 # joint -> the pair of joints it sits midway between (sideways), in the same sensor frame
 _MIDLINE: Final[dict[str, tuple[str, str]]] = {"waist": ("l_hip", "r_hip"),
@@ -219,6 +220,7 @@ def estimate_skeleton(
     w_l: float = 0.01,
     smooth: bool | None = None,
     highpass_s: float = 0.0,
+    slip_hz: float = 0.5,
     min_range_deg: float = 2.0,
     progress: Progress | None = None,
 ) -> SkeletonResult:
@@ -260,6 +262,10 @@ def estimate_skeleton(
         ``"auto"`` only: remove a moving average of this length (seconds) from each LLSF
         system, cancelling sensor slip slower than the motion (0: off, the default; see
         ``joints.estimate_joint(highpass=...)``).
+    slip_hz : float
+        ``"auto"`` only: model each sensor's soft-tissue slip below this frequency as a
+        smooth displacement estimated with the joint centres (``joints.estimate_joint(
+        slip_period=fps / slip_hz)``; 0: off).
     min_range_deg : float
         A joint whose two segments rotate less than this relative to each other
         (``joints.range_of_motion``) is still estimated, from the anatomical priors where
@@ -372,6 +378,7 @@ def estimate_skeleton(
     loss = "huber" if method == "auto" else "linear"
     do_smooth = (method == "auto") if smooth is None else smooth
     highpass = round(highpass_s * recording.fps) if method == "auto" else 0
+    slip_period = recording.fps / slip_hz if method == "auto" and slip_hz > 0 else 0.0
 
     def joint(name: str, est: str, neighbours: tuple[NDArray[np.float64] | None,
                                                      NDArray[np.float64] | None] = (None, None),
@@ -385,6 +392,7 @@ def estimate_skeleton(
                 positions[a], rotations[a], positions[b], rotations[b], method=est,
                 loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
                 hinge_prior=0.0 if plain else 0.01, highpass=highpass,
+                slip_period=slip_period if name in _SLIP_JOINTS else 0.0,
                 bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
                 prior=prior if method == "auto" else None, range_of_motion_deg=rom.get(name))
         except EstimationError as exc:
