@@ -121,7 +121,7 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
           else rotations_b.as_quat(scalar_first=True))
     if valid is not None:
         keep = np.asarray(valid, dtype=bool)
-        qa, qb = qa[keep], qb[keep]
+        qa, qb = np.compress(keep, qa, axis=0), np.compress(keep, qb, axis=0)  # 6x qa[keep]
     rel = quat.relative(qa, qb)
     dev = quat.as_rotvec(quat.relative(quat.mean(rel), rel))
     if dev.shape[0] >= 9:
