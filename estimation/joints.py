@@ -173,14 +173,14 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
           else rotations_b.as_quat(scalar_first=True))
     if valid is not None:
         keep = np.asarray(valid, dtype=bool)
-        qa, qb = qa[keep], qb[keep]
+        qa, qb = np.compress(keep, qa, axis=0), np.compress(keep, qb, axis=0)  # 6x qa[keep]
     rel = quat.relative(qa, qb)
     dev = quat.as_rotvec(quat.relative(quat.mean(rel), rel))
     if dev.shape[0] >= 9:
         # 9-frame moving average of the three components at once (cumulative sums)
         c = np.cumsum(np.concatenate([np.zeros((1, 3)), dev]), axis=0)
         dev = (c[9:] - c[:-9]) / 9.0
-    return float(2.0 * np.degrees(np.percentile(np.sqrt(np.einsum("fi,fi->f", dev, dev)), 95)))
+    return float(2.0 * np.degrees(np.percentile(rows.norms(dev), 95)))
 
 
 def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float64]) -> float:
@@ -236,7 +236,7 @@ def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float
         dx = x - mean
         wdx = w[:, None] * dx
         cov += wdx.T @ dx / total
-        b += 0.5 * wdx.T @ np.einsum("ti,ti->t", x, x) / total
+        b += 0.5 * wdx.T @ rows.dots(x, x) / total
         if bias_compensation:
             # white-noise variance from second differences (smooth motion contributes little)
             dd = x[2:] - 2.0 * x[1:-1] + x[:-2]
@@ -268,7 +268,7 @@ def _axis_shift(rule_points: tuple[NDArray[np.float64] | None, NDArray[np.float6
         if pt is None:
             continue
         v = pt - centre
-        h = np.einsum("ti,ti->t", v, axis_world)
+        h = rows.dots(v, axis_world)
         perp = rows.norms(v - h[:, None] * axis_world)
         coords.append(h)
         radii.append(float(np.mean(perp[use])))
@@ -482,11 +482,19 @@ def estimate_joint(
         if basis.shape[1] > 0:
             slip_cols = _slip_regressors(ra, rb, basis)
             c0 = _solve(*_llsf_system(ra, rb, d, w0))[0]
-            r0 = np.einsum("tij,j->ti", ra, c0[:3]) - np.einsum("tij,j->ti", rb, c0[3:]) - d
+            r0 = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
             white = max(_white_variance(r0, both), 1e-12)
             slow = max(float(np.mean(r0[both] ** 2)) - white, white)
             slip_ridge = white / (0.5 * slow / basis.shape[1])
     back = np.zeros((0, 7))
+
+    def residual(c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per-frame residual of the joint equation (with the fitted slip, when modelled)."""
+        res = rows.apply(ra, c[:3]) + pa - rows.apply(rb, c[3:]) - pb
+        if slip_cols is not None:
+            res = res + slip_cols @ (back[:, 6] - back[:, :6] @ c)
+        return np.asarray(res)
+
     w = w0.copy()
     c = np.zeros(6)
     prior_weight = 0.0
@@ -523,29 +531,19 @@ def estimate_joint(
             # normalised data term is σ²/(N_eff s0²), so it only moves the centre along
             # directions the motion leaves as uncertain as the prior itself
             x0 = np.asarray(prior[0], dtype=float)
-            res_vec = (np.einsum("tij,j->ti", ra, c[:3]) + pa
-                       - np.einsum("tij,j->ti", rb, c[3:]) - pb)
-            if slip_cols is not None:
-                res_vec = res_vec + slip_cols @ (back[:, 6] - back[:, :6] @ c)
+            res_vec = residual(c)
             sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * w.sum())
             n_eff = effective_samples(res_vec, w)
             prior_weight = sigma2 / (n_eff * prior[1] ** 2)
             x0_b = np.einsum("t,ti->i", w, np.einsum(
-                "tji,tj->ti", rb, np.einsum("tij,j->ti", ra, x0) + pa - pb)) / w.sum()
+                "tji,tj->ti", rb, rows.apply(ra, x0) + pa - pb)) / w.sum()
             reg_normal += prior_weight * np.eye(6)
             reg_rhs += prior_weight * np.concatenate([x0, x0_b])
         if symmetry is not None or prior is not None:
             c = np.linalg.solve(normal + reg_normal + 1e-12 * np.eye(6), rhs + reg_rhs)
         if it == iterations:
             break
-        if highpass > 1:
-            r = rows.norms(big_a @ c - big_y)
-        else:
-            res = (np.einsum("tij,j->ti", ra, c[:3]) + pa
-                   - np.einsum("tij,j->ti", rb, c[3:]) - pb)
-            if slip_cols is not None:
-                res = res + slip_cols @ (back[:, 6] - back[:, :6] @ c)
-            r = rows.norms(res)
+        r = rows.norms(big_a @ c - big_y if highpass > 1 else residual(c))
         w = _weights(r, w0, loss, huber_k)
     hinge_value = float(sv[0] / sv[1]) if sv[1] > 0 else 0.0
     hinge = hinge_value < hinge_ratio
@@ -553,10 +551,10 @@ def estimate_joint(
     lam0 = float(sv[0] ** 2)
     if estimator == "gdke":
         ca = _gdke(ra, rb, pa, pb, w, bias_compensation, gdke_point_m)
-        cb_t = np.einsum("tji,tj->ti", rb, np.einsum("tij,j->ti", ra, ca) + pa - pb)
+        cb_t = np.einsum("tji,tj->ti", rb, rows.apply(ra, ca) + pa - pb)
         c = np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
     # world direction in which the centre moves per unit of the weakest singular vector
-    move = 0.5 * (np.einsum("tij,j->ti", ra, weak[:3]) + np.einsum("tij,j->ti", rb, weak[3:]))
+    move = 0.5 * (rows.apply(ra, weak[:3]) + rows.apply(rb, weak[3:]))
     move_norm = rows.norms(move)
     step = float(np.mean(move_norm[both]))
     axis_world = move / np.maximum(move_norm, 1e-12)[:, None]
@@ -565,23 +563,22 @@ def estimate_joint(
     shift = 0.0
     blend = 1.0
     if hinge and step > 1e-9 and prior is None:
-        centre = 0.5 * (np.einsum("tij,j->ti", ra, c[:3]) + pa
-                        + np.einsum("tij,j->ti", rb, c[3:]) + pb)
+        centre = 0.5 * (rows.apply(ra, c[:3]) + pa + rows.apply(rb, c[3:]) + pb)
         shift, rule = _axis_shift(neighbours, centre, axis_world, w)
         if rule == "foot-of-perpendicular":
             # a bone along the axis (e.g. a wrist twisting about the forearm) gives no rule
             pt = neighbours[0] if neighbours[0] is not None else neighbours[1]
             assert pt is not None
             bone = centre - pt
-            cos = np.abs(np.einsum("ti,ti->t", bone, axis_world)) / np.maximum(
+            cos = np.abs(rows.dots(bone, axis_world)) / np.maximum(
                 rows.norms(bone), 1e-12)
             if float(np.median(cos[both])) > 0.5:
                 if bone_length is None:
                     rule, shift = None, 0.0
                 else:
                     # the axis runs along the bone: put the centre at the given distance
-                    h0 = np.einsum("ti,ti->t", bone, axis_world)
-                    rho2 = np.einsum("ti,ti->t", bone, bone) - h0**2
+                    h0 = rows.dots(bone, axis_world)
+                    rho2 = rows.dots(bone, bone) - h0**2
                     target = np.sign(h0) * np.sqrt(np.maximum(bone_length**2 - rho2, 0.0))
                     shift = float(np.mean((target - h0)[both]))
                     rule = "bone-length"
@@ -593,16 +590,14 @@ def estimate_joint(
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
                             f"{rule} rule")
 
-    local_a = np.broadcast_to(c[:3], (n, 3))
-    local_b = np.broadcast_to(c[3:], (n, 3))
     if slip_cols is not None and estimator == "llsf":
         beta = (back[:, 6] - back[:, :6] @ c).reshape(2, -1, 3)
-        k = beta.shape[1]
-        basis = _slip_basis(n, slip_period)[:, :k]
-        local_a = local_a - basis @ beta[0]
-        local_b = local_b - basis @ beta[1]
-    rec_a = np.einsum("tij,tj->ti", ra, local_a) + pa
-    rec_b = np.einsum("tij,tj->ti", rb, local_b) + pb
+        basis = _slip_basis(n, slip_period)
+        rec_a = np.einsum("tij,tj->ti", ra, c[:3] - basis @ beta[0]) + pa
+        rec_b = np.einsum("tij,tj->ti", rb, c[3:] - basis @ beta[1]) + pb
+    else:
+        rec_a = rows.apply(ra, c[:3]) + pa
+        rec_b = rows.apply(rb, c[3:]) + pb
     residuals = rows.norms(rec_a - rec_b)
     wa = ok_a.astype(float)
     wb = ok_b.astype(float)

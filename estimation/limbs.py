@@ -168,9 +168,9 @@ class _Limb:
     def distal(self, a: Float) -> Float:
         """Distal joint (F,3) in the upper frame for ``a`` in the distal frame.
 
-        Hot loops avoid BLAS (einsum instead of matmul): on a loaded machine a threaded
-        BLAS call on these thin arrays can cost milliseconds instead of microseconds."""
-        return np.asarray(self.b + np.einsum("fij,j->fi", self.q, a))
+        Hot loops avoid BLAS (no matmul): on a loaded machine a threaded BLAS call on these
+        thin arrays can cost milliseconds instead of microseconds."""
+        return np.asarray(self.b + rows.apply(self.q, a))
 
 
 def _as_frames(name: str, value: ArrayLike) -> Float:
@@ -967,8 +967,8 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
         "n_evaluations": n_eval,
     })
     report(1.0, "limbs")
-    upper_rot = upper_rotations
-    middle = np.asarray(upper_positions, dtype=float) + upper_rot.apply(k)
-    distal = np.asarray(distal_positions, dtype=float) + distal_rotations.apply(a)
+    middle = np.asarray(upper_positions, dtype=float) + rows.apply(upper_rotations.as_matrix(), k)
+    distal = np.asarray(distal_positions, dtype=float) + rows.apply(distal_rotations.as_matrix(),
+                                                                    a)
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
                    cost=cost, n_evaluations=n_eval, quality=quality)

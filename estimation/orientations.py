@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
+from . import _rows as rows
 from . import quaternions as quat
 from .errors import EstimationError, InputError
 from .model import JOINTS
@@ -31,7 +32,7 @@ _EPS = 1e-12
 
 
 def _unit(v: Float) -> Float:
-    n = np.sqrt(np.einsum("...i,...i->...", v, v))[..., None]
+    n = rows.norms(v)[..., None]
     return np.asarray(v / np.where(n > _EPS, n, 1.0))
 
 
@@ -56,13 +57,13 @@ def _frame_from_yz(y: Float, z: Float) -> Float:
     """Eqs. 8–9: normalised y, z and x = y × z (y and z are orthogonal by construction;
     z is re-orthogonalised so that rounding never leaves a skewed frame)."""
     y = _unit(y)
-    z = _unit(z - np.einsum("fi,fi->f", z, y)[:, None] * y)
+    z = _unit(z - rows.dots(z, y)[:, None] * y)
     return _frame(_cross(y, z), y, z)
 
 
 def _frame_from_xy(x: Float, y: Float) -> Float:
     """y (a unit vector: the bone) kept exactly, x made orthogonal to it, z = x × y."""
-    x = _unit(x - np.einsum("fi,fi->f", x, y)[:, None] * y)
+    x = _unit(x - rows.dots(x, y)[:, None] * y)
     return _frame(x, y, _cross(x, y))
 
 
@@ -76,7 +77,7 @@ def _align_y(frames: Float, frames_q: Float, target_y: Float) -> Float:
     local = _unit(np.einsum("fji,fj->fi", frames, target_y))  # R⁻¹ target
     half = np.stack([1.0 + local[:, 1], local[:, 2], np.zeros(local.shape[0]), -local[:, 0]],
                     axis=-1)
-    norm = np.sqrt(np.einsum("fi,fi->f", half, half))
+    norm = rows.norms(half)
     # at θ = π the axis is undefined: any axis ⟂ y will do (z)
     flip = norm <= _EPS
     half = half / np.where(flip, 1.0, norm)[:, None]
@@ -90,15 +91,15 @@ def _flexion_axis(upper_bone: Float, lower_bone: Float, sensor: Float | None,
     with its θ-weighted mean direction fixed in the upper segment's sensor frame (``sensor``:
     its rotation matrices, (F, 3, 3))."""
     cross = _cross(upper_bone, lower_bone)
-    sin = np.sqrt(np.einsum("fi,fi->f", cross, cross))
-    cos = np.einsum("fi,fi->f", upper_bone, lower_bone)
+    sin = rows.norms(cross)
+    cos = rows.dots(upper_bone, lower_bone)
     theta = np.arctan2(sin, cos)
     inst = cross / np.where(sin > _EPS, sin, 1.0)[:, None]
     steady = fallback
     if sensor is not None:
         mean_local = np.einsum("fji,fj->i", sensor, inst * theta[:, None])
         if np.linalg.norm(mean_local) > _EPS:
-            steady = np.einsum("fij,j->fi", sensor, mean_local / np.linalg.norm(mean_local))
+            steady = rows.apply(sensor, mean_local / np.linalg.norm(mean_local))
     return np.asarray(steady * (np.pi - theta)[:, None] + inst * theta[:, None])
 
 
