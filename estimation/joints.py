@@ -477,6 +477,7 @@ def estimate_joint(
 
     slip_cols: NDArray[np.float64] | None = None
     slip_ridge = 0.0
+    basis = np.zeros((n, 0))
     if slip_period > 0 and highpass <= 1 and method != "gdke":
         basis = _slip_basis(n, slip_period)
         if basis.shape[1] > 0:
@@ -592,7 +593,6 @@ def estimate_joint(
 
     if slip_cols is not None and estimator == "llsf":
         beta = (back[:, 6] - back[:, :6] @ c).reshape(2, -1, 3)
-        basis = _slip_basis(n, slip_period)
         rec_a = np.einsum("tij,tj->ti", ra, c[:3] - basis @ beta[0]) + pa
         rec_b = np.einsum("tij,tj->ti", rb, c[3:] - basis @ beta[1]) + pb
     else:
