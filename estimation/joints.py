@@ -127,13 +127,14 @@ def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np
     return normal - n_bc.T @ back[:, :6], rhs - n_bc.T @ back[:, 6], back
 
 
-def _white_variance(r: NDArray[np.float64], use: NDArray[np.bool_]) -> float:
-    """Variance per axis of the white part of a residual series (second differences; the
-    median against outliers, 0.4549 the median of χ²₁)."""
+def _white_variance(r: NDArray[np.float64], use: NDArray[np.bool_]) -> float | None:
+    """Variance per axis of the white part of a series (second differences, where smooth
+    motion contributes little; the median against outliers, 0.4549 the median of χ²₁), or
+    None with 10 or fewer usable triples of frames."""
     dd = r[2:] - 2.0 * r[1:-1] + r[:-2]
     ok = use[2:] & use[1:-1] & use[:-2]
-    if ok.sum() < 10:
-        return float(np.mean(r[use] ** 2))
+    if ok.sum() <= 10:
+        return None
     return float(np.median(dd[ok] ** 2)) / 0.4549 / 6.0
 
 
@@ -238,11 +239,8 @@ def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float
         cov += wdx.T @ dx / total
         b += 0.5 * wdx.T @ rows.dots(x, x) / total
         if bias_compensation:
-            # white-noise variance from second differences (smooth motion contributes little)
-            dd = x[2:] - 2.0 * x[1:-1] + x[:-2]
-            ok = use[2:] & use[1:-1] & use[:-2]
-            if ok.sum() > 10:
-                sigma2 = float(np.median(dd[ok] ** 2)) / 0.4549 / 6.0
+            sigma2 = _white_variance(x, use)
+            if sigma2 is not None:
                 sigma2_total += sigma2
                 mean_total += sigma2 * mean
     if bias_compensation:
@@ -484,16 +482,21 @@ def estimate_joint(
             slip_cols = _slip_regressors(ra, rb, basis)
             c0 = _solve(*_llsf_system(ra, rb, d, w0))[0]
             r0 = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
-            white = max(_white_variance(r0, both), 1e-12)
+            white = _white_variance(r0, both)
+            white = max(float(np.mean(r0[both] ** 2)) if white is None else white, 1e-12)
             slow = max(float(np.mean(r0[both] ** 2)) - white, white)
             slip_ridge = white / (0.5 * slow / basis.shape[1])
     back = np.zeros((0, 7))
+
+    def slip_coefficients(c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The slip coefficients that go with centre ``c`` (6K,)."""
+        return np.asarray(back[:, 6] - back[:, :6] @ c)
 
     def residual(c: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per-frame residual of the joint equation (with the fitted slip, when modelled)."""
         res = rows.apply(ra, c[:3]) + pa - rows.apply(rb, c[3:]) - pb
         if slip_cols is not None:
-            res = res + slip_cols @ (back[:, 6] - back[:, :6] @ c)
+            res = res + slip_cols @ slip_coefficients(c)
         return np.asarray(res)
 
     w = w0.copy()
@@ -592,7 +595,7 @@ def estimate_joint(
                             f"{rule} rule")
 
     if slip_cols is not None and estimator == "llsf":
-        beta = (back[:, 6] - back[:, :6] @ c).reshape(2, -1, 3)
+        beta = slip_coefficients(c).reshape(2, -1, 3)
         rec_a = np.einsum("tij,tj->ti", ra, c[:3] - basis @ beta[0]) + pa
         rec_b = np.einsum("tij,tj->ti", rb, c[3:] - basis @ beta[1]) + pb
     else:
