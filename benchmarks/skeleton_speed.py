@@ -10,6 +10,9 @@ Run from the project root::
     .venv/bin/python benchmarks/skeleton_speed.py            # RT1 size, 3 runs
     .venv/bin/python benchmarks/skeleton_speed.py --runs 5 --scales 1 4 16
 
+BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` and its siblings, unless already set), as in
+the service's workers: threaded BLAS on these thin arrays adds noise, not speed.
+
 Prints three tables: time per method (with its stages: gap filling, torso joints, limbs,
 orientations, from the progress reports); Nelder–Mead against the default least-squares
 optimizer of the paper's reduced method (whole estimate and limb stage alone, as a ratio of
@@ -20,17 +23,22 @@ default reduced method at 1×, 4×, 16× the frames (it should grow linearly).
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
+# before numpy loads BLAS
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from estimation.bvh import BvhMotion, read_bvh
-from estimation.recording import SensorRecording
-from estimation.simulate.sensors import simulate_sensors
-from estimation.skeleton import estimate_skeleton
+import numpy as np  # noqa: E402
+
+from estimation.bvh import BvhMotion, read_bvh  # noqa: E402
+from estimation.recording import SensorRecording  # noqa: E402
+from estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from estimation.skeleton import estimate_skeleton  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "motions"
 DEFAULT_CLIP = "cmu_acrnn/martial/03.bvh"  # karate, 120 fps, cm
@@ -135,7 +143,8 @@ def main() -> None:
     started = time.perf_counter()
     full, reduced = recordings(clip, args.frames, args.units)
     print(f"clip {args.clip}: {args.frames} frames at {RT1_FPS:g} fps "
-          f"(built in {time.perf_counter() - started:.1f} s); median of {args.runs} runs\n")
+          f"(built in {time.perf_counter() - started:.1f} s); median of {args.runs} runs; "
+          f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}\n")
 
     cases = [
         ("llsf", "15", full, {"method": "llsf"}),

@@ -324,8 +324,8 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
         inv_lu = 1.0 / lu
         e_hat = e * inv_lu[:, None]
         cu = w_l / m * (lu - l_up)
-        g = np.einsum("fi,f->i", j, c) + w_s * theta
-        g[:3] += np.einsum("fi,f->i", e_hat, cu)
+        g = c @ j + w_s * theta
+        g[:3] += cu @ e_hat
         h = (1.0 + w_l) / m * (j.T @ j) - np.outer(j_bar, j_bar) + w_s * np.eye(6)
         h[:3, :3] += w_l / m * (e_hat.T @ e_hat)
         if not exact:
@@ -335,7 +335,7 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         cl = c * inv_l
         second = np.sum(cl) * np.eye(6) - (j * cl[:, None]).T @ j
-        cross = np.einsum("f,fij->ij", cl, limb.q)
+        cross = (cl @ limb.q.reshape(m, 9)).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
         cul = cu * inv_lu

@@ -61,10 +61,11 @@ def _frame_from_yz(y: Float, z: Float) -> Float:
     return _frame(_cross(y, z), y, z)
 
 
-def _frame_from_xy(x: Float, y: Float) -> Float:
-    """y (a unit vector: the bone) kept exactly, x made orthogonal to it, z = x × y."""
+def _quat_from_xy(x: Float, y: Float) -> Float:
+    """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
+    z = x × y, as quaternions (F, 4)."""
     x = _unit(x - rows.dots(x, y)[:, None] * y)
-    return _frame(x, y, _cross(x, y))
+    return quat.from_axes(x, y, _cross(x, y))
 
 
 def _align_y(frames: Float, frames_q: Float, target_y: Float) -> Float:
@@ -197,7 +198,7 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
     quats["spine"] = _align_y(mats["chest"], quats["chest"], pos["chest"] - w)
     quats["cervical"] = _align_y(mats["chest"], quats["chest"], pos["neck"] - pos["chest"])
 
-    pelvis_i0 = Rotation.from_matrix(mats["pelvis"][i0])
+    pelvis_i0 = quat.from_matrix(mats["pelvis"][i0])
     ends = ("head", "l_hand", "r_hand", "l_foot", "r_foot")
     if isinstance(calibration, str):
         if calibration == "pelvis":
@@ -205,18 +206,19 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
         elif calibration == "upright":
             y = _unit(np.asarray(up, dtype=float).reshape(1, 3))
             z = mats["pelvis"][i0, :, 2][None]
-            upright = Rotation.from_matrix(_frame_from_yz(y, z)[0])
+            upright = quat.from_matrix(_frame_from_yz(y, z)[0])
             reference = dict.fromkeys(ends, upright)
         else:
             raise InputError(f"unknown calibration {calibration!r}; use 'pelvis', 'upright' "
                              "or a mapping of rotations", field="calibration")
     else:
-        reference = {s: calibration.get(s, pelvis_i0) for s in ends}
+        reference = {s: calibration[s].as_quat(scalar_first=True) if s in calibration
+                     else pelvis_i0 for s in ends}
     for seg, ref in reference.items():
         sensor = sensor_rotations.get(seg)
         if sensor is not None:
-            offset = (sensor[i0].inv() * ref).as_quat(scalar_first=True)
-            quats[seg] = _canonical(quat.multiply(sensor.as_quat(scalar_first=True), offset))
+            q = sensor.as_quat(scalar_first=True)
+            quats[seg] = _canonical(quat.multiply(q, quat.relative(q[i0], ref)))
 
     for upper, lower, distal, prox, mid, end, sign in _LIMBS:
         upper_bone = _unit(pos[prox] - pos[mid])
@@ -226,12 +228,12 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
         x = sign * _flexion_axis(upper_bone, lower_bone,
                                  None if sensor is None else sensor.as_matrix(),
                                  sign * parent[:, :, 0])
-        quats[upper] = quat.from_matrix(_frame_from_xy(x, upper_bone))
+        quats[upper] = _quat_from_xy(x, upper_bone)
         if distal not in quats:
-            quats[lower] = quat.from_matrix(_frame_from_xy(x, lower_bone))
+            quats[lower] = _quat_from_xy(x, lower_bone)
             quats[distal] = quats[lower]
         elif sign < 0:
             quats[lower] = _align_y(quat.as_matrix(quats[distal]), quats[distal], lower_bone)
         else:
-            quats[lower] = quat.from_matrix(_frame_from_xy(x, lower_bone))
+            quats[lower] = _quat_from_xy(x, lower_bone)
     return quats

@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "from_matrix", "from_rotvec", "mean",
-           "multiply", "relative", "rotate"]
+__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "from_axes", "from_matrix",
+           "from_rotvec", "mean", "multiply", "relative", "rotate"]
 
 Float = NDArray[np.float64]
 
@@ -156,8 +156,33 @@ def from_matrix(m: ArrayLike) -> Float:
     mm = np.asarray(m, dtype=float)
     if mm.shape[-2:] != (3, 3):
         raise ValueError(f"matrices must have shape (..., 3, 3), got {mm.shape}")
-    lead = mm.shape[:-2]
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = mm.reshape(-1, 9).T
+    return _shepperd(*mm.reshape(-1, 9).T).reshape(*mm.shape[:-2], 4)
+
+
+def from_axes(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Float:
+    """Unit quaternions of the rotations whose body axes are ``x``, ``y``, ``z``.
+
+    Parameters
+    ----------
+    x, y, z : array_like, shape (..., 3)
+        The body axes in the world frame (the columns of the rotation matrix), orthonormal
+        and right-handed by construction.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        ``from_matrix`` of the matrix with these columns, without building it.
+    """
+    xx, yy, zz = (np.asarray(v, dtype=float) for v in (x, y, z))
+    m00, m10, m20 = (xx[..., k].reshape(-1) for k in range(3))
+    m01, m11, m21 = (yy[..., k].reshape(-1) for k in range(3))
+    m02, m12, m22 = (zz[..., k].reshape(-1) for k in range(3))
+    return _shepperd(m00, m01, m02, m10, m11, m12, m20, m21, m22).reshape(*xx.shape[:-1], 4)
+
+
+def _shepperd(m00: Float, m01: Float, m02: Float, m10: Float, m11: Float, m12: Float,
+              m20: Float, m21: Float, m22: Float) -> Float:
+    """(N, 4) quaternions from the nine (N,) matrix entries."""
     # 4·(w², x², y², z²) on the diagonal of 4 q qᵀ; each of its rows is a multiple of q,
     # and the row of the largest diagonal entry is the accurate one
     d0 = 1.0 + m00 + m11 + m22
@@ -174,7 +199,7 @@ def from_matrix(m: ArrayLike) -> Float:
                   np.where(p1, xy, np.where(p2, d2, np.where(p3, yz, wy))),
                   np.where(p1, xz, np.where(p2, yz, np.where(p3, d3, wz)))], axis=1)
     q *= (np.where(q[:, 0] < 0, -1.0, 1.0) / np.sqrt(np.einsum("fi,fi->f", q, q)))[:, None]
-    return np.asarray(q.reshape(*lead, 4))
+    return np.asarray(q)
 
 
 def angle(q: ArrayLike) -> Float:
@@ -208,15 +233,13 @@ def as_rotvec(q: ArrayLike) -> Float:
         Angles in ``[0, π]``.
     """
     qq = _q(q)
-    sign = np.where(qq[..., :1] < 0, -1.0, 1.0)
-    v = qq[..., 1:] * sign
+    w, v = qq[..., 0], qq[..., 1:]
     s = np.sqrt(np.einsum("...i,...i->...", v, v))
-    theta = 2.0 * np.arctan2(s, np.abs(qq[..., 0]))
-    # θ / sin(θ/2), with its series below 1e-4 rad where the quotient loses digits
-    small = theta < 1e-4
-    safe = np.where(small, 1.0, np.sin(0.5 * theta))
-    scale = np.where(small, 2.0 + theta * theta / 12.0, theta / safe)
-    return np.asarray(v * scale[..., None])
+    theta = 2.0 * np.arctan2(s, np.abs(w))
+    # θ / sin(θ/2) = θ / |v| for a unit quaternion: no cancellation at small angles, where
+    # atan2 keeps θ accurate; the sign turns q into the w ≥ 0 representative
+    scale = np.divide(theta, s, out=np.full(s.shape, 2.0), where=s > 0)
+    return np.asarray(v * np.where(w < 0, -scale, scale)[..., None])
 
 
 def from_rotvec(v: ArrayLike) -> Float:
@@ -264,8 +287,7 @@ def mean(q: ArrayLike, weights: ArrayLike | None = None) -> Float:
     30(4):1193–1197, 2007. Independent of the sign of each ``q_i``.
     """
     qq = _q(q).reshape(-1, 4)
-    w = np.ones(qq.shape[0]) if weights is None else np.asarray(weights, dtype=float)
-    k = (qq * w[:, None]).T @ qq
+    k = qq.T @ qq if weights is None else (qq * np.asarray(weights, dtype=float)[:, None]).T @ qq
     _, vecs = np.linalg.eigh(k)
     out = vecs[:, -1]
     return np.asarray(out if out[0] >= 0 else -out)

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation.errors import EstimationError, InputError
 from estimation.gaps import fill_gaps, gap_lengths
-from estimation.joints import effective_samples, estimate_joint, range_of_motion
+from estimation.joints import _percentile, effective_samples, estimate_joint, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
 
@@ -314,3 +314,10 @@ def test_range_of_motion_ignores_orientation_noise(rig_factory: RigFactory) -> N
     # 0.5° of white noise on each sensor stays below the default 2° threshold
     assert range_of_motion(still.rotations_a, still.rotations_b) < 2.0
     assert 20.0 < range_of_motion(moving.rotations_a, moving.rotations_b) < 90.0
+
+
+@pytest.mark.parametrize("n", [1, 2, 9, 20, 6283])
+def test_percentile_matches_numpy(n: int) -> None:
+    x = np.random.default_rng(n).random(n)
+    for q in (0.0, 50.0, 95.0, 100.0):
+        assert _percentile(x, q) == pytest.approx(float(np.percentile(x, q)), rel=1e-15)

@@ -59,7 +59,10 @@ def test_from_matrix_round_trip_including_half_turns(rots: tuple[Rotation, Rotat
         assert np.all(q[:, 0] >= 0)
         np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-14)
         _same_rotation(q, _wxyz(r))
+        m = r.as_matrix()
+        np.testing.assert_array_equal(quat.from_axes(m[..., 0], m[..., 1], m[..., 2]), q)
     assert quat.from_matrix(np.eye(3)).shape == (4,)
+    assert quat.from_axes(*np.eye(3)).shape == (4,)
 
 
 def test_angle_and_rotvec_match_scipy(rots: tuple[Rotation, Rotation]) -> None:
