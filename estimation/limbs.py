@@ -417,6 +417,12 @@ polish on all frames: the final point is the minimum of the full cost, reached w
 full-size iterations instead of ~15."""
 
 
+_COARSE_RTOL = 1e-6
+"""Relative change of E at which the subsample fit stops: its minimum is itself ~1e-3 (relative
+E) away from the full-frame one, so polishing it further only costs iterations; the full-frame
+fit that follows still stops at ``_RTOL``."""
+
+
 def _coarse(limb: _Limb) -> _Limb | None:
     step = limb.n // _COARSE_FRAMES
     if step < 2:
@@ -564,7 +570,7 @@ def _fit_paper_ls(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: flo
     coarse = _coarse(limb)
     if coarse is not None:
         x0, n_coarse, _ = _levenberg_marquardt(*_paper_normal(coarse, lengths, w_s, w_l), x0,
-                                               damping=_ROUGH_START)
+                                               rtol=_COARSE_RTOL, damping=_ROUGH_START)
         n_eval += n_coarse
     cost, normal = _paper_normal(limb, lengths, w_s, w_l)
     x, n_full, ok = _levenberg_marquardt(cost, normal, x0,
