@@ -26,6 +26,8 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(2 * 1024**3, gt=0)
     lease_seconds: float = Field(30.0, gt=0)
     max_attempts: int = Field(3, ge=1)
+    job_timeout_seconds: float = Field(
+        3600.0, ge=0, description="Run time after which a job is stopped and failed (0: none).")
     workers: int = Field(2, ge=0, description="Embedded worker processes of `bonefit serve`.")
     retention_seconds: float = Field(0.0, ge=0, description="TTL of recordings/results/jobs.")
     progress_interval_seconds: float = Field(0.5, ge=0)

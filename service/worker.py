@@ -48,6 +48,10 @@ class LeaseLost(Exception):
     """Another worker or the reaper took the job over."""
 
 
+class TimedOut(Exception):
+    """The job ran longer than ``job_timeout_seconds``."""
+
+
 def problem(title: str, detail: str, status: int, slug: str, **extensions: Any) -> dict[str, Any]:
     """A problem document for a job's ``error``."""
     return {"type": PROBLEM_TYPE + slug, "title": title, "status": status, "detail": detail,
@@ -192,6 +196,13 @@ class Worker:
                 log.info("job %s: handed back to the queue (worker shutting down)", job_id)
         except LeaseLost:
             log.warning("job %s: lease lost; another worker owns it", job_id)
+        except TimedOut:
+            limit = settings.job_timeout_seconds
+            log.warning("job %s: stopped after its %g s limit", job_id, limit)
+            error = problem("Job timed out", f"the job ran longer than the service's limit of "
+                            f"{limit:g} s (job_timeout_seconds) and was stopped", 504,
+                            "job-timeout", instance=f"/v1/jobs/{job_id}", limit_seconds=limit)
+            self._finish(claimed, {"status": "failed", "stage": "failed", "error": error})
         except BonefitError as exc:
             kind = self.kinds.get(job.kind)
             if kind is not None and exc.field in kind.params.model_fields:
@@ -230,7 +241,7 @@ class Worker:
                                        field=name) from None
                 inputs[name] = Input(path, rec.format)
             outputs = kind.run(inputs, params, lease.progress, Path(tmp))
-            lease.check()
+            lease.check(timeout=False)  # finished: over the limit or not, keep the results
             results = {}
             for fmt, path in outputs.items():
                 key = f"{tenant_prefix(job.tenant)}/jobs/{job.id}/result.{fmt}"
@@ -271,7 +282,7 @@ class _Lease:
         self.lost = threading.Event()
         self.cancelled = threading.Event()
         self.done = threading.Event()
-        self.last_write = worker.clock()
+        self.started = self.last_write = worker.clock()
         self.fraction = 0.0
         self.thread = threading.Thread(target=self._beat, name=f"lease-{job.id}", daemon=True)
 
@@ -302,15 +313,20 @@ class _Lease:
             except Exception:
                 log.exception("job %s: heartbeat failed", self.job.id)
 
-    def check(self) -> None:
-        """Raise if the job must stop: lease lost, cancelled, or shutdown grace over."""
+    def check(self, *, timeout: bool = True) -> None:
+        """Raise if the job must stop: lease lost, cancelled, shutdown grace or (with
+        ``timeout``) the job's time limit over."""
         w = self.worker
         if self.lost.is_set():
             raise LeaseLost
         if self.cancelled.is_set():
             raise Cancelled
-        if w.deadline is not None and w.clock() >= w.deadline:
+        now = w.clock()
+        if w.deadline is not None and now >= w.deadline:
             raise Requeue
+        limit = w.runtime.settings.job_timeout_seconds
+        if timeout and limit > 0 and now - self.started >= limit:
+            raise TimedOut
 
     def progress(self, fraction: float, stage: str) -> None:
         """The estimation callback: store progress at most every interval; stop if asked."""

@@ -150,6 +150,44 @@ def test_reaper_requeues_then_gives_up(client: TestClient, runtime: Runtime,
     assert client.get(f"/v1/jobs/{cancelled['id']}").json()["status"] == "cancelled"
 
 
+def test_a_job_over_its_time_limit_fails_at_its_next_report(client: TestClient,
+                                                             runtime: Runtime) -> None:
+    runtime.settings.job_timeout_seconds = 100.0
+    now = [1_000.0]
+    reports: list[float] = []
+
+    def body(progress: Progress) -> None:
+        for i in range(10):
+            progress(i / 10, "work")
+            reports.append(i / 10)
+            now[0] += 40.0  # each step takes 40 s on the worker's clock
+
+    slow = submit(client, upload(client)["id"])
+    drain(runtime, Worker(runtime, kind_with(body), clock=lambda: now[0]))
+    done = client.get(f"/v1/jobs/{slow['id']}").json()
+    assert done["status"] == "failed"
+    assert reports == [0.0, 0.1, 0.2]  # the report at 120 s stopped it
+    assert done["results"] == {}
+    error = done["error"]
+    assert (error["status"], error["title"], error["limit_seconds"]) == (
+        504, "Job timed out", 100.0)
+    assert "job_timeout_seconds" in error["detail"]
+    assert error["instance"] == f"/v1/jobs/{slow['id']}"
+    # a job that ends over the limit without another report keeps its results, and a
+    # limit of 0 means none
+    for limit, steps in ((100.0, 1), (0.0, 10)):
+        runtime.settings.job_timeout_seconds = limit
+        job = submit(client, upload(client)["id"])
+
+        def quick(progress: Progress, steps: int = steps) -> None:
+            for i in range(steps):
+                progress(i / steps, "work")
+                now[0] += 150.0
+
+        drain(runtime, Worker(runtime, kind_with(quick), clock=lambda: now[0]))
+        assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
+
+
 def test_heartbeat_keeps_a_long_job_alive(client: TestClient, runtime: Runtime) -> None:
     runtime.settings.lease_seconds = 0.3
     job = submit(client, upload(client)["id"])
