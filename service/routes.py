@@ -313,18 +313,24 @@ async def cancel_job(request: Request, who: Tenant, job_id: str) -> JSONResponse
 @v1.get("/jobs/{job_id}/events", summary="Follow a job (Server-Sent Events)",
         response_class=StreamingResponse,
         responses={200: {"content": {"text/event-stream": {}}}})
-async def job_events(request: Request, who: Tenant, job_id: str) -> StreamingResponse:
-    """``status`` and ``progress`` events (data: the job) until the job ends, then ``end``."""
+async def job_events(request: Request, who: Tenant, job_id: str,
+                     last_event_id: Annotated[str | None, Header()] = None
+                     ) -> StreamingResponse:
+    """``status`` and ``progress`` events (data: the job) until the job ends, then ``end``;
+    a reconnecting client's ``Last-Event-ID`` (a job version) skips what it has seen."""
     await _job(request, who, job_id)
     store = runtime_of(request).store
+    seen = int(last_event_id) if last_event_id and last_event_id.strip().isdigit() else -1
 
     async def stream() -> AsyncIterator[str]:
-        version, status, quiet_since = -1, None, time.monotonic()
+        version, status, quiet_since = seen, None, time.monotonic()
         while True:
             job = await run_in_threadpool(store.get_job, job_id, who)
             if job is None:
                 yield "event: end\ndata: {}\n\n"
                 return
+            if job.version == seen and status is None:
+                status = job.status  # the client saw this version: no event for it
             if job.version != version:
                 event = "status" if job.status != status else "progress"
                 data = json.dumps(JobOut.of(job).model_dump(mode="json"))

@@ -321,6 +321,28 @@ def test_events_stream_until_the_end(client: TestClient, runtime: Runtime,
     assert last["status"] == "succeeded"
 
 
+def test_events_resume_after_the_last_event_id(client: TestClient, runtime: Runtime,
+                                               worker: Worker) -> None:
+    job = submit(client, upload(client)["id"])
+    drain(runtime, worker)
+    url = f"/v1/jobs/{job['id']}/events"
+    with client.stream("GET", url) as r:
+        first = "".join(r.iter_text())
+    ids = [line.split(": ", 1)[1] for line in first.splitlines() if line.startswith("id: ")]
+    assert ids
+    # a client that saw the final version gets only the end; one with an older (or a
+    # malformed) id gets the job again
+    with client.stream("GET", url, headers={"Last-Event-ID": ids[-1]}) as r:
+        resumed = "".join(r.iter_text())
+    assert [line for line in resumed.splitlines() if line.startswith("event: ")] == [
+        "event: end"]
+    for stale in ("0", "x"):
+        with client.stream("GET", url, headers={"Last-Event-ID": stale}) as r:
+            again = "".join(r.iter_text())
+        assert f"id: {ids[-1]}" in again
+        assert again.splitlines()[1] == "event: status"
+
+
 # -------------------------------------------------------------------------- problems/ops
 
 
