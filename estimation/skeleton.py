@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time as _time
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, Final
 
 import numpy as np
@@ -207,6 +207,40 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
     return np.asarray(point - 2.0 * float((point - base) @ normal) * normal)
 
 
+@dataclass(frozen=True)
+class _SensorPoses:
+    """The poses of the sensors used, gaps filled, by segment name."""
+
+    positions: dict[str, NDArray[np.float64]]
+    rotations: dict[str, Rotation]
+    ok: dict[str, NDArray[np.bool_]]  # measured (not interpolated) samples
+    quaternions: NDArray[np.float64]  # (F, S, 4), the columns of ``positions``' order
+    stacked: NDArray[np.float64]  # (F, S, 3)
+
+    @classmethod
+    def of(cls, recording: SensorRecording, use: Sequence[str],
+           warnings: list[str]) -> _SensorPoses:
+        """Fill the gaps of the sensors ``use``; warn about gaps longer than 0.5 s; raise
+        InputError naming a sensor with no valid sample."""
+        valid = recording.valid()
+        for seg in use:
+            if not valid[:, recording.index(seg)].any():
+                raise InputError(f"sensor {seg!r} has no valid sample (all NaN)", sensor=seg)
+        cols = [recording.index(s) for s in use]
+        pos, quat, filled = fill_gaps(recording.positions[:, cols],
+                                      recording.quaternions[:, cols], time=recording.time)
+        for k, s in enumerate(use):
+            longest = int(gap_lengths(~filled[:, k]).max(initial=0))
+            if longest > 0.5 * recording.fps:
+                warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
+                                "interpolated")
+        return cls(positions={s: pos[:, k] for k, s in enumerate(use)},
+                   rotations={s: Rotation.from_quat(quat[:, k], scalar_first=True)
+                              for k, s in enumerate(use)},
+                   ok={s: ~filled[:, k] for k, s in enumerate(use)},
+                   quaternions=quat, stacked=pos)
+
+
 def estimate_skeleton(
     recording: SensorRecording,
     *,
@@ -222,6 +256,7 @@ def estimate_skeleton(
     highpass_s: float = 0.0,
     slip_hz: float = 0.5,
     min_range_deg: float = 2.0,
+    offsets: Mapping[str, JointOffset] | None = None,
     progress: Progress | None = None,
 ) -> SkeletonResult:
     """Joint centres, bone lengths and segment orientations from a sensor recording.
@@ -272,9 +307,18 @@ def estimate_skeleton(
         ``"auto"`` has them, but flagged: ``quality[joint]["reliability"] == "prior"`` and a
         warning naming it. When more than half of the two-sensor joints are that still, the
         recording as a whole is refused (EstimationError, ``field="motion"``).
+    offsets : mapping of str to JointOffset, optional
+        Every joint's offset in a sensor's frame from an earlier estimate with the same sensor
+        placement (``SkeletonResult.offsets`` of a calibration recording in which every joint
+        moves; in a file: ``io.skeleton.read_skeleton_json(path).offsets``). The joints are
+        then placed at those offsets and nothing is fitted: ``method``, ``optimizer``,
+        ``torso``, the weights, ``slip_hz`` and ``min_range_deg`` are ignored, the result's
+        method is ``"offsets"``, and ``smooth`` defaults to off. For takes in which some
+        joints barely move: no recording locates a joint that does not rotate, but a
+        calibration does, and applying it costs one rigid transform per frame.
     progress : callable, optional
         ``progress(fraction, stage)`` with stages ``gaps``, ``torso``, ``limbs``,
-        ``orientations``.
+        ``orientations`` (with ``offsets``: ``gaps``, ``joints``, ``orientations``).
 
     Returns
     -------
@@ -285,7 +329,8 @@ def estimate_skeleton(
     ------
     InputError
         A required sensor is missing (naming it and the sensors present), a sensor has no
-        valid sample, an unknown option.
+        valid sample, an unknown option, an offset missing or malformed (``field``
+        ``offsets.<joint>``).
     EstimationError
         No sensor moves, or most joints rotate less than ``min_range_deg`` (too little
         motion in the recording as a whole), or bone lengths outside human range (wrong
@@ -329,34 +374,23 @@ def estimate_skeleton(
     if n_frames < 10:
         raise EstimationError(f"the recording has {n_frames} frames; at least 10 are needed",
                               field="frames")
+    if offsets is not None:
+        return _skeleton_at_offsets(recording, offsets, up=up_vec, i0=i0,
+                                    smooth=bool(smooth), report=report, started=started)
     required: Sequence[str] = SEGMENTS if method in ("llsf", "gdke") else REDUCED_SEGMENTS
     for seg in required:
         recording.index(seg)  # raises InputError naming the missing sensor
     use = [s for s in SEGMENTS if s in recording.sensors]
     if method == "reduced":
         use = list(REDUCED_SEGMENTS)
-    valid = recording.valid()
-    for seg in use:
-        if not valid[:, recording.index(seg)].any():
-            raise InputError(f"sensor {seg!r} has no valid sample (all NaN)", sensor=seg)
     warnings: list[str] = []
-
     report(0.0, "gaps")
-    cols = [recording.index(s) for s in use]
-    pos, quat, filled = fill_gaps(recording.positions[:, cols], recording.quaternions[:, cols],
-                                  time=recording.time)
-    positions = {s: pos[:, k] for k, s in enumerate(use)}
-    rotations = {s: Rotation.from_quat(quat[:, k], scalar_first=True)
-                 for k, s in enumerate(use)}
-    ok = {s: ~filled[:, k] for k, s in enumerate(use)}
-    for k, s in enumerate(use):
-        longest = int(gap_lengths(~filled[:, k]).max(initial=0))
-        if longest > 0.5 * recording.fps:
-            warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
-                            "interpolated")
+    sensors = _SensorPoses.of(recording, use, warnings)
+    positions, rotations, ok, quat = (sensors.positions, sensors.rotations, sensors.ok,
+                                      sensors.quaternions)
     # every sample equal to the first one: one elementwise pass (fill_gaps keeps the
     # sensor-major layout of the column selection, across which numpy reduces slowly)
-    if not np.any(pos != pos[:1]):
+    if not np.any(sensors.stacked != sensors.stacked[:1]):
         raise EstimationError("no sensor moves: a recording with motion of every joint is "
                               "needed", field="motion")
 
@@ -417,7 +451,7 @@ def estimate_skeleton(
     report(0.05, "torso")
     fits: dict[str, JointFit] = {}
     joints: dict[str, NDArray[np.float64]] = {}
-    offsets: dict[str, JointOffset] = {}
+    joint_offsets: dict[str, JointOffset] = {}
     quality: dict[str, dict[str, Any]] = {}
     for k, name in enumerate(_TORSO_JOINTS):
         sym = None
@@ -431,7 +465,7 @@ def estimate_skeleton(
                     quiet=method == "auto" and name in _MIRRORED)
         fits[name] = fit
         joints[name] = fit.positions
-        offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+        joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
         quality[name] = fit.quality
         report(0.05 + 0.25 * (k + 1) / len(_TORSO_JOINTS), "torso")
     if method == "auto":
@@ -444,15 +478,16 @@ def estimate_skeleton(
                 fit = joint(name, estimator, prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]))
                 fits[name] = fit
                 joints[name] = fit.positions
-                offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+                joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
                 quality[name] = fit.quality
     joints["root"] = estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"])
     joints["chest"] = estimate_chest(joints["waist"], joints["neck"], joints["l_shoulder"],
                                      joints["r_shoulder"])
-    offsets["root"] = JointOffset("pelvis", (offsets["waist"].local + offsets["l_hip"].local
-                                             + offsets["r_hip"].local) / 3.0)
+    joint_offsets["root"] = JointOffset("pelvis", (joint_offsets["waist"].local
+                                                   + joint_offsets["l_hip"].local
+                                                   + joint_offsets["r_hip"].local) / 3.0)
     chest_local = rotations["chest"].inv().apply(joints["chest"] - positions["chest"])
-    offsets["chest"] = JointOffset("chest", chest_local.mean(axis=0))
+    joint_offsets["chest"] = JointOffset("chest", chest_local.mean(axis=0))
     quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
     quality["chest"] = {"estimator": "eq. 1 of the paper",
                         "alpha_m": float(np.linalg.norm(joints["chest"] - joints["waist"],
@@ -481,7 +516,7 @@ def estimate_skeleton(
                 d_fit = joint(dist, estimator, (m_fit.positions, None), bone_length=forearm)
             for name, fit in ((mid, m_fit), (dist, d_fit)):
                 joints[name] = fit.positions
-                offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+                joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
                 quality[name] = fit.quality
         else:
             lf = estimate_limb(
@@ -491,8 +526,8 @@ def estimate_skeleton(
                 optimizer=optimizer, w_s=w_s, w_l=w_l, progress=stage)
             joints[mid] = lf.middle
             joints[dist] = lf.distal
-            offsets[mid] = JointOffset(upper, lf.middle_local)
-            offsets[dist] = JointOffset(distal, lf.distal_local)
+            joint_offsets[mid] = JointOffset(upper, lf.middle_local)
+            joint_offsets[dist] = JointOffset(distal, lf.distal_local)
             lq = dict(lf.quality)
             lq.update({"estimator": f"limb-{lq.get('method', '')}", "cost": lf.cost,
                        "n_evaluations": lf.n_evaluations})
@@ -500,24 +535,79 @@ def estimate_skeleton(
             quality[dist] = dict(lq)
         stage(1.0, "limbs")
 
-    if do_smooth:
-        joints = {name: _smooth(path, recording.fps) for name, path in joints.items()}
-    bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
-                    for seg, (a, b) in BONES.items()}
-    _check_units(bone_lengths, warnings)
-
-    report(0.9, "orientations")
-    orientations = estimate_orientations(joints, rotations, i0=i0, up=up_vec)
-    report(1.0, "orientations")
+    joints, bone_lengths, orientations = _completed(
+        joints, rotations, fps=recording.fps, smooth=do_smooth, up=up_vec, i0=i0,
+        warnings=warnings, report=scaled(report, 0.9, 1.0))
     elapsed = _time.perf_counter() - started
     return SkeletonResult(
         method=method,
         fps=recording.fps,
         joints={name: joints[name] for name in JOINTS},
-        offsets={name: offsets[name] for name in JOINTS},
+        offsets={name: joint_offsets[name] for name in JOINTS},
         bone_lengths=bone_lengths,
         orientations=orientations,
         quality={name: quality[name] for name in JOINTS},
         warnings=tuple(warnings),
         timings={"estimate_s": elapsed},
     )
+
+
+def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, JointOffset], *,
+                         up: NDArray[np.float64], i0: int, smooth: bool, report: Progress,
+                         started: float) -> SkeletonResult:
+    """``estimate_skeleton(offsets=...)``: every joint at its given offset."""
+    local: dict[str, tuple[str, NDArray[np.float64]]] = {}
+    for name in JOINTS:
+        off = offsets.get(name)
+        if off is None:
+            raise InputError(f"no offset for joint {name!r}; a calibration gives all "
+                             f"{len(JOINTS)} ({', '.join(JOINTS)})", field=f"offsets.{name}")
+        vec = np.asarray(off.local, dtype=float)
+        if vec.shape != (3,) or not np.isfinite(vec).all():
+            raise InputError(f"offset of {name!r} must be 3 finite numbers (metres)",
+                             field=f"offsets.{name}")
+        if off.sensor not in recording.sensors:
+            raise InputError(f"joint {name!r} is calibrated on sensor {off.sensor!r}, which "
+                             f"the recording lacks; it has {', '.join(recording.sensors)}",
+                             sensor=off.sensor)
+        local[name] = (off.sensor, vec)
+    warnings: list[str] = []
+    report(0.0, "gaps")
+    use = [s for s in SEGMENTS if s in recording.sensors]
+    sensors = _SensorPoses.of(recording, use, warnings)
+    report(0.3, "joints")
+    joints = {name: sensors.positions[seg] + rows.apply(sensors.rotations[seg].as_matrix(), vec)
+              for name, (seg, vec) in local.items()}
+    joints, bone_lengths, orientations = _completed(
+        joints, sensors.rotations, fps=recording.fps, smooth=smooth, up=up, i0=i0,
+        warnings=warnings, report=scaled(report, 0.6, 1.0))
+    return SkeletonResult(
+        method="offsets",
+        fps=recording.fps,
+        joints=joints,
+        offsets={name: JointOffset(seg, vec.copy()) for name, (seg, vec) in local.items()},
+        bone_lengths=bone_lengths,
+        orientations=orientations,
+        quality={name: {"estimator": "given offset", "sensor": seg}
+                 for name, (seg, _) in local.items()},
+        warnings=tuple(warnings),
+        timings={"estimate_s": _time.perf_counter() - started},
+    )
+
+
+def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,
+               fps: float, smooth: bool, up: NDArray[np.float64], i0: int, warnings: list[str],
+               report: Progress,
+               ) -> tuple[dict[str, NDArray[np.float64]], dict[str, float],
+                          dict[str, NDArray[np.float64]]]:
+    """The joint paths (smoothed if asked), bone lengths (checked against human size) and
+    segment orientations."""
+    if smooth:
+        joints = {name: _smooth(path, fps) for name, path in joints.items()}
+    bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
+                    for seg, (a, b) in BONES.items()}
+    _check_units(bone_lengths, warnings)
+    report(0.0, "orientations")
+    orientations = estimate_orientations(joints, rotations, i0=i0, up=up)
+    report(1.0, "orientations")
+    return joints, bone_lengths, orientations

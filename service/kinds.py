@@ -42,6 +42,16 @@ Runner = Callable[[Mapping[str, Input], Any, Progress, Path], dict[str, Path]]
 """``run(inputs, params, progress, outdir) -> {result format: file}``; inputs["recording"]."""
 
 
+class JointOffsetIn(BaseModel):
+    """Where a joint sits in one sensor's frame (an entry of a skeleton result's
+    ``offsets``)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    sensor: str = Field(min_length=1, max_length=100)
+    local: tuple[float, float, float] = Field(description="Metres, in the sensor's frame.")
+
+
 class SkeletonParams(BaseModel):
     """Parameters of a skeleton job (magnetic 6-DOF trackers)."""
 
@@ -59,6 +69,11 @@ class SkeletonParams(BaseModel):
     units: Literal["m", "cm", "mm", "in"] | None = None
     fps: float | None = Field(None, gt=0)
     stations: dict[str, str] | None = Field(None, description="Tracker station → segment.")
+    offsets: dict[str, JointOffsetIn] | None = Field(
+        None, max_length=64,
+        description="A calibration: the `offsets` of an earlier skeleton result of the same "
+                    "suit. Every joint is placed at its offset instead of being fitted "
+                    "(method and fit options are then ignored).")
 
 
 class TranslationParams(BaseModel):
@@ -79,7 +94,12 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
     from estimation.io.sensors import read_recording
-    from estimation.io.skeleton import write_skeleton_bvh, write_skeleton_csv, write_skeleton_json
+    from estimation.io.skeleton import (
+        offsets_from_dict,
+        write_skeleton_bvh,
+        write_skeleton_csv,
+        write_skeleton_json,
+    )
     from estimation.skeleton import estimate_skeleton
 
     source = inputs["recording"]
@@ -89,7 +109,10 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     result = estimate_skeleton(
         recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
         up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
-        w_l=params.w_l, smooth=params.smooth, progress=scaled(progress, 0.02, 0.95))
+        w_l=params.w_l, smooth=params.smooth,
+        offsets=None if params.offsets is None else offsets_from_dict(
+            {k: v.model_dump() for k, v in params.offsets.items()}),
+        progress=scaled(progress, 0.02, 0.95))
     progress(0.95, "writing")
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
            "csv": outdir / "skeleton.csv"}

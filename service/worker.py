@@ -205,7 +205,8 @@ class Worker:
             self._finish(claimed, {"status": "failed", "stage": "failed", "error": error})
         except BonefitError as exc:
             kind = self.kinds.get(job.kind)
-            if kind is not None and exc.field in kind.params.model_fields:
+            if kind is not None and exc.field is not None \
+                    and exc.field.split(".")[0] in kind.params.model_fields:
                 exc.field = f"params.{exc.field}"  # name it as the client sent it
             error = from_bonefit_error(exc).body(f"/v1/jobs/{job_id}")
             self._finish(claimed, {"status": "failed", "stage": "failed", "error": error})

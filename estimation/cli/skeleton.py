@@ -12,7 +12,12 @@ from typing import Any
 
 from ..errors import InputError
 from ..io.sensors import FORMATS, UNITS, example_path, parse_stations, read_recording
-from ..io.skeleton import skeleton_to_dict, write_skeleton_bvh, write_skeleton_csv
+from ..io.skeleton import (
+    read_skeleton_offsets,
+    skeleton_to_dict,
+    write_skeleton_bvh,
+    write_skeleton_csv,
+)
 from ..model import JOINTS
 from ..recording import SensorRecording
 from ..results import SkeletonResult
@@ -29,6 +34,9 @@ examples:
   bonefit skeleton walk.csv -o walk.json --bvh walk.bvh --csv joints.csv
   bonefit skeleton walk.csv --method reduced --optimizer nelder-mead -o paper.json
   bonefit skeleton take3.npz --units mm --up +z -o take3.json
+  bonefit skeleton rom.csv -o calibration.json      a take in which every joint moves
+  bonefit skeleton take4.csv --offsets calibration.json -o take4.json
+                                                   same suit: joints at the calibrated offsets
   bonefit skeleton liberty.txt --format tracker --fps 240 --up=-z \\
       --stations 1=pelvis,2=chest,3=head,4=l_upperarm,5=l_hand,6=r_upperarm,7=r_hand,\\
 8=l_thigh,9=l_foot,10=r_thigh,11=r_foot -o take.json
@@ -75,6 +83,10 @@ def register(sub: Any) -> None:
                              "for a negative axis)")
     parser.add_argument("--i0", default="0", metavar="N",
                         help="calibration frame for hands, feet and head (default: 0)")
+    parser.add_argument("--offsets", default=None, metavar="CALIBRATION.json",
+                        help="place every joint at its offset from an earlier result of the "
+                             "same suit (its JSON, -o) instead of fitting: for takes in which "
+                             "some joints do not move")
     parser.add_argument("-o", "--output", default=None, metavar="OUT.json",
                         help="write the result as JSON")
     parser.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write a BVH file (cm)")
@@ -124,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
     fps = _number(args.fps, "--fps", float)
     i0 = _number(args.i0, "--i0", int)
     stations = parse_stations(args.stations) if args.stations is not None else None
+    offsets = read_skeleton_offsets(args.offsets) if args.offsets is not None else None
     if args.example:
         if args.input is not None:
             raise InputError("give INPUT or --example, not both", field="input")
@@ -150,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         result = estimate(recording, method=method, optimizer=optimizer, up=up, i0=i0,
-                          progress=bar)
+                          offsets=offsets, progress=bar)
     finally:
         if bar is not None:
             bar.close()

@@ -28,7 +28,9 @@ if TYPE_CHECKING:
         write_sensor_npz,
     )
     from .skeleton import (
+        offsets_from_dict,
         read_skeleton_json,
+        read_skeleton_offsets,
         skeleton_from_dict,
         skeleton_to_bvh,
         skeleton_to_dict,
@@ -41,10 +43,12 @@ __all__ = [
     "KinematicsRecording",
     "RowCounter",
     "example_path",
+    "offsets_from_dict",
     "parse_stations",
     "read_kinematics",
     "read_recording",
     "read_skeleton_json",
+    "read_skeleton_offsets",
     "skeleton_from_dict",
     "skeleton_to_bvh",
     "skeleton_to_dict",
@@ -66,6 +70,7 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
                    "translation_to_dict", "write_kinematics_csv", "write_translation"),
     "sensors": ("RowCounter", "example_path", "parse_stations", "read_recording",
                 "sniff_recording", "write_sensor_csv", "write_sensor_npz"),
-    "skeleton": ("read_skeleton_json", "skeleton_from_dict", "skeleton_to_bvh", "skeleton_to_dict",
+    "skeleton": ("offsets_from_dict", "read_skeleton_json", "read_skeleton_offsets",
+                 "skeleton_from_dict", "skeleton_to_bvh", "skeleton_to_dict",
                  "write_skeleton_bvh", "write_skeleton_csv", "write_skeleton_json"),
 })

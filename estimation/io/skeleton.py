@@ -199,22 +199,11 @@ def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
     for key in ("joints", "orientations", "offsets", "bone_lengths", "quality", "timings"):
         if not isinstance(data.get(key, {}), Mapping):
             raise InputError(f"{key} must be an object", field=key)
-    offsets = {}
-    for k, v in dict(data.get("offsets", {})).items():
-        try:
-            local = np.asarray(v["local"], dtype=float)
-            sensor = str(v["sensor"])
-        except (TypeError, KeyError, ValueError):
-            local, sensor = np.empty(0), ""
-        if local.shape != (3,):
-            raise InputError(f"offsets.{k} must be {{\"sensor\": ..., \"local\": [x, y, z]}}",
-                             field=f"offsets.{k}")
-        offsets[str(k)] = JointOffset(sensor=sensor, local=local)
     return SkeletonResult(
         method=str(data["method"]),
         fps=float(data["fps"]),
         joints=joints,
-        offsets=offsets,
+        offsets=offsets_from_dict(data.get("offsets", {})),
         bone_lengths={str(k): float(v) for k, v in dict(data.get("bone_lengths", {})).items()
                       if v is not None},
         orientations={str(k): _array(v, (4,), f"orientations.{k}")
@@ -226,6 +215,40 @@ def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
     )
 
 
+def offsets_from_dict(data: Mapping[str, Any]) -> dict[str, JointOffset]:
+    """Joint offsets from the ``offsets`` object of a skeleton document,
+    ``{"<joint>": {"sensor": "<segment>", "local": [x, y, z]}}`` (metres).
+
+    Raises
+    ------
+    InputError
+        ``field="offsets.<joint>"`` for an entry that is not a sensor name and three finite
+        numbers.
+    """
+    if not isinstance(data, Mapping):
+        raise InputError("offsets must be an object", field="offsets")
+    offsets = {}
+    for k, v in data.items():
+        try:
+            local = np.asarray(v["local"], dtype=float)
+            sensor = v["sensor"]
+        except (TypeError, KeyError, ValueError):
+            local, sensor = np.empty(0), None
+        if local.shape != (3,) or not np.isfinite(local).all() or not isinstance(sensor, str):
+            raise InputError(f"offsets.{k} must be {{\"sensor\": ..., \"local\": [x, y, z]}}",
+                             field=f"offsets.{k}")
+        offsets[str(k)] = JointOffset(sensor=sensor, local=local)
+    return offsets
+
+
+def _read_json(path: PathLike) -> Any:
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"invalid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}",
+                         line=exc.lineno, column=exc.colno) from None
+
+
 def read_skeleton_json(path: PathLike) -> SkeletonResult:
     """Read a skeleton JSON document written by :func:`write_skeleton_json`.
 
@@ -234,12 +257,26 @@ def read_skeleton_json(path: PathLike) -> SkeletonResult:
     InputError
         On invalid JSON (with its line and column) or a document that is not a skeleton.
     """
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"invalid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}",
-                         line=exc.lineno, column=exc.colno) from None
-    return skeleton_from_dict(data)
+    return skeleton_from_dict(_read_json(path))
+
+
+def read_skeleton_offsets(path: PathLike) -> dict[str, JointOffset]:
+    """The joint offsets of a calibration: a skeleton JSON document's ``offsets``, or a
+    document holding only ``{"offsets": {...}}``; for ``estimate_skeleton(offsets=...)``.
+
+    Raises
+    ------
+    InputError
+        Invalid JSON (line and column), no ``offsets`` object, a malformed entry.
+    """
+    data = _read_json(path)
+    if not isinstance(data, Mapping) or "offsets" not in data:
+        raise InputError("not a calibration: the document has no \"offsets\" object (write "
+                         "one with bonefit skeleton -o)", field="offsets")
+    if data.get("units", "m") != "m":
+        raise InputError(f"offsets must be in metres (units 'm'), got {data['units']!r}",
+                         field="units")
+    return offsets_from_dict(data["offsets"])
 
 
 # --------------------------------------------------------------------------- CSV

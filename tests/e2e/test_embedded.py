@@ -98,6 +98,35 @@ def test_skeleton_flow(client: httpx.Client, sensor_csv_bytes: bytes) -> None:
     assert r.text.count("\n") > 240
 
 
+def test_a_calibration_applied_to_another_take(client: httpx.Client,
+                                               sensor_csv_bytes: bytes) -> None:
+    rec = upload(client, sensor_csv_bytes, filename="walk.csv")
+    calibration = wait_for_job(client, submit(client, {"kind": "skeleton",
+                                                       "recording_id": rec["id"]})["id"])
+    assert calibration["status"] == "succeeded", calibration["error"]
+    fitted = client.get(calibration["results"]["json"]).json()
+    job = submit(client, {"kind": "skeleton", "recording_id": rec["id"],
+                          "params": {"offsets": fitted["offsets"]}})
+    done = wait_for_job(client, job["id"])
+    assert done["status"] == "succeeded", done["error"]
+    applied = client.get(done["results"]["json"]).json()
+    assert applied["method"] == "offsets"
+    assert applied["offsets"] == fitted["offsets"]
+    # an incomplete calibration fails the job, naming the joint as the client sent it
+    partial = {k: v for k, v in fitted["offsets"].items() if k != "r_wrist"}
+    job = submit(client, {"kind": "skeleton", "recording_id": rec["id"],
+                          "params": {"offsets": partial}})
+    failed = wait_for_job(client, job["id"])
+    assert failed["status"] == "failed"
+    assert failed["error"]["status"] == 422
+    assert failed["error"]["field"] == "params.offsets.r_wrist"
+    r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": rec["id"],
+                                      "params": {"offsets": {"neck": {"sensor": "chest",
+                                                                      "local": [0, 1]}}}})
+    assert r.status_code == 422
+    assert r.json()["field"].startswith("params.offsets.neck")
+
+
 def test_multipart_upload_and_reduced_suit(client: httpx.Client, sensor_csv_bytes: bytes) -> None:
     r = client.post("/v1/recordings", files={"file": ("walk.csv", sensor_csv_bytes, "text/csv")})
     assert r.status_code == 201, r.text

@@ -191,7 +191,7 @@ def test_options_reach_the_estimator_and_outputs_are_written(
                          "--bvh", str(tmp_path / "r.bvh"), "--csv", str(tmp_path / "r.csv"))
     assert (code, out, err) == (0, "", "")
     assert calls == [{"method": "reduced", "optimizer": "nelder-mead", "up": (0.0, 0.0, -1.0),
-                      "i0": 7, "progress": None}]
+                      "i0": 7, "offsets": None, "progress": None}]
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["method"] == "fake"
     assert doc["frames"] == 300
@@ -279,3 +279,46 @@ def test_tracker_file_gives_the_same_skeleton_as_csv(capsys: pytest.CaptureFixtu
     tracker, csv = joints_of(tmp_path / "t.json"), joints_of(tmp_path / "c.json")
     for joint in JOINTS:
         np.testing.assert_allclose(tracker[joint], csv[joint], atol=1e-4)
+
+
+def test_offsets_from_a_calibration_file(capsys: pytest.CaptureFixture[str],
+                                         tmp_path: Path) -> None:
+    calibration = tmp_path / "calibration.json"
+    code, _out, err = run(capsys, "--example", "-o", str(calibration))
+    assert code == 0, err
+    doc = json.loads(calibration.read_text())
+    code, _out, err = run(capsys, "--example", "--offsets", str(calibration), "-o",
+                          str(tmp_path / "take.json"))
+    assert code == 0, err
+    take = json.loads((tmp_path / "take.json").read_text())
+    assert take["method"] == "offsets"
+    assert take["offsets"] == doc["offsets"]
+    # the same recording: the calibrated joints are the fitted ones up to the fit's
+    # per-frame scatter about its offsets (auto smooths and averages both sensors)
+    for joint in JOINTS:
+        gap = np.linalg.norm(np.asarray(take["joints"][joint])
+                             - np.asarray(doc["joints"][joint]), axis=-1)
+        assert np.median(gap) < 0.01, joint
+    # an offsets-only document is a calibration too
+    only = tmp_path / "only.json"
+    only.write_text(json.dumps({"offsets": doc["offsets"]}))
+    code, _out, err = run(capsys, "--example", "--offsets", str(only))
+    assert code == 0, err
+
+
+def test_bad_calibration_files(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    broken = tmp_path / "broken.json"
+    broken.write_text('{"offsets": {"neck": ')
+    assert_bad_input(*run(capsys, "--example", "--offsets", str(broken))[::2], "line 1")
+    none = tmp_path / "none.json"
+    none.write_text('{"kind": "skeleton"}')
+    assert_bad_input(*run(capsys, "--example", "--offsets", str(none))[::2], "offsets")
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"offsets": {"neck": {"sensor": "chest", "local": [0, 1]}}}')
+    assert_bad_input(*run(capsys, "--example", "--offsets", str(bad))[::2], "offsets.neck")
+    partial = tmp_path / "partial.json"
+    partial.write_text('{"offsets": {"neck": {"sensor": "chest", "local": [0, 0.1, 0]}}}')
+    assert_bad_input(*run(capsys, "--example", "--offsets", str(partial))[::2],
+                     "no offset for joint")
+    assert_bad_input(*run(capsys, "--example", "--offsets", str(tmp_path / "nope.json"))[::2],
+                     "nope.json")

@@ -7,11 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from estimation.bvh import BvhMotion
 from estimation.errors import EstimationError, InputError
 from estimation.model import JOINTS
 from estimation.recording import SensorRecording
+from estimation.results import JointOffset
 from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
 from estimation.skeleton import estimate_chest, estimate_root, estimate_skeleton
 
@@ -277,3 +279,60 @@ def test_mirror_prior_locates_a_weakly_moving_shoulder() -> None:
         plain.append(mean_errors_mm(estimate_skeleton(rec, method="llsf").joints,
                                     truth)["l_shoulder"])
     assert np.mean(auto) < 0.5 * np.mean(plain), (auto, plain)
+
+
+LEG_NODES = ("LeftHip", "LeftKnee", "LeftAnkle", "RightHip", "RightKnee", "RightAnkle")
+
+
+def test_offsets_from_a_calibration_locate_joints_that_do_not_move(sim15: Sim) -> None:
+    # a take in which the legs stand still (same suit, same sensor placement as sim15's
+    # calibration recording): the take alone cannot locate its hips, knees and ankles
+    calibration = estimate_skeleton(sim15[0])
+    take, truth = simulate_sensors(freeze(example_motion(240, fps=60.0, seed=5), LEG_NODES),
+                                   units_m=0.01, n_sensors=15, seed=11)
+    alone = mean_errors_mm(estimate_skeleton(take).joints, truth)
+    applied = estimate_skeleton(take, offsets=calibration.offsets)
+    errors = mean_errors_mm(applied.joints, truth)
+    legs = ("l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle")
+    assert max(errors.values()) < 20.0, errors
+    assert np.mean([errors[j] for j in legs]) < 0.3 * np.mean([alone[j] for j in legs]), (
+        errors, alone)
+    assert applied.method == "offsets"
+    assert applied.quality["l_knee"] == {"estimator": "given offset", "sensor": "l_thigh"}
+    assert set(applied.orientations) >= {"pelvis", "l_thigh", "l_shank"}
+    for seg, true_length in truth.bone_lengths.items():
+        assert abs(applied.bone_lengths[seg] - true_length) < 0.015, seg
+
+
+def test_exact_offsets_give_the_exact_joints(clean15: Sim) -> None:
+    rec, truth = clean15
+    q = rec.quaternions[0]
+    offsets = {}
+    for name in JOINTS:
+        seg = {"l_knee": "l_thigh", "r_knee": "r_thigh", "l_ankle": "l_shank",
+               "r_ankle": "r_shank", "l_elbow": "l_upperarm", "r_elbow": "r_upperarm",
+               "l_wrist": "l_forearm", "r_wrist": "r_forearm", "l_hip": "pelvis",
+               "r_hip": "pelvis", "waist": "pelvis", "root": "pelvis"}.get(name, "chest")
+        k = rec.index(seg)
+        local = Rotation.from_quat(q[k], scalar_first=True).inv().apply(
+            truth.joints[name][0] - rec.positions[0, k])
+        offsets[name] = JointOffset(seg, local)
+    result = estimate_skeleton(rec, offsets=offsets)
+    for name in JOINTS:
+        np.testing.assert_allclose(result.joints[name], truth.joints[name], atol=1e-9)
+
+
+def test_offsets_errors_name_the_joint_or_sensor(sim15: Sim, sim11: Sim) -> None:
+    offsets = dict(estimate_skeleton(sim15[0]).offsets)
+    with pytest.raises(InputError) as err:
+        estimate_skeleton(sim11[0], offsets=offsets)  # the knees sit on the shank-less suit's
+    assert err.value.sensor in ("l_forearm", "r_forearm", "l_shank", "r_shank")
+    assert "lacks" in err.value.detail
+    missing = {k: v for k, v in offsets.items() if k != "r_wrist"}
+    with pytest.raises(InputError) as err:
+        estimate_skeleton(sim15[0], offsets=missing)
+    assert err.value.field == "offsets.r_wrist"
+    bad = {**offsets, "neck": JointOffset("chest", np.array([0.0, np.nan, 0.1]))}
+    with pytest.raises(InputError) as err:
+        estimate_skeleton(sim15[0], offsets=bad)
+    assert err.value.field == "offsets.neck"
