@@ -310,7 +310,7 @@ def estimate_skeleton(
     offsets : mapping of str to JointOffset, optional
         Every joint's offset in a sensor's frame from an earlier estimate with the same sensor
         placement (``SkeletonResult.offsets`` of a calibration recording in which every joint
-        moves; in a file: ``io.skeleton.read_skeleton_json(path).offsets``). The joints are
+        moves; from a file: ``io.read_skeleton_offsets(path)``). The joints are
         then placed at those offsets and nothing is fitted: ``method``, ``optimizer``,
         ``torso``, the weights, ``slip_hz`` and ``min_range_deg`` are ignored, the result's
         method is ``"offsets"``, and ``smooth`` defaults to off. For takes in which some
