@@ -48,3 +48,30 @@ def tenant(request: Request) -> str:
     settings: Settings = request.app.state.runtime.settings
     client = request.client.host if request.client else None
     return tenant_for(settings, request.headers.get("authorization"), client)
+
+
+def metrics_access(settings: Settings, authorization: str | None, client_host: str | None
+                   ) -> None:
+    """Let a scrape of /metrics through, or raise the 401/403 problem: with
+    ``metrics_token`` set, that bearer token; without, anyone when API keys are configured
+    (the scraper's network is trusted, as Prometheus expects) and loopback clients only when
+    none are."""
+    token = settings.metrics_token
+    if token is None:
+        if not settings.api_keys and not is_loopback(client_host):
+            raise Problem(403, "Forbidden", "no API keys are configured, so this server only "
+                          "answers loopback clients", slug="loopback-only")
+        return
+    scheme, _, key = (authorization or "").partition(" ")
+    if scheme.lower() != "bearer" or not hmac.compare_digest(
+            key.strip().encode(), token.get_secret_value().encode()):
+        raise Problem(401, "Unauthorized", "/metrics needs 'Authorization: Bearer <metrics "
+                      "token>' (BONEFIT_METRICS_TOKEN)", slug="unauthorized",
+                      headers={"WWW-Authenticate": "Bearer"})
+
+
+def metrics_guard(request: Request) -> None:
+    """FastAPI dependency: :func:`metrics_access` for the request."""
+    settings: Settings = request.app.state.runtime.settings
+    client = request.client.host if request.client else None
+    metrics_access(settings, request.headers.get("authorization"), client)

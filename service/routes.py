@@ -19,7 +19,7 @@ from fastapi.responses import JSONResponse, StreamingResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from .artifacts import tenant_prefix
-from .auth import tenant
+from .auth import metrics_guard, tenant
 from .jobs import TERMINAL, Job, Recording, new_id
 from .kinds import MEDIA_TYPES
 from .problems import MEDIA_TYPE, Problem, not_found
@@ -396,8 +396,9 @@ async def readyz(request: Request) -> JSONResponse:
     return JSONResponse({"status": "ok", "checks": results})
 
 
-@ops.get("/metrics", summary="Prometheus metrics",
-         responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
+@ops.get("/metrics", summary="Prometheus metrics", dependencies=[Depends(metrics_guard)],
+         responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}, 401: PROBLEM_RESPONSES[401],
+                    403: PROBLEM_RESPONSES[403]})
 async def metrics(request: Request) -> Response:
     """Prometheus text exposition."""
     data = await run_in_threadpool(generate_latest, request.app.state.registry)

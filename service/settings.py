@@ -23,6 +23,9 @@ class Settings(BaseSettings):
     s3_secret_access_key: SecretStr | None = None
     s3_region: str | None = None
     api_keys: dict[str, str] = Field(default_factory=dict, description="API key → tenant.")
+    metrics_token: SecretStr | None = Field(
+        None, description="Bearer token /metrics requires; unset: open (loopback only "
+                          "without API keys).")
     max_upload_bytes: int = Field(2 * 1024**3, gt=0)
     lease_seconds: float = Field(30.0, gt=0)
     max_attempts: int = Field(3, ge=1)
@@ -59,8 +62,9 @@ class Settings(BaseSettings):
                 continue
             if name == "data_dir":
                 value = str(self.data_dir.resolve())
-            if name == "s3_secret_access_key" and self.s3_secret_access_key is not None:
-                value = self.s3_secret_access_key.get_secret_value()
+            secret = getattr(self, name)
+            if isinstance(secret, SecretStr):
+                value = secret.get_secret_value()
             env[f"BONEFIT_{name.upper()}"] = (
                 json.dumps(value) if isinstance(value, dict | list) else str(value))
         return env

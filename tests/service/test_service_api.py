@@ -13,7 +13,17 @@ from service.app import create_app
 from service.runtime import Runtime, memory_runtime
 from service.settings import Settings
 from service.worker import Worker
-from tests.service.helpers import AUTH_B, FAKE_KINDS, TestClient, drain, sensor_csv, submit, upload
+from tests.service.helpers import (
+    AUTH_A,
+    AUTH_B,
+    FAKE_KINDS,
+    KEYS,
+    TestClient,
+    drain,
+    sensor_csv,
+    submit,
+    upload,
+)
 
 PROBLEM = "application/problem+json"
 
@@ -162,6 +172,39 @@ async def test_without_keys_only_loopback_is_served(tmp_path: object) -> None:
             r = await c.get("/v1/jobs")
             assert r.status_code == status, (host, r.text)
     assert r.json()["type"].endswith("loopback-only")
+
+
+@pytest.mark.anyio
+async def test_metrics_access(tmp_path: object) -> None:
+    async def scrape(settings: Settings, host: str, **headers: str) -> httpx.Response:
+        app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS,
+                         housekeeping=False)
+        transport = httpx.ASGITransport(app=app, client=(host, 1234))
+        async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+            return await c.get("/metrics", headers=headers)
+
+    # no API keys: loopback scrapers only, as for the API
+    keyless = Settings(data_dir=tmp_path)
+    assert (await scrape(keyless, "127.0.0.1")).status_code == 200
+    r = await scrape(keyless, "10.1.2.3")
+    assert r.status_code == 403
+    assert r.json()["type"].endswith("loopback-only")
+    # API keys: the scraper's network is trusted (no API key needed)
+    keyed = Settings(data_dir=tmp_path, api_keys=KEYS)
+    r = await scrape(keyed, "10.1.2.3")
+    assert r.status_code == 200
+    assert "bonefit_jobs" in r.text
+    # a metrics token: required from everyone, loopback included; API keys do not open it
+    guarded = Settings(data_dir=tmp_path, api_keys=KEYS, metrics_token="scrape-me")
+    for host, headers in (("10.1.2.3", {}), ("127.0.0.1", {}),
+                          ("10.1.2.3", {"Authorization": "Bearer wrong"}),
+                          ("10.1.2.3", AUTH_A)):
+        r = await scrape(guarded, host, **headers)
+        assert r.status_code == 401, (host, headers)
+        assert r.headers["content-type"] == "application/problem+json"
+        assert "BONEFIT_METRICS_TOKEN" in r.json()["detail"]
+    r = await scrape(guarded, "10.1.2.3", Authorization="Bearer scrape-me")
+    assert r.status_code == 200
 
 
 # ---------------------------------------------------------------------------------- jobs

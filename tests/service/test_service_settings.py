@@ -28,13 +28,16 @@ def test_environment_is_read_and_round_trips(monkeypatch: pytest.MonkeyPatch) ->
     monkeypatch.setenv("BONEFIT_API_KEYS", json.dumps({"k1": "a", "k2": "b"}))
     monkeypatch.setenv("BONEFIT_LEASE_SECONDS", "3")
     monkeypatch.setenv("BONEFIT_S3_SECRET_ACCESS_KEY", "s3cr3t")
+    monkeypatch.setenv("BONEFIT_METRICS_TOKEN", "scr4pe")
     monkeypatch.setenv("BONEFIT_QUEUE_URL", "redis://localhost:6379/1")
     s = Settings()
     assert s.api_keys == {"k1": "a", "k2": "b"}
     assert s.lease_seconds == 3
     assert "s3cr3t" not in repr(s)
+    assert "scr4pe" not in repr(s)
     env = s.to_env()
     assert env["BONEFIT_S3_SECRET_ACCESS_KEY"] == "s3cr3t"
+    assert env["BONEFIT_METRICS_TOKEN"] == "scr4pe"  # the workers' environment
     for name in list(Settings.model_fields):
         monkeypatch.delenv(f"BONEFIT_{name.upper()}", raising=False)
     for key, value in env.items():
