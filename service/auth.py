@@ -24,12 +24,16 @@ def is_loopback(host: str | None) -> bool:
         return host == "localhost"
 
 
+def _require_loopback(client_host: str | None) -> None:
+    if not is_loopback(client_host):
+        raise Problem(403, "Forbidden", "no API keys are configured, so this server only "
+                      "answers loopback clients", slug="loopback-only")
+
+
 def tenant_for(settings: Settings, authorization: str | None, client_host: str | None) -> str:
     """The tenant a request acts for, or the 401/403 problem."""
     if not settings.api_keys:
-        if not is_loopback(client_host):
-            raise Problem(403, "Forbidden", "no API keys are configured, so this server only "
-                          "answers loopback clients", slug="loopback-only")
+        _require_loopback(client_host)
         return LOCAL_TENANT
     scheme, _, key = (authorization or "").partition(" ")
     if scheme.lower() != "bearer" or not key.strip():
@@ -58,9 +62,8 @@ def metrics_access(settings: Settings, authorization: str | None, client_host: s
     none are."""
     token = settings.metrics_token
     if token is None:
-        if not settings.api_keys and not is_loopback(client_host):
-            raise Problem(403, "Forbidden", "no API keys are configured, so this server only "
-                          "answers loopback clients", slug="loopback-only")
+        if not settings.api_keys:
+            _require_loopback(client_host)
         return
     scheme, _, key = (authorization or "").partition(" ")
     if scheme.lower() != "bearer" or not hmac.compare_digest(
