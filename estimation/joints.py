@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -106,8 +106,27 @@ def _slip_displacement(ra: NDArray[np.float64], rb: NDArray[np.float64],
                       - np.einsum("tij,tj->ti", ra, basis @ b[0]))
 
 
+class _SlipTerms(NamedTuple):
+    """What the slip model's normal equations need that does not change with the weights."""
+
+    basis: NDArray[np.float64]  # (F, K) cosines φ
+    m: NDArray[np.float64]  # (F, 9) M_t = R_aᵀR_b, row-major
+    phi_m: NDArray[np.float64]  # (F, 9K) φ_tk M_t
+    ra_d: NDArray[np.float64]  # (F, 3) R_aᵀ d_t
+    rb_d: NDArray[np.float64]  # (F, 3) R_bᵀ d_t
+
+    @classmethod
+    def of(cls, ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],
+           basis: NDArray[np.float64]) -> _SlipTerms:
+        """The terms for rotations ``ra``, ``rb`` (F, 3, 3), ``d = p_b − p_a`` and ``basis``."""
+        n, k = basis.shape
+        m = np.einsum("tji,tjk->tik", ra, rb).reshape(n, 9)
+        return cls(basis, m, (basis[:, :, None] * m[:, None, :]).reshape(n, 9 * k),
+                   np.einsum("tji,tj->ti", ra, d), np.einsum("tji,tj->ti", rb, d))
+
+
 def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],
-                 w: NDArray[np.float64], basis: NDArray[np.float64], ridge: float
+                 w: NDArray[np.float64], terms: _SlipTerms, ridge: float
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The LLSF normal equations with the slip coefficients marginalised out (Schur
     complement), plus what recovers them: ``β = solve(n_bb, rhs_b − n_bc c)``.
@@ -120,24 +139,22 @@ def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np
     products instead of the (3F, 6K) × (3F, 6K) one (25× fewer operations at K = 16).
     """
     normal, rhs = _llsf_system(ra, rb, d, w)
-    n, k = basis.shape
+    basis = terms.basis
+    k = basis.shape[1]
     wphi = basis * (w / float(w.sum()))[:, None]
-    m = np.einsum("tji,tjk->tik", ra, rb).reshape(n, 9)
     eye3 = np.eye(3)
     ident = np.kron(wphi.T @ basis, eye3)
     # X[(k, j), (l, i)] = Σ w φ_k φ_l M[j, i]
-    x = (wphi.T @ (basis[:, :, None] * m[:, None, :]).reshape(n, 9 * k)).reshape(k, k, 3, 3)
-    x = x.transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
+    x = (wphi.T @ terms.phi_m).reshape(k, k, 3, 3).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
     n_bb = np.block([[ident, -x], [-x.T, ident]])
     n_bb[np.diag_indices_from(n_bb)] += ridge / float(w.sum())
-    phi_bar = wphi.sum(axis=0)
-    wm = (wphi.T @ m).reshape(k, 3, 3)  # Σ w φ_k M
+    wm = (wphi.T @ terms.m).reshape(k, 3, 3)  # Σ w φ_k M
     n_bc = np.zeros((6 * k, 6))
-    n_bc[:3 * k, :3] = n_bc[3 * k:, 3:] = -np.kron(phi_bar[:, None], eye3)
+    n_bc[:3 * k, :3] = n_bc[3 * k:, 3:] = -np.kron(wphi.sum(axis=0)[:, None], eye3)
     n_bc[:3 * k, 3:] = wm.reshape(3 * k, 3)
     n_bc[3 * k:, :3] = wm.transpose(0, 2, 1).reshape(3 * k, 3)
-    rhs_b = np.concatenate([-(wphi.T @ np.einsum("tji,tj->ti", ra, d)).reshape(-1),
-                            (wphi.T @ np.einsum("tji,tj->ti", rb, d)).reshape(-1)])
+    rhs_b = np.concatenate([-(wphi.T @ terms.ra_d).reshape(-1),
+                            (wphi.T @ terms.rb_d).reshape(-1)])
     back = np.linalg.solve(n_bb, np.column_stack([n_bc, rhs_b]))
     return normal - n_bc.T @ back[:, :6], rhs - n_bc.T @ back[:, 6], back
 
@@ -509,6 +526,7 @@ def estimate_joint(
             slow = max(float(np.mean(r0[both] ** 2)) - white, white)
             slip_ridge = white / (0.5 * slow / basis.shape[1])
     slip = basis.shape[1] > 0
+    slip_terms = _SlipTerms.of(ra, rb, d, basis) if slip else None
     back = np.zeros((0, 7))
 
     def slip_coefficients(c: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -540,8 +558,8 @@ def estimate_joint(
             wa = (big_a * w[:, None, None]).reshape(-1, 6)
             normal = wa.T @ big_a.reshape(-1, 6) / total
             rhs = wa.T @ big_y.reshape(-1) / total
-        elif slip:
-            normal, rhs, back = _slip_system(ra, rb, d, w, basis, slip_ridge)
+        elif slip_terms is not None:
+            normal, rhs, back = _slip_system(ra, rb, d, w, slip_terms, slip_ridge)
         else:
             normal, rhs = _llsf_system(ra, rb, d, w)
         c, sv, weak = _solve(normal, rhs)
