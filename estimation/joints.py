@@ -525,8 +525,7 @@ def estimate_joint(
             white = max(float(np.mean(r0[both] ** 2)) if white is None else white, 1e-12)
             slow = max(float(np.mean(r0[both] ** 2)) - white, white)
             slip_ridge = white / (0.5 * slow / basis.shape[1])
-    slip = basis.shape[1] > 0
-    slip_terms = _SlipTerms.of(ra, rb, d, basis) if slip else None
+    slip_terms = _SlipTerms.of(ra, rb, d, basis) if basis.shape[1] > 0 else None
     back = np.zeros((0, 7))
 
     def slip_coefficients(c: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -536,7 +535,7 @@ def estimate_joint(
     def residual(c: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per-frame residual of the joint equation (with the fitted slip, when modelled)."""
         res = rows.apply(ra, c[:3]) + pa - rows.apply(rb, c[3:]) - pb
-        if slip:
+        if slip_terms is not None:
             res = res + _slip_displacement(ra, rb, basis, slip_coefficients(c))
         return np.asarray(res)
 
@@ -637,7 +636,7 @@ def estimate_joint(
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
                             f"{rule} rule")
 
-    if slip and estimator == "llsf":
+    if slip_terms is not None and estimator == "llsf":
         beta = slip_coefficients(c).reshape(2, -1, 3)
         rec_a = np.einsum("tij,tj->ti", ra, c[:3] - basis @ beta[0]) + pa
         rec_b = np.einsum("tij,tj->ti", rb, c[3:] - basis @ beta[1]) + pb
