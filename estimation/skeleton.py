@@ -576,7 +576,8 @@ def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, Joint
     use = [s for s in SEGMENTS if s in recording.sensors]
     sensors = _SensorPoses.of(recording, use, warnings)
     report(0.3, "joints")
-    joints = {name: sensors.positions[seg] + rows.apply(sensors.rotations[seg].as_matrix(), vec)
+    mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
+    joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
               for name, (seg, vec) in local.items()}
     joints, bone_lengths, orientations = _completed(
         joints, sensors.rotations, fps=recording.fps, smooth=smooth, up=up, i0=i0,
