@@ -193,9 +193,9 @@ def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: R
         raise InputError("limb inputs have different numbers of frames", field="frames")
     if n < 3:
         raise EstimationError(f"{n} frames are too few to locate limb joints", field="frames")
-    ru = upper_rotations.as_matrix()
-    b = np.einsum("fji,fj->fi", ru, pd - pu)
-    h = np.einsum("fji,fj->fi", ru, hip - pu)
+    # (b, h)ᵀ = (pd − pu, hip − pu)ᵀ Rᵤ: one batched product for both
+    b, h = np.moveaxis(np.matmul(np.stack([pd - pu, hip - pu], axis=1),
+                                 upper_rotations.as_matrix()), 1, 0)
     # Rᵤᵀ R_d through quaternions: 4× cheaper than a (F, 3, 3) matrix product, 20× cheaper
     # than composing Rotation objects (see estimation.quaternions)
     q = quat.as_matrix(quat.relative(upper_rotations.as_quat(scalar_first=True),
@@ -264,6 +264,9 @@ def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l:
     return fun, jac
 
 
+_SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+_SIGN_OUTER = np.outer(_SIGN, _SIGN)
+
 Normal = tuple[float, Float, Float] | tuple[float, Float, Float, Float]
 """``(E, g, H[, K])`` at a point: the cost, ``g = Jᵀr`` (half its gradient), ``H = JᵀJ`` and
 optionally ``K = JᵀJ + Σ r ∇²r`` (half the exact Hessian)."""
@@ -315,31 +318,39 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
     def normal(theta: Float) -> Normal:
         d, ll, e, lu, value = geometry(theta)
         inv_l = 1.0 / ll
-        u = d * inv_l[:, None]
-        j = np.empty((m, 6))
-        j[:, :3] = -u
-        j[:, 3:] = np.einsum("fi,fij->fj", u, limb.q)
-        j_bar = np.einsum("fi->i", j) / m
-        c = ((1.0 + w_l) * ll - (np.einsum("f->", ll) / m + w_l * l_low)) / m
         inv_lu = 1.0 / lu
-        e_hat = e * inv_lu[:, None]
+        # rows of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then ê),
+        # then the same weighted by c/l and c_u/l_u; every sum below is one product with z,
+        # and z is frame-major so that numpy's loops run over frames, not over 3 components
+        z = np.empty((18, m))
+        np.multiply(d.T, inv_l, out=z[:3])
+        np.einsum("if,fij->jf", z[:3], limb.q, out=z[3:6])
+        np.multiply(e.T, inv_lu, out=z[6:9])
+        c = ((1.0 + w_l) * ll - (np.einsum("f->", ll) / m + w_l * l_low)) / m
         cu = w_l / m * (lu - l_up)
-        g = c @ j + w_s * theta
-        g[:3] += cu @ e_hat
-        h = (1.0 + w_l) / m * (j.T @ j) - np.outer(j_bar, j_bar) + w_s * np.eye(6)
-        h[:3, :3] += w_l / m * (e_hat.T @ e_hat)
+        sums = z[:9] @ np.stack([c, cu, np.ones(m)]).T
+        g = _SIGN * sums[:6, 0] + w_s * theta
+        g[:3] += sums[6:, 1]
+        j_bar = _SIGN * sums[:6, 2] / m
+        cl = c * inv_l
+        cul = cu * inv_lu
+        np.multiply(z[:6], cl, out=z[9:15])
+        np.multiply(z[6:9], cul, out=z[15:])
+        # one product for both Σ x xᵀ and Σ (c/l) x xᵀ
+        gram = z[:9] @ z.T
+        h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar) \
+            + w_s * np.eye(6)
+        h[:3, :3] += w_l / m * gram[6:, 6:9]
         if not exact:
             return value, g, h
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
-        cl = c * inv_l
-        second = np.sum(cl) * np.eye(6) - (j * cl[:, None]).T @ j
+        second = np.sum(cl) * np.eye(6) - _SIGN_OUTER * gram[:6, 9:15]
         cross = (cl @ limb.q.reshape(m, 9)).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
-        cul = cu * inv_lu
-        second[:3, :3] += np.sum(cul) * np.eye(3) - (e_hat * cul[:, None]).T @ e_hat
+        second[:3, :3] += np.sum(cul) * np.eye(3) - gram[6:, 15:]
         return value, g, h, h + second
 
     return cost, normal
@@ -394,7 +405,8 @@ def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
     dist = rows.norms(to_sensor)[:, None]
     ankle_upper = k0 + lengths[1] * to_sensor / np.maximum(dist, 1e-9)
     # Ankle into the distal frame: a = Qᵀ(x − b), averaged over frames.
-    a0 = np.einsum("fji,fj->i", limb.q, ankle_upper - limb.b) / limb.n
+    # Σ_t Q_tᵀ v_t is one product of the stacked (3F) rows
+    a0 = (ankle_upper - limb.b).reshape(-1) @ limb.q.reshape(-1, 3) / limb.n
     return np.concatenate([k0, a0])
 
 
