@@ -207,7 +207,8 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
     rel = quat.relative(qa, qb)
     if valid is not None:
         rel = np.compress(np.asarray(valid, dtype=bool), rel, axis=0)  # 6x rel[valid]
-    dev = quat.as_rotvec(quat.relative(quat.mean(rel), rel))
+    # mean⁻¹ ⊗ q is linear in q: one (F, 4) × (4, 4) product, the rows mean⁻¹ ⊗ e_j
+    dev = quat.as_rotvec(rel @ quat.relative(quat.mean(rel), np.eye(4)))
     if dev.shape[0] >= 9:
         # 9-frame moving average of the three components at once (cumulative sums)
         c = np.cumsum(np.concatenate([np.zeros((1, 3)), dev]), axis=0)
@@ -643,12 +644,11 @@ def estimate_joint(
     else:
         rec_a = rows.apply(ra, c[:3]) + pa
         rec_b = rows.apply(rb, c[3:]) + pb
-    residuals = rows.norms(rec_a - rec_b)
-    wa = ok_a.astype(float)
-    wb = ok_b.astype(float)
-    neither = (wa + wb) == 0
-    wa[neither] = wb[neither] = 1.0
-    positions = (wa[:, None] * rec_a + wb[:, None] * rec_b) / (wa + wb)[:, None]
+    gap = rec_a - rec_b
+    residuals = rows.norms(gap)
+    # the mean of the two reconstructions, or the one whose sensor was measured
+    share_b = np.where(ok_a == ok_b, 0.5, ok_b.astype(float))
+    positions = rec_a - share_b[:, None] * gap
     quality: dict[str, Any] = {
         "estimator": estimator,
         "rms_residual_m": float(np.sqrt(np.mean(residuals[both] ** 2))),

@@ -390,7 +390,8 @@ def estimate_skeleton(
                                       sensors.quaternions)
     # every sample equal to the first one: one elementwise pass (fill_gaps keeps the
     # sensor-major layout of the column selection, across which numpy reduces slowly)
-    if not np.any(sensors.stacked != sensors.stacked[:1]):
+    stacked = sensors.stacked
+    if not (np.any(stacked[-1] != stacked[0]) or np.any(stacked != stacked[:1])):
         raise EstimationError("no sensor moves: a recording with motion of every joint is "
                               "needed", field="motion")
 
