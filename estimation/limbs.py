@@ -193,10 +193,9 @@ def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: R
         raise InputError("limb inputs have different numbers of frames", field="frames")
     if n < 3:
         raise EstimationError(f"{n} frames are too few to locate limb joints", field="frames")
-    # (b, h)ᵀ = (pd − pu, hip − pu)ᵀ Rᵤ: one batched product for both, then contiguous
-    # copies (every evaluation of E reads them; strided rows slow each pass 3-5×)
-    bh = np.matmul(np.stack([pd - pu, hip - pu], axis=1), upper_rotations.as_matrix())
-    b, h = np.ascontiguousarray(bh[:, 0]), np.ascontiguousarray(bh[:, 1])
+    ru = upper_rotations.as_matrix()
+    b = np.einsum("fji,fj->fi", ru, pd - pu)
+    h = np.einsum("fji,fj->fi", ru, hip - pu)
     # Rᵤᵀ R_d through quaternions: 4× cheaper than a (F, 3, 3) matrix product, 20× cheaper
     # than composing Rotation objects (see estimation.quaternions)
     q = quat.as_matrix(quat.relative(upper_rotations.as_quat(scalar_first=True),
