@@ -156,6 +156,8 @@ def test_paper_optimizers_reach_same_minimum() -> None:
     assert ls.quality["optimizer"] == "least-squares"
     assert nm.quality["optimizer"] == "nelder-mead"
     assert abs(nm.cost - ls.cost) <= 1e-6 * ls.cost
+    # converged as far as least squares: a speed comparison of the two is fair only then
+    assert abs(nm.cost - ls.cost) <= 1e-9 * ls.cost
     assert np.allclose(nm.middle_local, ls.middle_local, atol=1e-5)
     assert np.allclose(nm.distal_local, ls.distal_local, atol=1e-5)
     assert ls.n_evaluations * 10 < nm.n_evaluations
