@@ -230,7 +230,7 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
             reference = dict.fromkeys(ends, pelvis_i0)
         elif calibration == "upright":
             y = np.asarray(up, dtype=float).reshape(3, 1)
-            upright = _quat(_frame_from_yz(y, pelvis_z[:, i0:i0 + 1]))[0]
+            upright = _quat(_frame_from_yz(y, pelvis_z[:, i0].reshape(3, 1)))[0]
             reference = dict.fromkeys(ends, upright)
         else:
             raise InputError(f"unknown calibration {calibration!r}; use 'pelvis', 'upright' "

@@ -150,6 +150,13 @@ def test_calibration_frame_and_mapping() -> None:
                                     up=(0.0, 1.0, 0.0))
     head_y = Rotation.from_quat(upright["head"][i0], scalar_first=True).apply([0.0, 1.0, 0.0])
     assert np.allclose(head_y, [0.0, 1.0, 0.0], atol=1e-9)
+    # i0 may count from the end, as numpy indices do
+    for calibration in ("pelvis", "upright"):
+        for frame in (i0, 59):
+            back = estimate_orientations(joints, sensors, i0=frame - 60, calibration=calibration)
+            ahead = estimate_orientations(joints, sensors, i0=frame, calibration=calibration)
+            for seg, q in ahead.items():
+                np.testing.assert_allclose(back[seg], q, atol=1e-12, err_msg=seg)
 
 
 def test_missing_sensors_fall_back_to_parent_segments() -> None:
