@@ -382,7 +382,9 @@ def run_worker(settings: Settings, *, parent_pid: int | None = None,
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     preload()
-    log.info("worker %s ready (queue %s)", worker.id, settings.resolved_queue_url.split("@")[-1])
+    if not worker.stop.is_set():  # a signal during the preload: never ready, just leave
+        log.info("worker %s ready (queue %s)", worker.id,
+                 settings.resolved_queue_url.split("@")[-1])
     try:
         worker.serve(parent_pid=parent_pid)
     finally:

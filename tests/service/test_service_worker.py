@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -11,9 +13,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from estimation.progress import Progress
 from service.kinds import Input, Kind, SkeletonParams
 from service.runtime import Runtime
+from service.settings import Settings
 from service.worker import Worker, private_tmp, purge, reap
 from tests.service.helpers import TestClient, drain, sensor_csv, submit, upload
 
@@ -278,3 +283,22 @@ def test_private_tmp_removes_what_dead_processes_of_this_host_left(tmp_path: Pat
     assert own.is_dir()
     assert sorted(p.name for p in (tmp_path / "tmp").iterdir()) == sorted(
         [f"{host}-1", f"elsewhere-{dead}", own.name])  # alive, or another machine's
+
+
+def test_a_worker_stopped_while_loading_never_says_it_is_ready(
+        settings: Settings, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    import service.worker as worker_module
+
+    # SIGTERM arrives while the estimation code is still being imported
+    monkeypatch.setattr(worker_module, "preload", lambda: os.kill(os.getpid(), signal.SIGTERM))
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        with caplog.at_level(logging.INFO, logger=worker_module.log.name):
+            assert worker_module.run_worker(settings) == 0
+    finally:
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
+    messages = [r.getMessage() for r in caplog.records]
+    assert any("shutting down" in m for m in messages)
+    assert not any(" ready " in m for m in messages)
