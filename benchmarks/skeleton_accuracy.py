@@ -36,7 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimation.bvh import read_bvh  # noqa: E402
+from estimation.bvh import BvhMotion, read_bvh  # noqa: E402
 from estimation.errors import BonefitError  # noqa: E402
 from estimation.model import JOINTS  # noqa: E402
 from estimation.simulate.sensors import simulate_sensors  # noqa: E402
@@ -61,6 +61,7 @@ RUNS = [
     ("auto", 11, {"method": "auto"}),
 ]
 # acceptance of the skeleton issue, on the per-(clip, joint) mean errors (mm)
+MAX_FRAMES = 1500
 MEDIAN_15_MM = 10.0
 P95_15_MM = 25.0
 LIMB_MEDIAN_11_MM = 25.0
@@ -76,6 +77,19 @@ def clips(data: Path) -> list[tuple[str, Path, float, float | None]]:
                         if str(rel).startswith(prefix)), None)
             out.append((f"{folder}/{rel.with_suffix('')}", path, units, fps))
     return out
+
+
+def thinned(path: Path, fps: float | None, max_frames: int = MAX_FRAMES
+            ) -> tuple[BvhMotion, float]:
+    """A clip and its frame rate (``fps`` or the file's), every k-th frame kept so that at
+    most ``max_frames`` remain (same duration, lower rate)."""
+    motion = read_bvh(path)
+    rate = fps if fps is not None else motion.fps
+    stride = max(1, math.ceil(motion.n_frames / max_frames))
+    if stride > 1:
+        motion = motion.with_values(motion.values[::stride])
+        rate = rate / stride
+    return motion, rate
 
 
 def summarise(per_joint: dict[str, list[np.ndarray]], clips_done: int,
@@ -122,7 +136,7 @@ def acceptance(summary: dict[str, dict[str, float]], refused: dict[str, list[str
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
-    parser.add_argument("--max-frames", type=int, default=1500)
+    parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
     parser.add_argument("--only", default="", help="substring filter on clip names")
     parser.add_argument("--runs", default="", help="comma-separated labels like auto:15")
     parser.add_argument("--seed", type=int, default=1)
@@ -149,12 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.only and args.only not in name:
             continue
         n_total += 1
-        motion = read_bvh(path)
-        rate = fps if fps is not None else motion.fps
-        stride = max(1, math.ceil(motion.n_frames / args.max_frames))
-        if stride > 1:
-            motion = motion.with_values(motion.values[::stride])
-            rate = rate / stride
+        motion, rate = thinned(path, fps, args.max_frames)
         line = [f"{name:50s} {motion.n_frames:5d} fr {rate:5.1f} fps"]
         for n in sorted({r[1] for r in runs}, reverse=True):
             rec, truth = simulate_sensors(motion, units_m=units, n_sensors=n, fps=rate,

@@ -59,9 +59,8 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from skeleton_accuracy import clips  # noqa: E402
+from skeleton_accuracy import clips, thinned  # noqa: E402
 
-from estimation.bvh import read_bvh  # noqa: E402
 from estimation.errors import BonefitError  # noqa: E402
 from estimation.model import JOINT_SEGMENTS, SEGMENTS  # noqa: E402
 from estimation.simulate.sensors import simulate_sensors  # noqa: E402
@@ -168,12 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, path, units, fps in clips(args.data):
         if args.only and args.only not in name:
             continue
-        motion = read_bvh(path)
-        rate = fps if fps is not None else motion.fps
-        stride = max(1, math.ceil(motion.n_frames / 1500))  # as skeleton_accuracy.py
-        if stride > 1:
-            motion = motion.with_values(motion.values[::stride])
-            rate = rate / stride
+        motion, rate = thinned(path, fps)  # the clips as skeleton_accuracy.py runs them
         n_pairs += 16
         if motion.n_frames > args.max_frames:
             print(f"{name:50s} {motion.n_frames:5d} fr  skipped (longer than --max-frames)")

@@ -32,10 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from skeleton_accuracy import clips  # noqa: E402
+from skeleton_accuracy import MAX_FRAMES, clips, thinned  # noqa: E402
 
 import estimation.limbs as limbs  # noqa: E402
-from estimation.bvh import read_bvh  # noqa: E402
 from estimation.gaps import fill_gaps  # noqa: E402
 from estimation.simulate.sensors import simulate_sensors  # noqa: E402
 from estimation.skeleton import estimate_skeleton  # noqa: E402
@@ -52,7 +51,7 @@ SETTINGS = ((1e-10, 1e-13), (1e-6, 1e-9), (1e-5, 1e-8), (1e-4, 1e-7))
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
-    parser.add_argument("--max-frames", type=int, default=1500)
+    parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
     parser.add_argument("--only", default="", help="substring filter on clip names")
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args(argv)
@@ -68,12 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, path, units, fps in clips(args.data):
         if args.only and args.only not in name:
             continue
-        motion = read_bvh(path)
-        rate = fps if fps is not None else motion.fps
-        stride = max(1, math.ceil(motion.n_frames / args.max_frames))
-        if stride > 1:
-            motion = motion.with_values(motion.values[::stride])
-            rate = rate / stride
+        motion, rate = thinned(path, fps, args.max_frames)
         rec, _ = simulate_sensors(motion, units_m=units, n_sensors=11, fps=rate,
                                   seed=args.seed)
         result = estimate_skeleton(rec, method="reduced")
