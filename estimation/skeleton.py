@@ -222,13 +222,18 @@ class _SensorPoses:
            warnings: list[str]) -> _SensorPoses:
         """Fill the gaps of the sensors ``use``; warn about gaps longer than 0.5 s; raise
         InputError naming a sensor with no valid sample."""
-        valid = recording.valid()
-        for seg in use:
-            if not valid[:, recording.index(seg)].any():
-                raise InputError(f"sensor {seg!r} has no valid sample (all NaN)", sensor=seg)
         cols = [recording.index(s) for s in use]
-        pos, quat, filled = fill_gaps(recording.positions[:, cols],
-                                      recording.quaternions[:, cols], time=recording.time)
+        try:
+            # the column selection is sensor-major in memory (numpy's fancy indexing), and
+            # so are the filled copies: each sensor's samples are contiguous for what follows
+            pos, quat, filled = fill_gaps(recording.positions[:, cols],
+                                          recording.quaternions[:, cols], time=recording.time)
+        except InputError as exc:
+            if exc.sensor is None:
+                raise
+            seg = use[int(exc.sensor)]
+            raise InputError(f"sensor {seg!r} has no valid sample (NaN or a zero quaternion "
+                             "in every frame)", sensor=seg) from None
         for k, s in enumerate(use):
             longest = int(gap_lengths(~filled[:, k]).max(initial=0))
             if longest > 0.5 * recording.fps:

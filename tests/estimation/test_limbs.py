@@ -196,12 +196,16 @@ def test_paper_normal_equations_match_residual_form_and_exact_hessian() -> None:
     leg = make_leg(n=80, noise_m=0.002, seed=6)
     limb = limbs._prepare(*leg.args())
     fun, jac = limbs._paper_residuals(limb, (0.4, 0.38), 0.01, 0.02)
-    cost, normal = limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.02)
+    cost, normal, lengths = limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.02)
     x = np.concatenate([leg.knee_local, leg.ankle_local]) + 0.03
     r, j = fun(x), jac(x)
     e, g, h, k = normal(x)
     assert e == pytest.approx(r @ r, rel=1e-12)
     assert cost(x) == pytest.approx(r @ r, rel=1e-12)
+    lower, upper = lengths(x)
+    knee, ankle = x[:3], x[3:]
+    assert np.allclose(lower, np.linalg.norm(limb.distal(ankle) - knee, axis=1), rtol=1e-14)
+    assert np.allclose(upper, np.linalg.norm(limb.h - knee, axis=1), rtol=1e-14)
     assert np.allclose(g, j.T @ r, rtol=1e-10, atol=1e-15)
     assert np.allclose(h, j.T @ j, rtol=1e-10, atol=1e-15)
     # k is half the Hessian of E: the derivative of g = ½∇E
@@ -230,8 +234,9 @@ def test_levenberg_marquardt_reaches_scipy_minimum(robust: float | None) -> None
     p_fun, p_jac = limbs._paper_residuals(limb, (0.4, 0.38), 0.01, 0.01)
     ref = least_squares(p_fun, x0[:6], jac=p_jac, method="lm", x_scale="jac", ftol=1e-12,
                         xtol=1e-12, gtol=1e-12)
-    x, _, ok = limbs._levenberg_marquardt(*limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.01),
-                                          x0[:6], damping=1e-3)
+    objective = limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.01)
+    x, _, ok = limbs._levenberg_marquardt(objective.cost, objective.normal, x0[:6],
+                                          damping=1e-3)
     assert ok
     assert float(p_fun(x) @ p_fun(x)) <= float(ref.fun @ ref.fun) * (1 + 1e-9)
     assert np.allclose(x, ref.x, atol=1e-6)
@@ -321,3 +326,9 @@ def test_progress_is_reported_in_order() -> None:
     assert seen[0] == 0.0
     assert seen[-1] == 1.0
     assert all(b >= a for a, b in itertools.pairwise(seen))
+
+
+def test_relative_matrices_match_scipy() -> None:
+    upper, distal = Rotation.random(50, rng=3), Rotation.random(50, rng=4)
+    got = limbs._relative_matrices(upper.as_matrix(), distal.as_matrix())
+    assert np.allclose(got, (upper.inv() * distal).as_matrix(), atol=1e-14)
