@@ -603,8 +603,9 @@ def estimate_joint(
     shift = 0.0
     blend = 1.0
     step = 0.0
-    if hinge and prior is None:
+    if hinge and prior is None and (neighbours[0] is not None or neighbours[1] is not None):
         # world direction in which the centre moves per unit of the weakest singular vector
+        # (only a rule about the neighbouring joints can use it)
         move = 0.5 * (rows.apply(ra, weak[:3]) + rows.apply(rb, weak[3:]))
         move_norm = rows.norms(move)
         step = float(np.mean(move_norm[both]))

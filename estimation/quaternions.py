@@ -194,12 +194,16 @@ def _shepperd(m00: Float, m01: Float, m02: Float, m10: Float, m11: Float, m12: F
     p1 = (d1 > d0) & (d1 >= d2) & (d1 >= d3)
     p2 = ~p1 & (d2 > d0) & (d2 >= d3)
     p3 = ~p1 & ~p2 & (d3 > d0)
-    q = np.stack([np.where(p1, wx, np.where(p2, wy, np.where(p3, wz, d0))),
-                  np.where(p1, d1, np.where(p2, xy, np.where(p3, xz, wx))),
-                  np.where(p1, xy, np.where(p2, d2, np.where(p3, yz, wy))),
-                  np.where(p1, xz, np.where(p2, yz, np.where(p3, d3, wz)))], axis=1)
-    q *= (np.where(q[:, 0] < 0, -1.0, 1.0) / np.sqrt(np.einsum("fi,fi->f", q, q)))[:, None]
-    return np.asarray(q)
+    # (4, N) rows, normalised row by row, then one transposing copy: scaling (N, 4) rows by
+    # a per-row factor broadcasts over a length-4 axis, which numpy loops over slowly
+    q = np.empty((4, d0.shape[0]))
+    q[0] = np.where(p1, wx, np.where(p2, wy, np.where(p3, wz, d0)))
+    q[1] = np.where(p1, d1, np.where(p2, xy, np.where(p3, xz, wx)))
+    q[2] = np.where(p1, xy, np.where(p2, d2, np.where(p3, yz, wy)))
+    q[3] = np.where(p1, xz, np.where(p2, yz, np.where(p3, d3, wz)))
+    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    q /= np.copysign(norm, q[0], out=norm)
+    return np.ascontiguousarray(q.T)
 
 
 def angle(q: ArrayLike) -> Float:
