@@ -207,13 +207,16 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
     rel = quat.relative(qa, qb)
     if valid is not None:
         rel = np.compress(np.asarray(valid, dtype=bool), rel, axis=0)  # 6x rel[valid]
-    # mean⁻¹ ⊗ q is linear in q: one (F, 4) × (4, 4) product, the rows mean⁻¹ ⊗ e_j
-    dev = quat.as_rotvec(rel @ quat.relative(quat.mean(rel), np.eye(4)))
-    if dev.shape[0] >= 9:
+    # mean⁻¹ ⊗ q is linear in q: one (4, 4) × (4, F) product (the rows mean⁻¹ ⊗ e_j),
+    # and what follows runs on (4, F) and (3, F) rows
+    dev = quat.as_rotvec(quat.relative(quat.mean(rel), np.eye(4)).T @ rel.T, axis=0)
+    if dev.shape[1] >= 9:
         # 9-frame moving average of the three components at once (cumulative sums)
-        c = np.cumsum(np.concatenate([np.zeros((1, 3)), dev]), axis=0)
-        dev = (c[9:] - c[:-9]) / 9.0
-    return float(2.0 * np.degrees(_percentile(rows.norms(dev), 95.0)))
+        c = np.zeros((3, dev.shape[1] + 1))
+        np.cumsum(dev, axis=1, out=c[:, 1:])
+        dev = (c[:, 9:] - c[:, :-9]) / 9.0
+    return float(2.0 * np.degrees(_percentile(np.sqrt(dev[0] ** 2 + dev[1] ** 2 + dev[2] ** 2),
+                                              95.0)))
 
 
 def _percentile(x: NDArray[np.float64], q: float) -> float:

@@ -224,26 +224,33 @@ def angle(q: ArrayLike) -> Float:
     return np.asarray(2.0 * np.arctan2(s, np.abs(qq[..., 0])))
 
 
-def as_rotvec(q: ArrayLike) -> Float:
+def as_rotvec(q: ArrayLike, axis: int = -1) -> Float:
     """Rotation vectors (axis × angle, radians) of unit quaternions (``Rotation.as_rotvec``).
 
     Parameters
     ----------
     q : array_like, shape (..., 4)
+        Unit quaternions, components along ``axis``.
+    axis : int, default -1
+        Axis of ``q`` that holds the four components (``0`` for (4, N) rows: numpy loops over
+        the last axis, so per-rotation arithmetic on rows runs several times faster).
 
     Returns
     -------
-    ndarray, shape (..., 3)
-        Angles in ``[0, π]``.
+    ndarray
+        Rotation vectors, the three components along ``axis``; angles in ``[0, π]``.
     """
-    qq = _q(q)
-    w, v = qq[..., 0], qq[..., 1:]
-    s = np.sqrt(np.einsum("...i,...i->...", v, v))
+    arr = np.moveaxis(np.asarray(q, dtype=float), axis, 0)
+    if arr.shape[0] != 4:
+        raise ValueError(f"quaternions must have 4 components along axis {axis}, got "
+                         f"{arr.shape[0]}")
+    w, v = arr[0], arr[1:]
+    s = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     theta = 2.0 * np.arctan2(s, np.abs(w))
     # θ / sin(θ/2) = θ / |v| for a unit quaternion: no cancellation at small angles, where
     # atan2 keeps θ accurate; the sign turns q into the w ≥ 0 representative
     scale = np.divide(theta, s, out=np.full(s.shape, 2.0), where=s > 0)
-    return np.asarray(v * np.where(w < 0, -scale, scale)[..., None])
+    return np.ascontiguousarray(np.moveaxis(v * np.where(w < 0, -scale, scale), 0, axis))
 
 
 def from_rotvec(v: ArrayLike) -> Float:

@@ -70,6 +70,11 @@ def test_angle_and_rotvec_match_scipy(rots: tuple[Rotation, Rotation]) -> None:
     rel = a.inv() * b
     np.testing.assert_allclose(quat.angle(_wxyz(rel)), rel.magnitude(), atol=1e-12)
     np.testing.assert_allclose(quat.as_rotvec(_wxyz(rel)), rel.as_rotvec(), atol=1e-12)
+    # components along the first axis: (4, N) in, (3, N) out
+    np.testing.assert_allclose(quat.as_rotvec(_wxyz(rel).T, axis=0), rel.as_rotvec().T,
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="4 components along axis 0"):
+        quat.as_rotvec(_wxyz(rel), axis=0)
     # sign of q does not matter; small angles keep their digits
     tiny = Rotation.from_rotvec([[1e-9, -2e-9, 3e-9], [0.0, 0.0, 0.0], [0.0, 2e-5, 0.0]])
     np.testing.assert_allclose(quat.as_rotvec(-_wxyz(tiny)), tiny.as_rotvec(), rtol=1e-9,
