@@ -38,3 +38,11 @@ def finite(v: NDArray[np.float64]) -> NDArray[np.bool_]:
     for k in range(1, v.shape[-1]):
         ok &= np.isfinite(v[..., k])
     return ok
+
+
+def apply_each(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``m[t] @ v[t]`` for each matrix of ``m`` (F, 3, 3) and row of ``v`` (F, 3)."""
+    out = m[..., 0] * v[:, 0, None]
+    out += m[..., 1] * v[:, 1, None]
+    out += m[..., 2] * v[:, 2, None]
+    return np.asarray(out)

@@ -22,6 +22,7 @@ from .orientations import estimate_orientations
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
+from .slip import SlipFit, estimate_slip
 
 METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
 
@@ -66,7 +67,8 @@ _TORSO_JOINTS: Final[tuple[str, ...]] = ("l_hip", "r_hip", "l_shoulder", "r_shou
 # left/right joint pairs mirrored about the mid-sagittal plane of the segment carrying them
 _MIRRORED_PAIRS: Final[dict[tuple[str, str], str]] = {("l_shoulder", "r_shoulder"): "chest",
                                                       ("l_hip", "r_hip"): "pelvis"}
-_SLIP_JOINTS: Final[frozenset[str]] = frozenset(("l_wrist", "r_wrist"))
+# joints fitted by estimate_joint on the sensor positions without the shared model's slip
+_DESLIPPED: Final[frozenset[str]] = frozenset(("l_wrist", "r_wrist"))
 _MIRRORED: Final[frozenset[str]] = frozenset(j for pair in _MIRRORED_PAIRS for j in pair)
 # joint -> the pair of joints it sits midway between (sideways), in the same sensor frame
 _MIDLINE: Final[dict[str, tuple[str, str]]] = {"waist": ("l_hip", "r_hip"),
@@ -205,6 +207,63 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
              ) -> NDArray[np.float64]:
     base, normal = plane
     return np.asarray(point - 2.0 * float((point - base) @ normal) * normal)
+
+
+SYMMETRY_SIGMA_M: Final[float] = 0.03
+"""Standard deviation of the waist (neck) about the hips' (shoulders') mid-plane, metres,
+when the joint's data come from the shared slip model."""
+
+
+def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
+                pa: NDArray[np.float64], ra_rot: Rotation, pb: NDArray[np.float64],
+                rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_],
+                a: str, b: str, *,
+                symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
+                prior: tuple[NDArray[np.float64], float] | None) -> JointFit:
+    """The joint's centre from the shared slip model (posterior mean and covariance of its
+    centre, every sensor's slip integrated out) combined with its anatomical priors (Gaussian,
+    in absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision), and its path with
+    the sensors' estimated slip removed."""
+    cov = shared.covariances[j]
+    mean = shared.centres[j].reshape(6)
+    scale = float(np.trace(cov)) / 6.0
+    # the data precision (a flat prior leaves static directions with ~zero precision)
+    lam, vec = np.linalg.eigh(cov / scale)
+    precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
+    normal = precision.copy()
+    rhs = precision @ mean
+    ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
+    sa, sb = shared.slip[a], shared.slip[b]
+    pa_true = pa - rows.apply_each(ra, sa)
+    pb_true = pb - rows.apply_each(rb, sb)
+    both = ok_a & ok_b
+    tau = 0.0
+    if prior is not None:
+        x0 = np.asarray(prior[0], dtype=float)
+        x0_b = np.einsum("tji,tj->i", rb[both], rows.apply(ra[both], x0) + pa_true[both]
+                         - pb_true[both]) / max(int(both.sum()), 1)
+        tau = 1.0 / prior[1] ** 2
+        normal += tau * np.eye(6)
+        rhs += tau * np.concatenate([x0, x0_b])
+    if symmetry is not None:
+        g = np.concatenate([symmetry[1], np.zeros(3)])
+        normal += np.outer(g, g) / SYMMETRY_SIGMA_M**2
+        rhs += g * float(symmetry[1] @ symmetry[0]) / SYMMETRY_SIGMA_M**2
+    c = np.linalg.solve(normal + 1e-12 * float(np.trace(normal)) * np.eye(6), rhs)
+    rec_a = rows.apply(ra, c[:3]) + pa_true
+    rec_b = rows.apply(rb, c[3:]) + pb_true
+    gap = rec_a - rec_b
+    share_b = np.where(ok_a == ok_b, 0.5, ok_b.astype(float))
+    quality = dict(fit.quality)
+    quality["estimator"] = "llsf-shared-slip"
+    quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
+    if prior is not None:
+        weakest = float(np.linalg.eigvalsh(precision)[0])
+        quality["data_weight"] = weakest / (weakest + tau)
+        quality["prior_shift_m"] = float(np.linalg.norm(c[:3] - mean[:3]))
+    return replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
+                   positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
+                   quality=quality)
 
 
 @dataclass(frozen=True)
@@ -419,7 +478,14 @@ def estimate_skeleton(
     loss = "huber" if method == "auto" else "linear"
     do_smooth = (method == "auto") if smooth is None else smooth
     highpass = round(highpass_s * recording.fps) if method == "auto" else 0
-    slip_period = recording.fps / slip_hz if method == "auto" and slip_hz > 0 else 0.0
+    # every sensor's soft-tissue slip from all the joint equations at once: the torso joints
+    # take their centres from it, the wrists are fitted on the positions without it
+    shared: SlipFit | None = None
+    if method == "auto" and slip_hz > 0 and highpass <= 1:
+        shared = estimate_slip(positions, {s: quat[:, column[s]] for s in use}, ok,
+                               [JOINT_SEGMENTS[j] for j in pairs], fps=recording.fps,
+                               slip_hz=slip_hz)
+    shared_index = {j: i for i, j in enumerate(pairs)}
 
     def joint(name: str, est: str, neighbours: tuple[NDArray[np.float64] | None,
                                                      NDArray[np.float64] | None] = (None, None),
@@ -428,16 +494,23 @@ def estimate_skeleton(
               prior: tuple[NDArray[np.float64], float] | None = None,
               quiet: bool = False) -> JointFit:
         a, b = JOINT_SEGMENTS[name]
+        pa, pb = positions[a], positions[b]
+        if shared is not None and name in _DESLIPPED:
+            pa = pa - rows.apply_each(rotations[a].as_matrix(), shared.slip[a])
+            pb = pb - rows.apply_each(rotations[b].as_matrix(), shared.slip[b])
         try:
             fit = estimate_joint(
-                positions[a], rotations[a], positions[b], rotations[b], method=est,
+                pa, rotations[a], pb, rotations[b], method=est,
                 loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
                 hinge_prior=0.0 if plain else 0.01, highpass=highpass,
-                slip_period=slip_period if name in _SLIP_JOINTS else 0.0,
                 bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
                 prior=prior if method == "auto" else None, range_of_motion_deg=rom.get(name))
         except EstimationError as exc:
             raise EstimationError(f"{name}: {exc.detail}", field=name) from None
+        if shared is not None and name in _TORSO_JOINTS:
+            fit = _shared_fit(fit, shared, shared_index[name], positions[a], rotations[a],
+                              positions[b], rotations[b], ok[a], ok[b], a, b,
+                              symmetry=symmetry, prior=prior)
         if name in static:
             source = ("anatomical priors" if prior is not None or neighbours[0] is not None
                       else "the few frames available")

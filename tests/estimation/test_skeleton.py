@@ -266,14 +266,15 @@ def test_warnings_are_not_repeated(sim15: Sim) -> None:
 
 def test_mirror_prior_locates_a_weakly_moving_shoulder() -> None:
     # the left arm barely moves on the chest (~5°) while the right one swings freely: the
-    # left shoulder is pulled toward the mirror image of the right one
+    # left shoulder is pulled toward the mirror image of the right one (with the shared slip
+    # model the data carry 66–85 % of the weight along the weakest direction, 6–12 % without)
     auto, plain = [], []
     for seed in range(3):
         motion = freeze(example_motion(240, fps=60.0, seed=seed), ("LeftShoulder",), 0.05)
         rec, truth = simulate_sensors(motion, units_m=0.01, seed=seed + 10)
         result = estimate_skeleton(rec)
         assert result.quality["l_shoulder"]["range_of_motion_deg"] < 10.0
-        assert result.quality["l_shoulder"]["data_weight"] < 0.5
+        assert result.quality["l_shoulder"]["data_weight"] < 0.9
         assert result.quality["r_shoulder"]["data_weight"] > 0.9
         auto.append(mean_errors_mm(result.joints, truth)["l_shoulder"])
         plain.append(mean_errors_mm(estimate_skeleton(rec, method="llsf").joints,

@@ -1,0 +1,201 @@
+"""Soft-tissue slip of every sensor at once, from all the joint equations of the suit.
+
+A sensor strapped on soft tissue moves slowly against the bone (a few millimetres below about
+0.5 Hz). ``joints.estimate_joint(slip_period=...)`` models that slip joint by joint, with the
+slips of both sensors as free unknowns of one joint equation; here every sensor's slip enters
+the equations of all its joints (the chest sensor's, for instance, those of the waist, neck and
+both shoulders), so the joints that share a sensor pin its slip down together, as in the
+Cramér–Rao bound of ``benchmarks/skeleton_bound.py``. The estimated slip is then removed from
+the sensor positions and the joints are located as usual.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import cho_factor, cho_solve
+from scipy.signal import savgol_filter
+
+from . import _rows as rows
+from .joints import _slip_basis, _white_variance
+
+ROTATION_SMOOTH_S: Final[float] = 0.2
+"""Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
+as regressors of the slip model: orientation noise is white, body rotation is smooth."""
+
+
+@dataclass(frozen=True, eq=False)
+class SlipFit:
+    """Every sensor's slip and every joint's centre from the joint equations of a suit.
+
+    Attributes
+    ----------
+    slip : dict of str to ndarray, shape (F, 3)
+        Each sensor's slip in its own frame, metres (``p − R s`` is the position without it).
+    centres : ndarray, shape (J, 2, 3)
+        Each joint's centre in the frames of its two sensors (posterior mean, flat prior).
+    covariances : ndarray, shape (J, 6, 6)
+        Posterior covariance of ``centres[j]`` (flattened), the slip integrated out, m².
+    """
+
+    slip: dict[str, NDArray[np.float64]]
+    centres: NDArray[np.float64]
+    covariances: NDArray[np.float64]
+
+
+def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
+                        ) -> NDArray[np.float64]:
+    """Rotation matrices (F, 3, 3) of one sensor's quaternions (F, 4), low-passed.
+
+    White orientation noise in the regressors of a linear model biases it (errors in
+    variables) and, with a slip term able to absorb anything slow, makes the slip estimate
+    follow the noise; a cubic Savitzky–Golay filter over ``ROTATION_SMOOTH_S`` keeps the motion
+    (cubic over 0.2 s) and averages the noise.
+    """
+    q = np.array(quaternions, dtype=float)
+    # the same hemisphere frame to frame, so that the components are smooth
+    flips = rows.dots(q[1:], q[:-1]) < 0.0
+    sign = np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])
+    q *= sign[:, None]
+    window = round(ROTATION_SMOOTH_S * fps) | 1
+    if 5 <= window < q.shape[0]:
+        q = savgol_filter(q, window, 3, axis=0, mode="interp")
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=1)
+
+
+def estimate_slip(
+    positions: Mapping[str, NDArray[np.float64]],
+    quaternions: Mapping[str, NDArray[np.float64]],
+    valid: Mapping[str, NDArray[np.bool_]],
+    pairs: Sequence[tuple[str, str]],
+    *,
+    fps: float,
+    slip_hz: float = 0.5,
+) -> SlipFit:
+    """Slow displacement of every sensor against its bone, from all joints at once.
+
+    Parameters
+    ----------
+    positions : mapping of str to ndarray, shape (F, 3)
+        Sensor positions (gaps filled), metres, by sensor name.
+    quaternions : mapping of str to ndarray, shape (F, 4)
+        Sensor → world rotations, scalar first (gaps filled).
+    valid : mapping of str to ndarray of bool, shape (F,)
+        Measured (not interpolated) samples.
+    pairs : sequence of (str, str)
+        The two sensors of each joint (a point fixed in both frames).
+    fps : float
+        Frame rate, Hz.
+    slip_hz : float
+        Highest slip frequency modelled, Hz.
+
+    Returns
+    -------
+    SlipFit
+        Each sensor's slip in its own frame, metres (the measured position is
+        ``p(t) = p_true(t) + R(t) s(t)``, so ``p − R s`` is the position without slip;
+        sensors in no pair are absent), and each joint's centre with its covariance.
+
+    Notes
+    -----
+    Joint j between sensors a and b: ``R_a (c_a − s_a(t)) + p_a = R_b (c_b − s_b(t)) + p_b``
+    with ``s(t) = Σ_k φ_k(t) β_k`` over the cosines of ``joints.estimate_joint``'s slip
+    model (every period down to ``1 / slip_hz``, at most 16, no constant). Unknowns: every
+    joint's centre in both frames (a negligible ridge) and every sensor's coefficients, each
+    with a Gaussian prior of variance ``λ_s = v_s / (2K)`` per axis (``v_s`` the mean slow
+    residual variance of the plain fits of the sensor's joints: total minus white, the white
+    part from second differences). The rows of joint j are weighted by the inverse of its
+    white residual variance. The maximum a posteriori slip is the solution of one sparse-ish
+    linear system ((6J + 3KS) unknowns), whose blocks are sums of ``φ_k φ_l M_t`` terms
+    (``M_t = R_aᵀR_b``) as in ``joints._slip_system``. The rotations used as regressors are
+    low-passed (``ROTATION_SMOOTH_S``); the measured ones serve to remove the slip.
+    """
+    sensors = sorted({s for pair in pairs for s in pair})
+    n = next(iter(positions.values())).shape[0]
+    basis = _slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
+    k = basis.shape[1]
+    rot = {s: _smoothed_rotations(quaternions[s], fps) for s in sensors}
+    n_c = 6 * len(pairs)
+    index = {s: n_c + 3 * k * i for i, s in enumerate(sensors)}
+    size = n_c + 3 * k * len(sensors)
+    blocks: list[tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]] = []
+    white: list[float] = []
+    slow: dict[str, list[float]] = {s: [] for s in sensors}
+    eye3 = np.eye(3)
+    for j, (a, b) in enumerate(pairs):
+        ra, rb = rot[a], rot[b]
+        w = (valid[a] & valid[b]).astype(float)
+        total = max(float(w.sum()), 1.0)
+        d = positions[b] - positions[a]
+        m = np.matmul(ra.transpose(0, 2, 1), rb)  # M_t = R_aᵀ R_b
+        m9 = m.reshape(n, 9)
+        ra_d = (ra * d[:, :, None]).sum(axis=1)  # R_aᵀ d
+        rb_d = (rb * d[:, :, None]).sum(axis=1)
+        wphi = basis * w[:, None]
+        # plain LLSF of this joint for its noise levels
+        msum = (w @ m9).reshape(3, 3)
+        plain = np.block([[total * eye3, -msum], [-msum.T, total * eye3]])
+        prhs = np.concatenate([w @ ra_d, -(w @ rb_d)])
+        c0 = np.linalg.lstsq(plain, prhs, rcond=None)[0]
+        res = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
+        use = w > 0
+        total_var = float(np.mean(res[use] ** 2)) if use.any() else 1e-6
+        white_var = _white_variance(res, use)
+        white_var = max(total_var if white_var is None else white_var, 1e-12)
+        white.append(white_var)
+        for s in (a, b):
+            slow[s].append(max(total_var - white_var, 0.0))
+        # normal-equation blocks of [c_a, c_b, β_a, β_b]
+        phiphi = wphi.T @ basis  # Σ w φ_k φ_l
+        # Σ w φ_k φ_l M[i, j] as one (K, F) × (F, 9K) product, ordered (k, i, l, j)
+        t_kl = (wphi.T @ (basis[:, :, None] * m9[:, None, :]).reshape(n, 9 * k)).reshape(
+            k, k, 3, 3).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
+        phim = (wphi.T @ m9).reshape(k, 3, 3)  # Σ w φ_k M
+        sum_phi = wphi.sum(axis=0)
+        big = np.zeros((6 + 6 * k, 6 + 6 * k))
+        big[:6, :6] = plain
+        ca, cb, ba, bb = slice(0, 3), slice(3, 6), slice(6, 6 + 3 * k), slice(6 + 3 * k, None)
+        big[ca, ba] = -np.kron(sum_phi[None, :], eye3)
+        big[ca, bb] = phim.transpose(1, 0, 2).reshape(3, 3 * k)
+        big[cb, ba] = phim.transpose(2, 0, 1).reshape(3, 3 * k)
+        big[cb, bb] = -np.kron(sum_phi[None, :], eye3)
+        big[ba, ba] = big[bb, bb] = np.kron(phiphi, eye3)
+        big[ba, bb] = -t_kl
+        big[6:, :6] = big[:6, 6:].T
+        big[bb, ba] = big[ba, bb].T
+        rhs = np.concatenate([prhs, -(wphi.T @ ra_d).reshape(-1), (wphi.T @ rb_d).reshape(-1)])
+        idx = np.concatenate([np.arange(6 * j, 6 * j + 6),
+                              np.arange(index[a], index[a] + 3 * k),
+                              np.arange(index[b], index[b] + 3 * k)])
+        blocks.append((idx, big / white_var, rhs / white_var))
+    normal = np.zeros((size, size))
+    rhs_all = np.zeros(size)
+    for idx, big, rhs in blocks:
+        normal[np.ix_(idx, idx)] += big
+        rhs_all[idx] += rhs
+    ridge = np.full(size, 1e-9 * float(np.max(np.diag(normal))))
+    floor = float(np.median(white))
+    for s in sensors:
+        # per-axis slip variance of this sensor: half the slow residual of its joints
+        var = max(0.5 * float(np.mean(slow[s])), 0.5 * floor)
+        ridge[index[s]:index[s] + 3 * k] = k / var
+    normal[np.diag_indices(size)] += ridge
+    # the centres' columns of the inverse (their covariance blocks) and the solution, from
+    # one Cholesky factorisation
+    factor = cho_factor(normal)
+    x = cho_solve(factor, rhs_all)
+    cov = cho_solve(factor, np.eye(size)[:, :n_c])
+    blocks_c = np.stack([cov[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j in range(len(pairs))]) \
+        if pairs else np.zeros((0, 6, 6))
+    return SlipFit({s: basis @ x[index[s]:index[s] + 3 * k].reshape(k, 3) for s in sensors},
+                   x[:n_c].reshape(-1, 2, 3), blocks_c)
