@@ -260,6 +260,7 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     if prior is not None:
         weakest = float(np.linalg.eigvalsh(precision)[0])
         quality["data_weight"] = weakest / (weakest + tau)
+        quality["prior_sigma_m"] = float(prior[1])
         quality["prior_shift_m"] = float(np.linalg.norm(c[:3] - mean[:3]))
     return replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
                    positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
@@ -486,6 +487,7 @@ def estimate_skeleton(
                                [JOINT_SEGMENTS[j] for j in pairs], fps=recording.fps,
                                slip_hz=slip_hz)
     shared_index = {j: i for i, j in enumerate(pairs)}
+    raw: dict[str, JointFit] = {}  # estimate_joint's own fits
 
     def joint(name: str, est: str, neighbours: tuple[NDArray[np.float64] | None,
                                                      NDArray[np.float64] | None] = (None, None),
@@ -498,16 +500,24 @@ def estimate_skeleton(
         if shared is not None and name in _DESLIPPED:
             pa = pa - rows.apply_each(rotations[a].as_matrix(), shared.slip[a])
             pb = pb - rows.apply_each(rotations[b].as_matrix(), shared.slip[b])
-        try:
-            fit = estimate_joint(
-                pa, rotations[a], pb, rotations[b], method=est,
-                loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
-                hinge_prior=0.0 if plain else 0.01, highpass=highpass,
-                bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
-                prior=prior if method == "auto" else None, range_of_motion_deg=rom.get(name))
-        except EstimationError as exc:
-            raise EstimationError(f"{name}: {exc.detail}", field=name) from None
-        if shared is not None and name in _TORSO_JOINTS:
+        torso_shared = shared is not None and name in _TORSO_JOINTS
+        if torso_shared and name in raw:
+            # the shared model gives the centre; the per-joint fit only its quality figures,
+            # which a refit with another prior would not change
+            fit = raw[name]
+        else:
+            try:
+                fit = estimate_joint(
+                    pa, rotations[a], pb, rotations[b], method=est,
+                    loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
+                    hinge_prior=0.0 if plain else 0.01, highpass=highpass,
+                    bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
+                    prior=prior if method == "auto" else None,
+                    range_of_motion_deg=rom.get(name))
+            except EstimationError as exc:
+                raise EstimationError(f"{name}: {exc.detail}", field=name) from None
+            raw[name] = fit
+        if shared is not None and torso_shared:
             fit = _shared_fit(fit, shared, shared_index[name], positions[a], rotations[a],
                               positions[b], rotations[b], ok[a], ok[b], a, b,
                               symmetry=symmetry, prior=prior)

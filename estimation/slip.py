@@ -49,7 +49,7 @@ class SlipFit:
 
 def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
                         ) -> NDArray[np.float64]:
-    """Rotation matrices (F, 3, 3) of one sensor's quaternions (F, 4), low-passed.
+    """Rotation matrices (F, S, 3, 3) of sensors' quaternions (F, S, 4), low-passed.
 
     White orientation noise in the regressors of a linear model biases it (errors in
     variables) and, with a slip term able to absorb anything slow, makes the slip estimate
@@ -59,18 +59,19 @@ def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
     q = np.array(quaternions, dtype=float)
     # the same hemisphere frame to frame, so that the components are smooth
     flips = rows.dots(q[1:], q[:-1]) < 0.0
-    sign = np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])
-    q *= sign[:, None]
+    sign = np.concatenate([np.ones((1, q.shape[1])),
+                           np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)])
+    q *= sign[:, :, None]
     window = round(ROTATION_SMOOTH_S * fps) | 1
     if 5 <= window < q.shape[0]:
         q = savgol_filter(q, window, 3, axis=0, mode="interp")
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
+    q /= np.sqrt(rows.dots(q, q))[:, :, None]
+    w, x, y, z = (q[..., i] for i in range(4))
     return np.stack([
         np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
         np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
+    ], axis=2)
 
 
 def estimate_slip(
@@ -124,7 +125,8 @@ def estimate_slip(
     n = next(iter(positions.values())).shape[0]
     basis = _slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
     k = basis.shape[1]
-    rot = {s: _smoothed_rotations(quaternions[s], fps) for s in sensors}
+    smoothed = _smoothed_rotations(np.stack([quaternions[s] for s in sensors], axis=1), fps)
+    rot = {s: smoothed[:, i] for i, s in enumerate(sensors)}
     n_c = 6 * len(pairs)
     index = {s: n_c + 3 * k * i for i, s in enumerate(sensors)}
     size = n_c + 3 * k * len(sensors)
