@@ -141,8 +141,9 @@ def estimate_slip(
         d = positions[b] - positions[a]
         m = np.matmul(ra.transpose(0, 2, 1), rb)  # M_t = R_aᵀ R_b
         m9 = m.reshape(n, 9)
-        ra_d = (ra * d[:, :, None]).sum(axis=1)  # R_aᵀ d
-        rb_d = (rb * d[:, :, None]).sum(axis=1)
+        # R_aᵀ d and R_bᵀ d, row by row
+        ra_d, rb_d = (r[:, 0, :] * d[:, 0, None] + r[:, 1, :] * d[:, 1, None]
+                      + r[:, 2, :] * d[:, 2, None] for r in (ra, rb))
         wphi = basis * w[:, None]
         # plain LLSF of this joint for its noise levels
         msum = (w @ m9).reshape(3, 3)
@@ -159,9 +160,11 @@ def estimate_slip(
             slow[s].append(max(total_var - white_var, 0.0))
         # normal-equation blocks of [c_a, c_b, β_a, β_b]
         phiphi = wphi.T @ basis  # Σ w φ_k φ_l
-        # Σ w φ_k φ_l M[i, j] as one (K, F) × (F, 9K) product, ordered (k, i, l, j)
-        t_kl = (wphi.T @ (basis[:, :, None] * m9[:, None, :]).reshape(n, 9 * k)).reshape(
-            k, k, 3, 3).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
+        # Σ w φ_k φ_l M[i, j]: one (K, F) × (F, K) product per entry of M, ordered (k, i, l, j)
+        entries = np.empty((k, k, 9))
+        for e in range(9):
+            entries[:, :, e] = (wphi * m9[:, e, None]).T @ basis
+        t_kl = entries.reshape(k, k, 3, 3).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
         phim = (wphi.T @ m9).reshape(k, 3, 3)  # Σ w φ_k M
         sum_phi = wphi.sum(axis=0)
         big = np.zeros((6 + 6 * k, 6 + 6 * k))
