@@ -80,6 +80,9 @@ NECK_RISE: Final[float] = 0.15
 (0.05–0.2 in the CMU and Bandai Namco rigs)."""
 PRIOR_SIGMA_M: Final[dict[str, float]] = {"neck": 0.03, "mirror": 0.03}
 """Standard deviation of each anatomical prior, metres."""
+SYMMETRY_SIGMA_M: Final[float] = 0.03
+"""Standard deviation of the waist (neck) across the hips' (shoulders') mid-plane, metres,
+when the joint's centre comes from the shared slip model."""
 
 
 def estimate_chest(waist: NDArray[np.float64], neck: NDArray[np.float64],
@@ -209,10 +212,6 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
     return np.asarray(point - 2.0 * float((point - base) @ normal) * normal)
 
 
-SYMMETRY_SIGMA_M: Final[float] = 0.03
-"""Standard deviation of the waist (neck) about the hips' (shoulders') mid-plane, metres,
-when the joint's data come from the shared slip model."""
-
 
 def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
                 pa: NDArray[np.float64], ra_rot: Rotation, pb: NDArray[np.float64],
@@ -338,12 +337,14 @@ def estimate_skeleton(
         the four limbs by the variance cost E (eqs. 2–5, ``limbs.estimate_limb(method=
         "paper")``) from the thigh/foot and upper-arm/hand sensors; works with 11 or 15
         sensors (extra sensors are ignored). ``"auto"`` (default): every sensor present and
-        the best estimator per joint: robust LLSF (Huber IRLS) for joints between two
-        sensors, hinge knees and elbows resolved by the straight-limb rule, twisting wrists
-        by the bone-length rule (``joints.estimate_joint``), waist and neck weakly tied to
-        the mid-plane between the hips (shoulders), anatomical priors weighted by each
-        joint's information (below), limbs whose middle sensor is missing by
-        ``estimate_limb(method="improved")``, and zero-phase smoothing of the joint paths.
+        the best estimator per joint: every sensor's soft-tissue slip from all the joint
+        equations at once (``slip.estimate_slip``), the torso joints (waist, neck,
+        shoulders, hips) from that shared model with their anatomical priors (below),
+        robust LLSF (Huber IRLS) for the limb joints, hinge knees and elbows resolved by the
+        straight-limb rule, wrists fitted on the positions without slip and, when they
+        twist, placed by the bone-length rule (``joints.estimate_joint``), limbs whose
+        middle sensor is missing by ``estimate_limb(method="improved")``, and zero-phase
+        smoothing of the joint paths.
     optimizer : {"least-squares", "nelder-mead"}
         Minimiser of E for ``method="reduced"``.
     torso : {"llsf", "gdke"}
@@ -364,8 +365,10 @@ def estimate_skeleton(
         ``joints.estimate_joint(highpass=...)``).
     slip_hz : float
         ``"auto"`` only: model each sensor's soft-tissue slip below this frequency as a
-        smooth displacement estimated with the joint centres (``joints.estimate_joint(
-        slip_period=fps / slip_hz)``; 0: off).
+        smooth displacement in its frame, estimated from the equations of all joints at once
+        (``slip.estimate_slip``; 0: off: the torso joints are then fitted one by one by
+        ``joints.estimate_joint``, the wrists without a slip model). Not used with
+        ``highpass_s``.
     min_range_deg : float
         A joint whose two segments rotate less than this relative to each other
         (``joints.range_of_motion``) is still estimated, from the anatomical priors where
@@ -403,16 +406,21 @@ def estimate_skeleton(
 
     Notes
     -----
-    Priors of ``"auto"`` (``joints.estimate_joint(prior=...)``: a Gaussian prior on the
-    centre, weighted by ``σ²/(N_eff s0²)`` against the data, so it acts only along the
-    directions the motion leaves undetermined):
+    Priors of ``"auto"`` (Gaussian priors on the centre, in both sensor frames; with the
+    shared slip model their precision ``1/s0²`` is added to the posterior precision of the
+    joint's centre, every sensor's slip integrated out; without it,
+    ``joints.estimate_joint(prior=...)`` weighs them by ``σ²/(N_eff s0²)`` against the
+    data; either way they act only along the directions the motion leaves undetermined):
 
     - neck: ``NECK_RISE`` × shoulder width above the shoulders' midpoint, away from the
       waist, in the chest sensor's frame (``s0 = PRIOR_SIGMA_M["neck"]``);
     - shoulders and hips: the mirror image of the opposite joint about the trunk's
       mid-sagittal plane (through the waist–neck line, normal along the left–right axis;
       for the pelvis through the waist), ``s0 = PRIOR_SIGMA_M["mirror"]``. Left/right
-      symmetry of the skeleton does not depend on where the sensors sit.
+      symmetry of the skeleton does not depend on where the sensors sit;
+    - waist and neck: the mid-plane between the hips (shoulders), ``s0 =
+      SYMMETRY_SIGMA_M`` across it (``estimate_joint(symmetry_weight=0.01)`` of the
+      normalised LLSF cost without the shared model).
 
     Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
     carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
