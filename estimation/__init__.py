@@ -4,8 +4,9 @@ Pure numpy/scipy; knows nothing of HTTP. Arrays are time-first, lengths metres, 
 radians, quaternions scalar-first ``(w, x, y, z)``.
 
 Skeleton (magnetic 6-DOF trackers, Miura et al. 2015): `estimate_skeleton`, built from
-`estimate_joint` (LLSF/GDKE with hinge handling), `estimate_limb` (limbs without forearm and
-lower-leg sensors) and `estimate_orientations`. Root translation (inertial suits, Hachaj &
+`estimate_joint` (LLSF/GDKE with hinge handling), `estimate_slip` (every sensor's soft-tissue
+slip from all joints at once), `estimate_limb` (limbs without forearm and lower-leg sensors)
+and `estimate_orientations`. Root translation (inertial suits, Hachaj &
 Ogiela): `estimate_translation`. File formats live in `estimation.io`, synthetic recordings
 with exact ground truth in `estimation.simulate`.
 """
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
     from .recording import SensorRecording
     from .results import JointOffset, SkeletonResult
     from .skeleton import estimate_chest, estimate_root, estimate_skeleton
+    from .slip import SlipFit, estimate_slip
     from .translation import ContactOptions, TranslationResult, estimate_translation
 
 __all__ = [
@@ -46,6 +48,7 @@ __all__ = [
     "Progress",
     "SensorRecording",
     "SkeletonResult",
+    "SlipFit",
     "TranslationResult",
     "estimate_chest",
     "estimate_joint",
@@ -53,6 +56,7 @@ __all__ = [
     "estimate_orientations",
     "estimate_root",
     "estimate_skeleton",
+    "estimate_slip",
     "estimate_translation",
     "fill_gaps",
     "forward_kinematics",
@@ -76,5 +80,6 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "recording": ("SensorRecording",),
     "results": ("JointOffset", "SkeletonResult"),
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
+    "slip": ("SlipFit", "estimate_slip"),
     "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
 })

@@ -212,7 +212,6 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
     return np.asarray(point - 2.0 * float((point - base) @ normal) * normal)
 
 
-
 def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
                 pa: NDArray[np.float64], ra_rot: Rotation, pb: NDArray[np.float64],
                 rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_],

@@ -21,6 +21,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.signal import savgol_filter
 
 from . import _rows as rows
+from . import quaternions as quat
 from .joints import _slip_basis, _white_variance
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
@@ -66,12 +67,7 @@ def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
     if 5 <= window < q.shape[0]:
         q = savgol_filter(q, window, 3, axis=0, mode="interp")
     q /= np.sqrt(rows.dots(q, q))[:, :, None]
-    w, x, y, z = (q[..., i] for i in range(4))
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=2)
+    return quat.as_matrix(q)
 
 
 def estimate_slip(
@@ -120,6 +116,11 @@ def estimate_slip(
     linear system ((6J + 3KS) unknowns), whose blocks are sums of ``φ_k φ_l M_t`` terms
     (``M_t = R_aᵀR_b``) as in ``joints._slip_system``. The rotations used as regressors are
     low-passed (``ROTATION_SMOOTH_S``); the measured ones serve to remove the slip.
+
+    Soft-tissue artefact of skin-mounted sensors: Leardini, Chiari, Della Croce & Cappozzo,
+    "Human movement analysis using stereophotogrammetry. Part 3: Soft tissue artifact
+    assessment and compensation", Gait & Posture 21(2):212–225, 2005. Savitzky & Golay,
+    Anal. Chem. 36(8):1627–1639, 1964.
     """
     sensors = sorted({s for pair in pairs for s in pair})
     n = next(iter(positions.values())).shape[0]
