@@ -87,6 +87,11 @@ def _llsf_system(ra: NDArray[np.float64], rb: NDArray[np.float64],
 
 _SLIP_BASIS_MAX: Final[int] = 16
 
+RULE_GATE_SIGMA: Final[float] = 3.0
+"""The foot-of-perpendicular rule is dropped when its shift along the hinge axis exceeds this
+many standard deviations of the data's own estimate along the axis (a consistency test of
+the rule's hypothesis that the bone is perpendicular to the axis; see ``estimate_joint``)."""
+
 
 def _slip_basis(n: int, period: float) -> NDArray[np.float64]:
     """Cosines (F, K) of every period down to ``period`` frames, unit RMS, no constant (a
@@ -450,7 +455,14 @@ def estimate_joint(
       When the axis runs along the bone instead (|cos| > 0.5; a wrist that mostly twists
       about the forearm), that point is meaningless: with ``bone_length`` given the centre
       is put on the axis at that distance from the neighbour (``"bone-length"``), otherwise
-      the data alone decide.
+      the data alone decide. The rule is also dropped (``quality["hinge_rule_rejected"]``)
+      when its shift — the data's own ``|bone|·cos(bone, axis)`` — exceeds
+      ``RULE_GATE_SIGMA`` = 3 standard deviations of the data's estimate along the axis
+      (``σ²/(N_eff λ)``, ``σ²`` the residual variance per axis, ``N_eff`` from
+      ``effective_samples``, ``λ`` the weakest eigenvalue): the data then contradict the
+      rule's hypothesis of a bone perpendicular to the axis (a short clip whose relative
+      rotation is no flexion about such an axis), and moving the centre by it would add
+      the whole shift as error.
     - no neighbour: no rule (``None``); the data alone decide, and the hinge is reported.
 
     Slip model (``slip_period``): the joint equation with slip reads
@@ -603,6 +615,7 @@ def estimate_joint(
         c = np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
     axis_a = weak[:3] / max(float(np.linalg.norm(weak[:3])), 1e-12)
     rule = None
+    rejected: str | None = None  # a rule the data contradicted
     shift = 0.0
     blend = 1.0
     step = 0.0
@@ -633,6 +646,19 @@ def estimate_joint(
                     target = np.sign(h0) * np.sqrt(np.maximum(bone_length**2 - rho2, 0.0))
                     shift = float(np.mean((target - h0)[both]))
                     rule = "bone-length"
+        if rule == "foot-of-perpendicular":
+            # the rule assumes the bone perpendicular to the axis; its shift is the distance
+            # from the data's centre to the foot, |bone|·cos(bone, axis) of the data's own
+            # estimate. A shift far beyond the data's uncertainty along the axis (σ²/(N_eff λ)
+            # in the centre's coordinates) means the data contradict that hypothesis (a
+            # short clip whose relative rotation is no flexion about a perpendicular axis):
+            # the data alone decide
+            res_vec = residual(c)
+            sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * w.sum())
+            sd_axis = step * np.sqrt(sigma2 / (effective_samples(res_vec, w)
+                                               * max(lam0, 1e-300)))
+            if abs(shift) > RULE_GATE_SIGMA * sd_axis:
+                rule, shift, rejected = None, 0.0, "foot-of-perpendicular"
         if rule is not None:
             # Tikhonov prior on the weak coordinate: data weight lam0, prior weight tau
             blend = lam0 / (lam0 + hinge_prior)
@@ -674,6 +700,8 @@ def estimate_joint(
     if hinge:
         quality["axis"] = [float(x) for x in axis_a]
         quality["hinge_rule"] = rule
+        if rejected is not None:
+            quality["hinge_rule_rejected"] = rejected
         quality["axis_shift_m"] = shift
         quality["data_weight"] = blend
     return JointFit(c[:3].copy(), c[3:].copy(), positions, residuals, quality,

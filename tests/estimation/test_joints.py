@@ -92,6 +92,47 @@ def test_foot_of_perpendicular_rule_with_one_neighbour(rig_factory: RigFactory) 
     assert local_error_mm(fit.local_a, rig.local_a) < 5.0
 
 
+def _tilted_wrist(tilt_deg: float, seed: int) -> tuple[Any, ...]:
+    """A 40-frame near-hinge (rotation mostly about x, a little about z) whose neighbour
+    (the elbow, 0.25 m away in frame a) lies along a bone at ``tilt_deg`` from the axis."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 1.0, 40)
+    ra = Rotation.from_rotvec(np.column_stack([0.4 * np.sin(2 * np.pi * 0.8 * t),
+                                               0.3 * np.cos(2 * np.pi * 0.6 * t), 0.2 * t]))
+    pa = np.column_stack([0.3 * t, 1.0 + 0.05 * np.sin(2 * np.pi * t),
+                          0.1 * np.cos(2 * np.pi * t)])
+    local_a, local_b = np.array([0.03, -0.2, 0.04]), np.array([-0.02, 0.05, 0.04])
+    axis, side = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    rel = Rotation.from_rotvec(np.outer(0.3 * np.sin(2 * np.pi * 0.9 * t), axis)
+                               + np.outer(0.06 * np.sin(2 * np.pi * 1.7 * t + 1.0), side))
+    rb = ra * rel
+    pb = ra.apply(local_a) + pa - rb.apply(local_b)
+    pa = pa + rng.normal(scale=0.001, size=pa.shape)
+    pb = pb + rng.normal(scale=0.001, size=pb.shape)
+    tilt = np.deg2rad(tilt_deg)
+    bone = np.cos(tilt) * axis + np.sin(tilt) * np.array([0.0, 1.0, 0.0])
+    elbow = ra.apply(local_a - 0.25 * bone) + pa
+    return pa, ra, pb, rb, elbow, local_a
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_foot_of_perpendicular_rule_dropped_when_data_contradict_it(seed: int) -> None:
+    # bone 70° from the axis: the foot of the perpendicular is 0.25 m · cos 70° = 86 mm from
+    # the centre, far beyond the data's uncertainty along the axis, so the data decide
+    pa, ra, pb, rb, elbow, local_a = _tilted_wrist(70.0, seed)
+    fit = estimate_joint(pa, ra, pb, rb, neighbours=(elbow, None))
+    assert fit.quality["hinge"]
+    assert fit.quality["hinge_rule"] is None
+    assert fit.quality["hinge_rule_rejected"] == "foot-of-perpendicular"
+    assert local_error_mm(fit.local_a, local_a) < 15.0
+    # a perpendicular bone: the same data agree with the rule, which is kept
+    pa, ra, pb, rb, elbow, local_a = _tilted_wrist(90.0, seed)
+    fit = estimate_joint(pa, ra, pb, rb, neighbours=(elbow, None))
+    assert fit.quality["hinge_rule"] == "foot-of-perpendicular"
+    assert "hinge_rule_rejected" not in fit.quality
+    assert local_error_mm(fit.local_a, local_a) < 5.0
+
+
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
 def test_robust_loss_beats_plain_on_outlier_frames(rig_factory: RigFactory, loss: str) -> None:
     rig = rig_factory("ball", rom_deg=60.0, noise_m=0.002, seed=5)
