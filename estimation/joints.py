@@ -35,7 +35,8 @@ class JointFit:
         ``rms_residual_m``, ``singular_value_ratio`` (smallest / largest singular value of
         the stacked LLSF system), ``hinge_ratio`` (smallest / second smallest),
         ``range_of_motion_deg``, ``hinge`` (bool), ``axis`` (hinge axis in frame a, when a
-        hinge), ``hinge_rule``, ``estimator``, ``loss``, ``outlier_fraction``.
+        hinge), ``hinge_rule``, ``hinge_rule_rejected`` (a rule the data contradicted, see
+        ``estimate_joint``), ``estimator``, ``loss``, ``outlier_fraction``.
     warnings : tuple of str
         Human-readable warnings (small range of motion, ill-conditioned system).
     """
