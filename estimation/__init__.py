@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from .recording import SensorRecording
     from .results import JointOffset, SkeletonResult
     from .skeleton import estimate_chest, estimate_root, estimate_skeleton
-    from .slip import SlipFit, estimate_slip
+    from .slip import SlipFit, estimate_slip, rotation_noise_variance
     from .translation import ContactOptions, TranslationResult, estimate_translation
 
 __all__ = [
@@ -61,6 +61,7 @@ __all__ = [
     "fill_gaps",
     "forward_kinematics",
     "read_bvh",
+    "rotation_noise_variance",
     "standard_lengths",
     "torso_length",
     "write_bvh",
@@ -80,6 +81,6 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "recording": ("SensorRecording",),
     "results": ("JointOffset", "SkeletonResult"),
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
-    "slip": ("SlipFit", "estimate_slip"),
+    "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
     "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
 })

@@ -22,7 +22,7 @@ from .orientations import estimate_orientations
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
-from .slip import SlipFit, estimate_slip
+from .slip import SlipFit, estimate_slip, rotation_noise_variance
 
 METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
 
@@ -254,6 +254,7 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     share_b = np.where(ok_a == ok_b, 0.5, ok_b.astype(float))
     quality = dict(fit.quality)
     quality["estimator"] = "llsf-shared-slip"
+    quality["rotation_noise_corrected"] = bool(shared.corrected[j]) if shared.corrected else False
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
     if prior is not None:
         weakest = float(np.linalg.eigvalsh(precision)[0])
@@ -337,7 +338,8 @@ def estimate_skeleton(
         "paper")``) from the thigh/foot and upper-arm/hand sensors; works with 11 or 15
         sensors (extra sensors are ignored). ``"auto"`` (default): every sensor present and
         the best estimator per joint: every sensor's soft-tissue slip from all the joint
-        equations at once (``slip.estimate_slip``), the torso joints (waist, neck,
+        equations at once (``slip.estimate_slip``, corrected for the attenuation bias of
+        orientation noise where the motion is well above it), the torso joints (waist, neck,
         shoulders, hips) from that shared model with their anatomical priors (below),
         robust LLSF (Huber IRLS) for the limb joints, hinge knees and elbows resolved by the
         straight-limb rule, wrists fitted on the positions without slip and, when they
@@ -490,9 +492,12 @@ def estimate_skeleton(
     # take their centres from it, the wrists are fitted on the positions without it
     shared: SlipFit | None = None
     if method == "auto" and slip_hz > 0 and highpass <= 1:
-        shared = estimate_slip(positions, {s: quat[:, column[s]] for s in use}, ok,
-                               [JOINT_SEGMENTS[j] for j in pairs], fps=recording.fps,
-                               slip_hz=slip_hz)
+        by_sensor = {s: quat[:, column[s]] for s in use}
+        # orientation noise biases the centres of joints that rotate a few degrees toward
+        # their sensors (errors in variables); the shared model corrects for it
+        shared = estimate_slip(positions, by_sensor, ok, [JOINT_SEGMENTS[j] for j in pairs],
+                               fps=recording.fps, slip_hz=slip_hz,
+                               rotation_noise=rotation_noise_variance(by_sensor, ok))
     shared_index = {j: i for i, j in enumerate(pairs)}
     raw: dict[str, JointFit] = {}  # estimate_joint's own fits
 

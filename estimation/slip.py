@@ -17,8 +17,8 @@ from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import cho_factor, cho_solve
-from scipy.signal import savgol_filter
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import _rows as rows
 from . import quaternions as quat
@@ -27,6 +27,15 @@ from .joints import _slip_basis, _white_variance
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
 as regressors of the slip model: orientation noise is white, body rotation is smooth."""
+EIV_SIGNAL_SHARE: Final[float] = 0.8
+"""A joint's rotation sums are corrected for orientation noise (errors in variables) only
+when the correction leaves at least this share of the weakest eigenvalue of its plain normal
+matrix: where the motion is not well above the noise the correction is mostly noise itself."""
+EIV_CHI2: Final[float] = 6.0
+"""A corrected centre replaces the uncorrected one only when they differ by more than this
+squared Mahalanobis distance (the mean of χ² with 6 degrees of freedom) under the
+uncorrected posterior covariance: a correction within the centre's own uncertainty only adds
+the variance of the noise estimate."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,6 +55,57 @@ class SlipFit:
     slip: dict[str, NDArray[np.float64]]
     centres: NDArray[np.float64]
     covariances: NDArray[np.float64]
+    corrected: tuple[bool, ...] = ()
+    """Per joint: its centre and covariance come from the system corrected for orientation
+    noise (``estimate_slip(rotation_noise=...)``)."""
+
+
+def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
+                            valid: Mapping[str, NDArray[np.bool_]]) -> float:
+    """Per-axis variance (rad²) of the sensors' white orientation noise, or 0 if unknown.
+
+    Each sensor's quaternion series (one hemisphere frame to frame) gives the variance of its
+    third differences, where smooth motion up to quadratic in time cancels: white noise of
+    ``v`` per axis moves a unit quaternion by ``ε/2`` in the three directions across it
+    (``v/4`` each), and a third difference has 20 times the variance of its terms, so the
+    squared norm of a third difference is ``5v χ²₃`` (its median, against outliers: 2.366).
+    The sensors of one tracker share one noise level, and
+    fast motion at a low frame rate only inflates an estimate, so the smallest over the
+    sensors is taken.
+    """
+    estimates = []
+    for name, q in quaternions.items():
+        q = np.array(q, dtype=float)
+        flips = rows.dots(q[1:], q[:-1]) < 0.0
+        q *= np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])[:, None]
+        d3 = np.diff(q, n=3, axis=0)
+        ok = np.convolve(valid[name].astype(float), np.ones(4), "valid") > 3.5
+        if ok.sum() > 10:
+            estimates.append(float(np.median(rows.dots(d3[ok], d3[ok]))) / (5.0 * 2.366))
+    return min(estimates) if estimates else 0.0
+
+
+def _solve_system(normal: NDArray[np.float64], rhs: NDArray[np.float64], n_s: int
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Solution and the centres' 6 × 6 covariance blocks of the slip model's normal
+    equations (centres after the ``n_s`` slip unknowns), from one Cholesky factorisation:
+    with ``A = UᵀU`` (U upper triangular) the inverse's last block is ``U₂₂⁻¹ U₂₂⁻ᵀ``."""
+    factor = cho_factor(normal)
+    x = cho_solve(factor, rhs)
+    inv22 = solve_triangular(np.triu(factor[0][n_s:, n_s:]), np.eye(normal.shape[0] - n_s))
+    cov = inv22 @ inv22.T
+    blocks = np.stack([cov[i:i + 6, i:i + 6] for i in range(0, cov.shape[0], 6)]) \
+        if cov.shape[0] else np.zeros((0, 6, 6))
+    return np.asarray(x), blocks
+
+
+def _noise_gain(n: int, fps: float) -> float:
+    """Variance of white noise after ``_smoothed_rotations``' filter, per unit before."""
+    window = round(ROTATION_SMOOTH_S * fps) | 1
+    if 5 <= window < n:
+        # a least-squares smoother: Σ h_i² equals its central coefficient
+        return float(savgol_coeffs(window, 3)[window // 2])
+    return 1.0
 
 
 def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
@@ -78,6 +138,7 @@ def estimate_slip(
     *,
     fps: float,
     slip_hz: float = 0.5,
+    rotation_noise: float = 0.0,
 ) -> SlipFit:
     """Slow displacement of every sensor against its bone, from all joints at once.
 
@@ -95,6 +156,9 @@ def estimate_slip(
         Frame rate, Hz.
     slip_hz : float
         Highest slip frequency modelled, Hz.
+    rotation_noise : float
+        Per-axis variance (rad²) of the white orientation noise of the measured rotations
+        (``rotation_noise_variance``); 0: no errors-in-variables correction.
 
     Returns
     -------
@@ -117,6 +181,19 @@ def estimate_slip(
     (``M_t = R_aᵀR_b``) as in ``joints._slip_system``. The rotations used as regressors are
     low-passed (``ROTATION_SMOOTH_S``); the measured ones serve to remove the slip.
 
+    Errors in variables (``rotation_noise``): a rotation with white noise of variance ``v``
+    per axis has ``E[R] = (1 − v) R̄``, so the sums ``Σ R_aᵀR_b`` of a joint come out
+    ``(1 − v)²`` times their noise-free value and the ``Σ R_aᵀ d`` sums ``(1 − v)`` times:
+    the weakest eigenvalues of a joint that rotates a few degrees gain about ``2v`` and its
+    centre is pulled toward the sensors (attenuation bias). With ``v`` scaled by the
+    smoothing filter's noise gain, the M-dependent blocks of joint j are divided by
+    ``(1 − v)²`` and its right-hand side by ``(1 − v)`` in a second system (same
+    assembly, one more factorisation), where this leaves ``EIV_SIGNAL_SHARE`` of the joint's
+    weakest eigenvalue; its centre and covariance replace the uncorrected ones when the two
+    centres differ by more than ``EIV_CHI2`` in Mahalanobis distance. The slips stay those of
+    the uncorrected system. Corrected least squares for measurement error: Fuller,
+    *Measurement Error Models*, Wiley 1987, §2.2.
+
     Soft-tissue artefact of skin-mounted sensors: Leardini, Chiari, Della Croce & Cappozzo,
     "Human movement analysis using stereophotogrammetry. Part 3: Soft tissue artifact
     assessment and compensation", Gait & Posture 21(2):212–225, 2005. Savitzky & Golay,
@@ -129,9 +206,16 @@ def estimate_slip(
     smoothed = _smoothed_rotations(np.stack([quaternions[s] for s in sensors], axis=1), fps)
     rot = {s: smoothed[:, i] for i, s in enumerate(sensors)}
     n_c = 6 * len(pairs)
-    index = {s: n_c + 3 * k * i for i, s in enumerate(sensors)}
-    size = n_c + 3 * k * len(sensors)
+    # unknowns: every sensor's slip coefficients, then every joint's centre (last, so that
+    # their covariance is the inverse of the factor's last block alone)
+    n_s = 3 * k * len(sensors)
+    index = {s: 3 * k * i for i, s in enumerate(sensors)}
+    size = n_s + n_c
     blocks: list[tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]] = []
+    # the errors-in-variables change of each corrected joint's block and right-hand side
+    eiv: list[tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]] = []
+    corrected = [False] * len(pairs)
+    v_eiv = rotation_noise * _noise_gain(n, fps)
     white: list[float] = []
     slow: dict[str, list[float]] = {s: [] for s in sensors}
     eye3 = np.eye(3)
@@ -180,10 +264,22 @@ def estimate_slip(
         big[6:, :6] = big[:6, 6:].T
         big[bb, ba] = big[ba, bb].T
         rhs = np.concatenate([prhs, -(wphi.T @ ra_d).reshape(-1), (wphi.T @ rb_d).reshape(-1)])
-        idx = np.concatenate([np.arange(6 * j, 6 * j + 6),
+        idx = np.concatenate([np.arange(n_s + 6 * j, n_s + 6 * j + 6),
                               np.arange(index[a], index[a] + 3 * k),
                               np.arange(index[b], index[b] + 3 * k)])
         blocks.append((idx, big / white_var, rhs / white_var))
+        if v_eiv > 0.0:
+            gain = 1.0 / (1.0 - v_eiv) ** 2
+            s_max = float(np.linalg.svd(msum / total, compute_uv=False)[0])
+            # weakest eigenvalue of the plain block: 1 − s_max before, 1 − gain·s_max after
+            if gain * s_max <= 1.0 - EIV_SIGNAL_SHARE * (1.0 - s_max):
+                mdep = np.zeros_like(big)
+                for r_, c_ in ((ca, cb), (ca, bb), (cb, ba), (ba, bb)):
+                    mdep[r_, c_] = big[r_, c_]
+                mdep += mdep.T
+                eiv.append((idx, (gain - 1.0) * mdep / white_var,
+                            (np.sqrt(gain) - 1.0) * rhs / white_var))
+                corrected[j] = True
     normal = np.zeros((size, size))
     rhs_all = np.zeros(size)
     for idx, big, rhs in blocks:
@@ -196,12 +292,27 @@ def estimate_slip(
         var = max(0.5 * float(np.mean(slow[s])), 0.5 * floor)
         ridge[index[s]:index[s] + 3 * k] = k / var
     normal[np.diag_indices(size)] += ridge
-    # the centres' columns of the inverse (their covariance blocks) and the solution, from
-    # one Cholesky factorisation
-    factor = cho_factor(normal)
-    x = cho_solve(factor, rhs_all)
-    cov = cho_solve(factor, np.eye(size)[:, :n_c])
-    blocks_c = np.stack([cov[6 * j:6 * j + 6, 6 * j:6 * j + 6] for j in range(len(pairs))]) \
-        if pairs else np.zeros((0, 6, 6))
-    return SlipFit({s: basis @ x[index[s]:index[s] + 3 * k].reshape(k, 3) for s in sensors},
-                   x[:n_c].reshape(-1, 2, 3), blocks_c)
+    x, blocks_c = _solve_system(normal, rhs_all, n_s)
+    centres = x[n_s:].reshape(-1, 2, 3)
+    slip = {s: basis @ x[index[s]:index[s] + 3 * k].reshape(k, 3) for s in sensors}
+    if not eiv:
+        return SlipFit(slip, centres, blocks_c, tuple(corrected))
+    for idx, delta, rhs in eiv:
+        normal[np.ix_(idx, idx)] += delta
+        rhs_all[idx] += rhs
+    try:
+        x_e, blocks_e = _solve_system(normal, rhs_all, n_s)
+    except np.linalg.LinAlgError:  # the corrections together left no positive definite system
+        return SlipFit(slip, centres, blocks_c, (False,) * len(pairs))
+    centres_e = x_e[n_s:].reshape(-1, 2, 3)
+    centres, blocks_c = centres.copy(), blocks_c.copy()
+    for j in range(len(pairs)):
+        if not corrected[j]:
+            continue
+        shift = (centres_e[j] - centres[j]).reshape(6)
+        if float(shift @ np.linalg.solve(blocks_c[j], shift)) > EIV_CHI2:
+            centres[j] = centres_e[j]
+            blocks_c[j] = blocks_e[j]
+        else:
+            corrected[j] = False
+    return SlipFit(slip, centres, blocks_c, tuple(corrected))
