@@ -213,15 +213,14 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
 
 
 def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
-                pa: NDArray[np.float64], ra_rot: Rotation, pb: NDArray[np.float64],
-                rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_],
-                a: str, b: str, *,
+                pa_true: NDArray[np.float64], ra_rot: Rotation, pb_true: NDArray[np.float64],
+                rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_], *,
                 symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
                 prior: tuple[NDArray[np.float64], float] | None) -> JointFit:
     """The joint's centre from the shared slip model (posterior mean and covariance of its
     centre, every sensor's slip integrated out) combined with its anatomical priors (Gaussian,
-    in absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision), and its path with
-    the sensors' estimated slip removed."""
+    in absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision), and its path from
+    the sensor positions without their estimated slip (``pa_true``, ``pb_true``)."""
     cov = shared.covariances[j]
     mean = shared.centres[j].reshape(6)
     scale = float(np.trace(cov)) / 6.0
@@ -231,9 +230,6 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     normal = precision.copy()
     rhs = precision @ mean
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
-    sa, sb = shared.slip[a], shared.slip[b]
-    pa_true = pa - rows.apply_each(ra, sa)
-    pb_true = pb - rows.apply_each(rb, sb)
     both = ok_a & ok_b
     tau = 0.0
     if prior is not None:
@@ -491,6 +487,7 @@ def estimate_skeleton(
     # every sensor's soft-tissue slip from all the joint equations at once: the torso joints
     # take their centres from it, the wrists are fitted on the positions without it
     shared: SlipFit | None = None
+    without_slip: dict[str, NDArray[np.float64]] = {}  # each sensor's p − R s, once
     if method == "auto" and slip_hz > 0 and highpass <= 1:
         by_sensor = {s: quat[:, column[s]] for s in use}
         # orientation noise biases the centres of joints that rotate a few degrees toward
@@ -498,6 +495,8 @@ def estimate_skeleton(
         shared = estimate_slip(positions, by_sensor, ok, [JOINT_SEGMENTS[j] for j in pairs],
                                fps=recording.fps, slip_hz=slip_hz,
                                rotation_noise=rotation_noise_variance(by_sensor, ok))
+        without_slip = {s: positions[s] - rows.apply_each(rotations[s].as_matrix(), slip)
+                        for s, slip in shared.slip.items()}
     shared_index = {j: i for i, j in enumerate(pairs)}
     raw: dict[str, JointFit] = {}  # estimate_joint's own fits
 
@@ -510,8 +509,7 @@ def estimate_skeleton(
         a, b = JOINT_SEGMENTS[name]
         pa, pb = positions[a], positions[b]
         if shared is not None and name in _DESLIPPED:
-            pa = pa - rows.apply_each(rotations[a].as_matrix(), shared.slip[a])
-            pb = pb - rows.apply_each(rotations[b].as_matrix(), shared.slip[b])
+            pa, pb = without_slip[a], without_slip[b]
         torso_shared = shared is not None and name in _TORSO_JOINTS
         if torso_shared and name in raw:
             # the shared model gives the centre; the per-joint fit only its quality figures,
@@ -530,8 +528,8 @@ def estimate_skeleton(
                 raise EstimationError(f"{name}: {exc.detail}", field=name) from None
             raw[name] = fit
         if shared is not None and torso_shared:
-            fit = _shared_fit(fit, shared, shared_index[name], positions[a], rotations[a],
-                              positions[b], rotations[b], ok[a], ok[b], a, b,
+            fit = _shared_fit(fit, shared, shared_index[name], without_slip[a], rotations[a],
+                              without_slip[b], rotations[b], ok[a], ok[b],
                               symmetry=symmetry, prior=prior)
         if name in static:
             source = ("anatomical priors" if prior is not None or neighbours[0] is not None
