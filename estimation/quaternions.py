@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "from_axes", "from_matrix",
-           "from_rotvec", "mean", "multiply", "relative", "rotate"]
+__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "continuous", "from_axes",
+           "from_matrix", "from_rotvec", "mean", "multiply", "relative", "rotate"]
 
 Float = NDArray[np.float64]
 
@@ -66,6 +66,28 @@ def conjugate(q: ArrayLike) -> Float:
     """
     out = np.array(_q(q), dtype=float)
     out[..., 1:] *= -1.0
+    return out
+
+
+def continuous(q: ArrayLike) -> Float:
+    """A time series of rotations with each quaternion's sign chosen so that consecutive ones
+    lie in the same hemisphere (``q_t · q_{t−1} ≥ 0``): its components then vary smoothly,
+    as filters and finite differences need.
+
+    Parameters
+    ----------
+    q : array_like, shape (F, ..., 4)
+        Quaternions, time first (any further leading axes: independent series).
+
+    Returns
+    -------
+    ndarray, shape (F, ..., 4)
+        A copy; the first frame keeps its sign.
+    """
+    out = np.array(_q(q), dtype=float)
+    flips = np.einsum("...i,...i->...", out[1:], out[:-1]) < 0.0
+    odd = np.cumsum(flips, axis=0) % 2 == 1
+    out[1:][odd] *= -1.0
     return out
 
 

@@ -75,10 +75,7 @@ def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
     """
     estimates = []
     for name, q in quaternions.items():
-        q = np.array(q, dtype=float)
-        flips = rows.dots(q[1:], q[:-1]) < 0.0
-        q *= np.concatenate([[1.0], np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)])[:, None]
-        d3 = np.diff(q, n=3, axis=0)
+        d3 = np.diff(quat.continuous(q), n=3, axis=0)
         ok = np.convolve(valid[name].astype(float), np.ones(4), "valid") > 3.5
         if ok.sum() > 10:
             estimates.append(float(np.median(rows.dots(d3[ok], d3[ok]))) / (5.0 * 2.366))
@@ -117,12 +114,7 @@ def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
     follow the noise; a cubic Savitzky–Golay filter over ``ROTATION_SMOOTH_S`` keeps the motion
     (cubic over 0.2 s) and averages the noise.
     """
-    q = np.array(quaternions, dtype=float)
-    # the same hemisphere frame to frame, so that the components are smooth
-    flips = rows.dots(q[1:], q[:-1]) < 0.0
-    sign = np.concatenate([np.ones((1, q.shape[1])),
-                           np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)])
-    q *= sign[:, :, None]
+    q = quat.continuous(quaternions)
     window = round(ROTATION_SMOOTH_S * fps) | 1
     if 5 <= window < q.shape[0]:
         q = savgol_filter(q, window, 3, axis=0, mode="interp")

@@ -104,3 +104,16 @@ def test_shape_errors() -> None:
         quat.multiply(np.zeros((2, 3)), np.zeros((2, 4)))
     with pytest.raises(ValueError, match=r"\(\.\.\., 3, 3\)"):
         quat.from_matrix(np.zeros((2, 3)))
+
+
+def test_continuous_keeps_consecutive_quaternions_in_one_hemisphere() -> None:
+    q = _wxyz(Rotation.from_rotvec(np.outer(np.linspace(0.0, 3.0, 40), [0.3, -1.0, 0.5])))
+    flipped = q * np.where(np.random.default_rng(2).random(40) < 0.5, -1.0, 1.0)[:, None]
+    got = quat.continuous(flipped)
+    assert np.all(np.einsum("ti,ti->t", got[1:], got[:-1]) > 0.0)
+    np.testing.assert_allclose(np.abs(np.einsum("ti,ti->t", got, q)), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(got[0], flipped[0])
+    # independent series on a further axis: (F, S, 4)
+    both = quat.continuous(np.stack([flipped, -flipped], axis=1))
+    np.testing.assert_array_equal(both[:, 0], got)
+    np.testing.assert_array_equal(both[:, 1], -got)
