@@ -556,6 +556,14 @@ def estimate_joint(
             res = res + _slip_displacement(ra, rb, basis, slip_coefficients(c))
         return np.asarray(res)
 
+    def variance_per_information(c: NDArray[np.float64]) -> float:
+        """``σ²/N_eff`` at ``c``: the residual variance per axis over the effective number of
+        samples (slow slip counts as few), the variance of the centre per unit of the
+        normalised system's eigenvalue along a direction."""
+        res_vec = residual(c)
+        sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * float(w.sum()))
+        return sigma2 / effective_samples(res_vec, w)
+
     w = w0.copy()
     c = np.zeros(6)
     prior_weight = 0.0
@@ -592,10 +600,7 @@ def estimate_joint(
             # normalised data term is σ²/(N_eff s0²), so it only moves the centre along
             # directions the motion leaves as uncertain as the prior itself
             x0 = np.asarray(prior[0], dtype=float)
-            res_vec = residual(c)
-            sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * w.sum())
-            n_eff = effective_samples(res_vec, w)
-            prior_weight = sigma2 / (n_eff * prior[1] ** 2)
+            prior_weight = variance_per_information(c) / prior[1] ** 2
             x0_b = np.einsum("t,ti->i", w, np.einsum(
                 "tji,tj->ti", rb, rows.apply(ra, x0) + pa - pb)) / w.sum()
             reg_normal += prior_weight * np.eye(6)
@@ -654,10 +659,7 @@ def estimate_joint(
             # in the centre's coordinates) means the data contradict that hypothesis (a
             # short clip whose relative rotation is no flexion about a perpendicular axis):
             # the data alone decide
-            res_vec = residual(c)
-            sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * w.sum())
-            sd_axis = step * np.sqrt(sigma2 / (effective_samples(res_vec, w)
-                                               * max(lam0, 1e-300)))
+            sd_axis = step * np.sqrt(variance_per_information(c) / max(lam0, 1e-300))
             if abs(shift) > RULE_GATE_SIGMA * sd_axis:
                 rule, shift, rejected = None, 0.0, "foot-of-perpendicular"
         if rule is not None:

@@ -250,7 +250,7 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     share_b = np.where(ok_a == ok_b, 0.5, ok_b.astype(float))
     quality = dict(fit.quality)
     quality["estimator"] = "llsf-shared-slip"
-    quality["rotation_noise_corrected"] = bool(shared.corrected[j]) if shared.corrected else False
+    quality["rotation_noise_corrected"] = shared.corrected[j]
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
     if prior is not None:
         weakest = float(np.linalg.eigvalsh(precision)[0])

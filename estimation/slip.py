@@ -55,7 +55,7 @@ class SlipFit:
     slip: dict[str, NDArray[np.float64]]
     centres: NDArray[np.float64]
     covariances: NDArray[np.float64]
-    corrected: tuple[bool, ...] = ()
+    corrected: tuple[bool, ...]
     """Per joint: its centre and covariance come from the system corrected for orientation
     noise (``estimate_slip(rotation_noise=...)``)."""
 
