@@ -328,38 +328,45 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
         d, ll, e, lu, value = geometry(theta)
         inv_l = 1.0 / ll
         inv_lu = 1.0 / lu
-        # rows of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then ê),
-        # then the same weighted by c/l and c_u/l_u; every sum below is one product with z,
-        # and z is frame-major so that numpy's loops run over frames, not over 3 components
-        z = np.empty((18, m))
+        # rows of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then ê) and
+        # ones, then c, c_u, c/l, c_u/l_u and the first nine rows weighted by c/l and
+        # c_u/l_u: every sum below is an entry of the one product z[:10] zᵀ. z is frame-major
+        # so that numpy's loops run over frames, not over 3 components.
+        z = np.empty((23, m))
         np.multiply(d.T, inv_l, out=z[:3])
-        np.einsum("if,fij->jf", z[:3], limb.q, out=z[3:6])
+        for j in range(3):
+            # uᵀQ row by row: strided reads of Q, a third faster than einsum
+            np.multiply(z[0], limb.q[:, 0, j], out=z[3 + j])
+            z[3 + j] += z[1] * limb.q[:, 1, j]
+            z[3 + j] += z[2] * limb.q[:, 2, j]
         np.multiply(e.T, inv_lu, out=z[6:9])
-        c = ((1.0 + w_l) * ll - (np.einsum("f->", ll) / m + w_l * l_low)) / m
-        cu = w_l / m * (lu - l_up)
-        sums = z[:9] @ np.stack([c, cu, np.ones(m)]).T
-        g = _SIGN * sums[:6, 0] + w_s * theta
-        g[:3] += sums[6:, 1]
-        j_bar = _SIGN * sums[:6, 2] / m
-        cl = c * inv_l
-        cul = cu * inv_lu
-        np.multiply(z[:6], cl, out=z[9:15])
-        np.multiply(z[6:9], cul, out=z[15:])
-        # one product for both Σ x xᵀ and Σ (c/l) x xᵀ
-        gram = z[:9] @ z.T
+        z[9] = 1.0
+        c, cu, cl, cul = z[10], z[11], z[12], z[13]
+        np.multiply(ll, (1.0 + w_l) / m, out=c)
+        c -= (np.einsum("f->", ll) / m + w_l * l_low) / m
+        np.subtract(lu, l_up, out=cu)
+        cu *= w_l / m
+        np.multiply(c, inv_l, out=cl)
+        np.multiply(cu, inv_lu, out=cul)
+        np.multiply(z[:6], cl, out=z[14:20])
+        np.multiply(z[6:9], cul, out=z[20:])
+        gram = z[:10] @ z.T
+        g = _SIGN * gram[:6, 10] + w_s * theta
+        g[:3] += gram[6:9, 11]
+        j_bar = _SIGN * gram[:6, 9] / m
         h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar) \
             + w_s * np.eye(6)
-        h[:3, :3] += w_l / m * gram[6:, 6:9]
+        h[:3, :3] += w_l / m * gram[6:9, 6:9]
         if not exact:
             return value, g, h
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
-        second = np.sum(cl) * np.eye(6) - _SIGN_OUTER * gram[:6, 9:15]
+        second = gram[9, 12] * np.eye(6) - _SIGN_OUTER * gram[:6, 14:20]
         cross = (cl @ limb.q.reshape(m, 9)).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
-        second[:3, :3] += np.sum(cul) * np.eye(3) - gram[6:, 15:]
+        second[:3, :3] += gram[9, 13] * np.eye(3) - gram[6:9, 20:]
         return value, g, h, h + second
 
     return _PaperObjective(cost, normal, segment_lengths)
@@ -976,7 +983,8 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     report(0.0, "limbs")
     limb = _prepare(proximal, upper_positions, upper_rotations, distal_positions,
                     distal_rotations)
-    x0 = _initial_point(limb, lengths)
+    # a start needs only means over the frames: the subsample's are as good
+    x0 = _initial_point(_coarse(limb) or limb, lengths)
     quality: dict[str, Any] = {"method": method}
     objective = _paper_normal(limb, lengths, w_s, w_l)
     if method == "paper" and optimizer == "nelder-mead":
