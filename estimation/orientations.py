@@ -12,7 +12,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from . import _rows as rows
 from . import quaternions as quat
 from .errors import EstimationError, InputError
 from .model import JOINTS
@@ -32,32 +31,36 @@ _EPS = 1e-12
 
 # Vectors are (3, F) arrays, a row per component: numpy runs its loops over the last axis, so
 # per-frame arithmetic on (F, 3) rows runs F loops of 3 and costs 5-10x the same over (3, F).
-# Quaternions stay (F, 4), scalar-first, as returned.
-
-
-def _norm(v: Float) -> Float:
-    return np.asarray(np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+# Quaternions stay (F, 4), scalar-first, as returned. Fresh intermediate arrays are updated in
+# place: allocating a new array costs about as much as the arithmetic.
 
 
 def _dot(a: Float, b: Float) -> Float:
-    return np.asarray(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+    return np.asarray(np.einsum("i...,i...->...", a, b))
 
 
-def _unit(v: Float) -> Float:
-    n = _norm(v)
-    return np.asarray(v / np.where(n > _EPS, n, 1.0))
+def _normalise(v: Float) -> Float:
+    """``v`` (3, F), a fresh array, scaled in place to unit length (zero vectors stay zero)."""
+    n = np.sqrt(_dot(v, v))
+    n[n <= _EPS] = 1.0
+    v /= n
+    return v
 
 
 def _cross(a: Float, b: Float) -> Float:
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        np.multiply(a[j], b[k], out=out[i])
+        out[i] -= a[k] * b[j]
+    return out
 
 
 def _canonical(q: Float) -> Float:
     """``q`` (a fresh (F, 4) array, changed in place) with ``w ≥ 0``, as
     ``quaternions.from_matrix`` returns rotations."""
-    negative = q[:, 0] < 0
-    q[negative] = -q[negative]
+    sign = np.where(q[:, 0] < 0, -1.0, 1.0)
+    for k in range(4):
+        q[:, k] *= sign
     return q
 
 
@@ -67,9 +70,11 @@ Axes = tuple[Float, Float, Float]
 
 def _frame_from_yz(y: Float, z: Float) -> Axes:
     """Eqs. 8–9: normalised y, z and x = y × z (y and z are orthogonal by construction;
-    z is re-orthogonalised so that rounding never leaves a skewed frame)."""
-    y = _unit(y)
-    z = _unit(z - _dot(z, y) * y)
+    z is re-orthogonalised so that rounding never leaves a skewed frame). ``y`` and ``z``
+    are fresh arrays, changed in place."""
+    y = _normalise(y)
+    z -= _dot(z, y) * y
+    z = _normalise(z)
     return _cross(y, z), y, z
 
 
@@ -78,55 +83,73 @@ def _quat(axes: Axes) -> Float:
     return quat.from_axes(x.T, y.T, z.T)
 
 
-def _axes(q: Float) -> Axes:
-    """The frame axes of quaternions (F, 4)."""
-    m = quat.as_matrix(q)
-    return (np.ascontiguousarray(m[:, :, 0].T), np.ascontiguousarray(m[:, :, 1].T),
-            np.ascontiguousarray(m[:, :, 2].T))
-
-
 def _quat_from_xy(x: Float, y: Float) -> Float:
     """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
     z = x × y, as quaternions (F, 4)."""
-    x = _unit(x - _dot(x, y) * y)
+    x = _normalise(x - _dot(x, y) * y)
     return _quat((x, y, _cross(x, y)))
 
 
-def _align_y(axes: Axes, frames_q: Float, target_y: Float) -> Float:
-    """Eq. 10: ``R · R(θ, n)``, the minimal rotation about an axis fixed in the frame that
-    turns its y axis onto ``target_y``; scalar-first quaternions (F, 4).
+def _local(q: Float, v: Float) -> Float:
+    """``R(q)⁻¹ v`` for quaternions ``q`` (F, 4) and vectors ``v`` (3, F):
+    ``v − w t + u × t`` with ``t = 2 u × v`` and ``u`` the vector part of ``q``."""
+    u = q[:, 1:].T
+    t = _cross(u, v)
+    t *= 2.0
+    out = _cross(u, t)
+    out -= q[:, 0] * t
+    out += v
+    return out
 
-    ``axes`` and ``frames_q`` (F, 4) are the same rotations ``R``. The minimal rotation
-    taking e_y to the unit vector ``l`` is the half-way quaternion ``(1 + e_y·l, e_y × l)``
-    normalised."""
-    local = _unit(np.stack([_dot(a, target_y) for a in axes]))  # R⁻¹ target
-    half = np.stack([1.0 + local[1], local[2], np.zeros(local.shape[1]), -local[0]])
-    norm = np.sqrt(np.einsum("if,if->f", half, half))
+
+def _align_y(frames_q: Float, target_y: Float) -> Float:
+    """Eq. 10: ``R · R(θ, n)``, the minimal rotation about an axis fixed in the frame that
+    turns its y axis onto ``target_y`` (3, F); scalar-first quaternions (F, 4).
+
+    ``frames_q`` (F, 4) are the rotations ``R``. The minimal rotation taking e_y to the unit
+    vector ``l = R⁻¹ target`` is the half-way quaternion ``(1 + e_y·l, e_y × l)``
+    ``= (1 + l_y, l_z, 0, −l_x)`` normalised."""
+    lx, ly, lz = _normalise(_local(frames_q, target_y))
+    hw, hx, hz = 1.0 + ly, lz, -lx
+    norm = np.sqrt(hw * hw + hx * hx + hz * hz)
     # at θ = π the axis is undefined: any axis ⟂ y will do (z)
     flip = norm <= _EPS
-    half /= np.where(flip, 1.0, norm)
-    half[:, flip] = [[0.0], [0.0], [0.0], [1.0]]
-    return _canonical(quat.multiply(frames_q, half.T))
+    norm[flip] = 1.0
+    hw, hx, hz = hw / norm, hx / norm, hz / norm
+    hw[flip], hx[flip], hz[flip] = 0.0, 0.0, 1.0
+    # R ⊗ h, h's y component being zero
+    qw, qx, qy, qz = frames_q.T
+    out = np.empty_like(frames_q)
+    out[:, 0] = qw * hw - qx * hx - qz * hz
+    out[:, 1] = qw * hx + qx * hw + qy * hz
+    out[:, 2] = qy * hw - qx * hz + qz * hx
+    out[:, 3] = qw * hz - qy * hx + qz * hw
+    return _canonical(out)
 
 
 def _flexion_axis(upper_bone: Float, lower_bone: Float, sensor: Float | None,
                   fallback: Float) -> Float:
     """Eq. 6: the instantaneous flexion axis I_m × I_{m+1} blended, by the flexion angle θ,
     with its θ-weighted mean direction fixed in the upper segment's sensor frame (``sensor``:
-    its rotation matrices, (F, 3, 3))."""
-    cross = _cross(upper_bone, lower_bone)
-    sin = _norm(cross)
-    cos = _dot(upper_bone, lower_bone)
-    theta = np.arctan2(sin, cos)
-    inst = cross / np.where(sin > _EPS, sin, 1.0)
+    its rotation matrices, (F, 3, 3)); a fresh (3, F) array."""
+    weighted = _cross(upper_bone, lower_bone)
+    sin = np.sqrt(_dot(weighted, weighted))
+    theta = np.arctan2(sin, _dot(upper_bone, lower_bone))
+    sin[sin <= _EPS] = 1.0
+    weighted *= theta / sin  # the unit instantaneous axis times θ
     steady = fallback
     if sensor is not None:
-        # Σ_t R_tᵀ v_t: one product over the stacked (3F) rows
-        mean_local = (inst * theta).T.reshape(-1) @ sensor.reshape(-1, 3)
-        if np.linalg.norm(mean_local) > _EPS:
-            steady = np.ascontiguousarray(
-                rows.apply(sensor, mean_local / np.linalg.norm(mean_local)).T)
-    return np.asarray(steady * (np.pi - theta) + inst * theta)
+        matrices = sensor.reshape(-1, 9)
+        # Σ_t R_tᵀ v_t: blocks[i, k, j] = Σ_t v_i[t] R_t[k, j], of which the k = i ones
+        blocks = (weighted @ matrices).reshape(3, 3, 3)
+        mean_local = np.einsum("iij->j", blocks)
+        length = np.linalg.norm(mean_local)
+        if length > _EPS:
+            # R_t m for each t, as (3, F) rows: row i of kron(I, m) picks row i of R_t
+            steady = np.kron(np.eye(3), mean_local / length) @ matrices.T
+    out = steady * (np.pi - theta)
+    out += weighted
+    return out
 
 
 def _as_joint(joints: Mapping[str, ArrayLike], name: str, n: int | None) -> Float:
@@ -219,8 +242,8 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
         "chest": _frame_from_yz(0.5 * (ls + rs) - w, _cross(ls - w, rs - w)),
     }
     quats: dict[str, Float] = {seg: _quat(a) for seg, a in axes.items()}
-    quats["spine"] = _align_y(axes["chest"], quats["chest"], col["chest"] - w)
-    quats["cervical"] = _align_y(axes["chest"], quats["chest"], col["neck"] - col["chest"])
+    quats["spine"] = _align_y(quats["chest"], col["chest"] - w)
+    quats["cervical"] = _align_y(quats["chest"], col["neck"] - col["chest"])
 
     pelvis_x, pelvis_y, pelvis_z = axes["pelvis"]
     pelvis_i0 = quat.from_axes(pelvis_x[:, i0], pelvis_y[:, i0], pelvis_z[:, i0])
@@ -229,8 +252,8 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
         if calibration == "pelvis":
             reference = dict.fromkeys(ends, pelvis_i0)
         elif calibration == "upright":
-            y = np.asarray(up, dtype=float).reshape(3, 1)
-            upright = _quat(_frame_from_yz(y, pelvis_z[:, i0].reshape(3, 1)))[0]
+            y = np.array(up, dtype=float).reshape(3, 1)
+            upright = _quat(_frame_from_yz(y, pelvis_z[:, [i0]]))[0]
             reference = dict.fromkeys(ends, upright)
         else:
             raise InputError(f"unknown calibration {calibration!r}; use 'pelvis', 'upright' "
@@ -247,19 +270,19 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
             quats[seg] = _canonical(q @ offset)
 
     for upper, lower, distal, prox, mid, end, sign in _LIMBS:
-        upper_bone = _unit(col[prox] - col[mid])
-        lower_bone = _unit(col[mid] - col[end])
+        upper_bone = _normalise(col[prox] - col[mid])
+        lower_bone = _normalise(col[mid] - col[end])
         parent_x = axes["pelvis" if upper.endswith("thigh") else "chest"][0]
         sensor = sensor_rotations.get(upper)
-        x = sign * _flexion_axis(upper_bone, lower_bone,
-                                 None if sensor is None else sensor.as_matrix(),
-                                 sign * parent_x)
+        x = _flexion_axis(upper_bone, lower_bone,
+                          None if sensor is None else sensor.as_matrix(), sign * parent_x)
+        x *= sign
         quats[upper] = _quat_from_xy(x, upper_bone)
         if distal not in quats:
             quats[lower] = _quat_from_xy(x, lower_bone)
             quats[distal] = quats[lower]
         elif sign < 0:
-            quats[lower] = _align_y(_axes(quats[distal]), quats[distal], lower_bone)
+            quats[lower] = _align_y(quats[distal], lower_bone)
         else:
             quats[lower] = _quat_from_xy(x, lower_bone)
     return quats
