@@ -2,22 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 
 from . import _rows as rows
 from .errors import InputError
 from .quaternions import as_rotvec, from_rotvec, multiply, relative
-
-
-def _neighbours(valid: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Index of the last valid sample at or before, and the first at or after, each frame,
-    along axis 0; -1 (n) where there is none."""
-    n = valid.shape[0]
-    idx = np.arange(n).reshape((n,) + (1,) * (valid.ndim - 1))
-    prev = np.maximum.accumulate(np.where(valid, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(valid, idx, n)[::-1], axis=0)[::-1]
-    return prev, nxt
 
 
 def gap_lengths(valid: NDArray[np.bool_]) -> NDArray[np.intp]:
@@ -27,6 +20,39 @@ def gap_lengths(valid: NDArray[np.bool_]) -> NDArray[np.intp]:
     starts = np.flatnonzero(change == -1)
     stops = np.flatnonzero(change == 1)
     return np.asarray(stops - starts, dtype=np.intp)
+
+
+def sensor_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDArray[np.float64]:
+    """A sensor-major copy of some sensors' samples.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (F, S, K)
+        Per-frame samples of S sensors (positions: K = 3, quaternions: K = 4).
+    columns : sequence of int
+        The sensors to copy, in order.
+
+    Returns
+    -------
+    ndarray, shape (len(columns), F, K)
+        A new C-contiguous float64 array: each sensor's samples are contiguous.
+    """
+    arr = np.ascontiguousarray(samples, dtype=float)
+    # each K-vector copied as one opaque item: twice as fast as numpy's fancy indexing of
+    # the float array, which copies element by element
+    items = arr.view(np.dtype((np.void, arr.itemsize * arr.shape[2]))).reshape(arr.shape[:2])
+    out = items.T[list(columns)]
+    return out.view(np.float64).reshape(len(columns), arr.shape[0], arr.shape[2])
+
+
+class FilledGaps(NamedTuple):
+    """Where samples of sensor-major pose streams were dropped (``fill_sensor_major``)."""
+
+    valid: NDArray[np.bool_]  # (S, F) measured samples
+    longest: NDArray[np.intp]  # (S,) each sensor's longest run of dropped samples, frames
+    norms2: NDArray[np.float64]  # (S, F) squared norms of the quaternions, after filling,
+    # summed as scipy does (x² + y² + z² + w²): dividing by their roots gives the unit
+    # quaternions of ``Rotation.from_quat`` bit for bit
 
 
 def fill_gaps(
@@ -63,50 +89,122 @@ def fill_gaps(
     InputError
         If a sensor has no valid sample at all (``sensor`` is its column index).
     """
+    single = positions.ndim == 2
+    if single:
+        positions, quaternions = positions[:, None], quaternions[:, None]
+    every = range(positions.shape[1])
+    pos, quat = sensor_major(positions, every), sensor_major(quaternions, every)
+    filled = ~fill_sensor_major(pos, quat, time=time, method=method).valid
+    if single:
+        return pos[0], quat[0], filled[0]
+    return pos.swapaxes(0, 1), quat.swapaxes(0, 1), filled.T
+
+
+def fill_sensor_major(
+    positions: NDArray[np.float64],
+    quaternions: NDArray[np.float64],
+    *,
+    time: NDArray[np.float64] | None = None,
+    method: str = "cubic",
+) -> FilledGaps:
+    """``fill_gaps`` in place on sensor-major arrays, without copying them.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (S, F, 3)
+        C-contiguous float64 positions, NaN where dropped; filled in place.
+    quaternions : ndarray, shape (S, F, 4)
+        C-contiguous float64 scalar-first rotations, NaN where dropped; filled in place.
+    time, method
+        As for ``fill_gaps``.
+
+    Returns
+    -------
+    FilledGaps
+        The measured samples, each sensor's longest gap and the quaternions' squared norms.
+
+    Raises
+    ------
+    InputError
+        If a sensor has no valid sample at all (``sensor`` is its index along axis 0).
+    """
     if method not in ("cubic", "linear"):
         raise InputError(f"unknown gap-filling method {method!r}", field="method")
-    single = positions.ndim == 2
-    pos = np.array(positions[:, None] if single else positions, dtype=float)
-    quat = np.array(quaternions[:, None] if single else quaternions, dtype=float)
-    n_frames = pos.shape[0]
+    for arr in (positions, quaternions):
+        if arr.dtype != np.float64 or not arr.flags.c_contiguous:
+            raise ValueError("fill_sensor_major fills C-contiguous float64 arrays in place")
+    n_sensors, n_frames = positions.shape[:2]
     t = np.arange(n_frames, dtype=float) if time is None else np.asarray(time, dtype=float)
-    valid = rows.finite(pos) & rows.finite(quat)
-    valid &= rows.dots(quat, quat) > 1e-18  # NaN compares False: no mask needed
-    empty = ~valid.any(axis=0)
+    # one pass of isfinite over the contiguous arrays, then the components' masks
+    finite_p = np.isfinite(positions)
+    finite_q = np.isfinite(quaternions)
+    valid = finite_p[..., 0] & finite_p[..., 1] & finite_p[..., 2]
+    for k in range(4):
+        valid &= finite_q[..., k]
+    norms2 = _norms2(quaternions)
+    valid &= norms2 > 1e-18  # NaN compares False
+    empty = ~valid.any(axis=1)
     if empty.any():
         s = int(np.flatnonzero(empty)[0])
         raise InputError(f"sensor column {s} has no valid sample", sensor=str(s))
-    prev, nxt = _neighbours(valid)
-    frame, sensor = np.nonzero(~valid)
-    i0, i1 = prev[frame, sensor], nxt[frame, sensor]
+    # the dropped samples (sensor-major flat indices, sorted) and their runs: each run is
+    # bracketed by the valid samples lo = first − 1 and hi = last + 1 (−1, F: none)
+    bad = np.flatnonzero(~valid.reshape(-1))
+    longest = np.zeros(n_sensors, dtype=np.intp)
+    if bad.size == 0:
+        return FilledGaps(valid, longest, norms2)
+    sensor, frame = np.divmod(bad, n_frames)
+    starts = np.ones(bad.size, dtype=bool)
+    starts[1:] = (bad[1:] != bad[:-1] + 1) | (sensor[1:] != sensor[:-1])
+    run = np.cumsum(starts) - 1
+    run_sensor = sensor[starts]
+    lo = frame[starts] - 1
+    hi = frame[np.append(starts[1:], True)] + 1
+    np.maximum.at(longest, run_sensor, hi - lo - 1)
+    i0, i1 = lo[run], hi[run]
     interior = (i0 >= 0) & (i1 < n_frames)
     # outside the valid range, repeat the nearest valid sample
     i0 = np.where(i0 < 0, i1, i0)
     i1 = np.where(i1 >= n_frames, i0, i1)
     span = t[i1] - t[i0]
     frac = np.where(span > 0, (t[frame] - t[i0]) / np.where(span > 0, span, 1.0), 0.0)
-    p0, p1 = pos[i0, sensor], pos[i1, sensor]
+    pos = positions.reshape(-1, 3)
+    quat = quaternions.reshape(-1, 4)
+    base = sensor * n_frames
+    p0, p1 = pos[base + i0], pos[base + i1]
     filled_pos = p0 + frac[:, None] * (p1 - p0)
     if method == "cubic":
         # local cubic through two valid samples each side of the gap: one vectorised step
-        # for all sensors instead of a global spline per sensor
-        before = np.where(interior & (i0 > 0), prev[np.maximum(i0 - 1, 0), sensor], -1)
-        after = np.where(interior & (i1 < n_frames - 1),
-                         nxt[np.minimum(i1 + 1, n_frames - 1), sensor], n_frames)
+        # for all sensors instead of a global spline per sensor. The valid sample before
+        # lo is lo − 1 unless that was dropped: then the previous run of the sensor ends
+        # there, and its own lo is the one
+        same_prev = np.zeros(lo.size, dtype=bool)
+        same_prev[1:] = (run_sensor[1:] == run_sensor[:-1]) & (hi[:-1] == lo[1:])
+        before_run = np.where(same_prev, np.roll(lo, 1), lo - 1)
+        same_next = np.zeros(hi.size, dtype=bool)
+        same_next[:-1] = same_prev[1:]
+        after_run = np.where(same_next, np.roll(hi, -1), hi + 1)
+        before = np.where(interior, before_run[run], -1)
+        after = np.where(interior, after_run[run], n_frames)
         cubic = (before >= 0) & (after < n_frames)
         if cubic.any():
             knots = np.stack([before[cubic], i0[cubic], i1[cubic], after[cubic]], axis=1)
-            filled_pos[cubic] = _lagrange(t[knots], pos[knots, sensor[cubic, None]],
+            filled_pos[cubic] = _lagrange(t[knots], pos[base[cubic, None] + knots],
                                           t[frame[cubic]])
-    pos[frame, sensor] = filled_pos
-    q0, q1 = quat[i0, sensor], quat[i1, sensor]
+    pos[bad] = filled_pos
+    q0, q1 = quat[base + i0], quat[base + i1]
     q0 = q0 / rows.norms(q0)[:, None]
     q1 = q1 / rows.norms(q1)[:, None]
-    quat[frame, sensor] = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
-    filled = ~valid
-    if single:
-        return pos[:, 0], quat[:, 0], filled[:, 0]
-    return pos, quat, filled
+    filled_quat = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
+    quat[bad] = filled_quat
+    norms2.reshape(-1)[bad] = _norms2(filled_quat)
+    return FilledGaps(valid, longest, norms2)
+
+
+def _norms2(quaternions: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``x² + y² + z² + w²`` of each scalar-first quaternion (..., 4), in that order."""
+    vector = quaternions[..., 1:]
+    return np.asarray(rows.dots(vector, vector) + quaternions[..., 0] ** 2)
 
 
 def _lagrange(knots_t: NDArray[np.float64], knots_p: NDArray[np.float64],

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from estimation.errors import EstimationError, InputError
-from estimation.gaps import fill_gaps, gap_lengths
+from estimation.gaps import fill_gaps, fill_sensor_major, gap_lengths, sensor_major
 from estimation.joints import _percentile, effective_samples, estimate_joint, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
@@ -221,6 +221,42 @@ def test_fill_gaps_multi_sensor_and_all_nan() -> None:
     pos[:, 1] = np.nan
     with pytest.raises(InputError, match="no valid sample"):
         fill_gaps(pos, quat)
+
+
+def test_sensor_major_copies_the_chosen_columns() -> None:
+    samples = np.arange(5 * 4 * 3, dtype=float).reshape(5, 4, 3)
+    out = sensor_major(samples, [2, 0])
+    assert out.flags.c_contiguous
+    assert np.array_equal(out, samples[:, [2, 0]].transpose(1, 0, 2))
+    out[0, 0, 0] = -1.0
+    assert samples[0, 2, 0] == 6.0  # a copy
+    assert np.array_equal(sensor_major(samples[::2, ::-1].astype(np.float32), [0]),
+                          samples[::2, 3][None])
+
+
+def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
+    rng = np.random.default_rng(3)
+    n_frames, n_sensors = 60, 4
+    pos = rng.normal(size=(n_frames, n_sensors, 3))
+    quat = rng.normal(size=(n_frames, n_sensors, 4))
+    drop = rng.random((n_frames, n_sensors)) < 0.3
+    drop[:3, 0] = drop[-2:, 1] = True  # gaps at both ends
+    drop[10, :] = False
+    pos[drop & (rng.random(drop.shape) < 0.5)] = np.nan
+    quat[drop & ~np.isnan(pos[..., 0])] = 0.0  # a zero quaternion is dropped too
+    time = np.cumsum(rng.uniform(0.5, 1.5, n_frames))
+    p_s, q_s = sensor_major(pos, range(n_sensors)), sensor_major(quat, range(n_sensors))
+    gaps = fill_sensor_major(p_s, q_s, time=time)
+    for k in range(n_sensors):
+        p_k, q_k, filled = fill_gaps(pos[:, k], quat[:, k], time=time)
+        assert np.array_equal(p_s[k], p_k)
+        assert np.array_equal(q_s[k], q_k)
+        assert np.array_equal(gaps.valid[k], ~filled)
+        assert gaps.longest[k] == gap_lengths(~filled).max(initial=0)
+    w, x, y, z = np.moveaxis(q_s, -1, 0)
+    assert np.array_equal(gaps.norms2, x * x + y * y + z * z + w * w)
+    with pytest.raises(ValueError, match="in place"):
+        fill_sensor_major(p_s[:, ::2], q_s[:, ::2])
 
 
 def test_bone_length_rule_when_the_axis_runs_along_the_bone(rig_factory: RigFactory) -> None:

@@ -11,11 +11,12 @@ from scipy.spatial.transform import Rotation
 
 from estimation.bvh import BvhMotion
 from estimation.errors import EstimationError, InputError
+from estimation.gaps import fill_sensor_major, sensor_major
 from estimation.model import JOINTS
 from estimation.recording import SensorRecording
 from estimation.results import JointOffset
 from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
-from estimation.skeleton import estimate_chest, estimate_root, estimate_skeleton
+from estimation.skeleton import _rotations, estimate_chest, estimate_root, estimate_skeleton
 
 Sim = tuple[SensorRecording, SimulationTruth]
 TORSO = ("root", "waist", "chest", "neck", "l_shoulder", "r_shoulder", "l_hip", "r_hip")
@@ -337,3 +338,15 @@ def test_offsets_errors_name_the_joint_or_sensor(sim15: Sim, sim11: Sim) -> None
     with pytest.raises(InputError) as err:
         estimate_skeleton(sim15[0], offsets=bad)
     assert err.value.field == "offsets.neck"
+
+
+def test_rotations_equal_scipys_from_quat_bit_for_bit() -> None:
+    rng = np.random.default_rng(4)
+    quat = rng.normal(size=(300, 3, 4)) * rng.uniform(0.5, 2.0, size=(300, 3, 1))
+    quat[7, 1] = np.nan
+    pos = np.zeros((300, 3, 3))
+    p_s, q_s = sensor_major(pos, range(3)), sensor_major(quat, range(3))
+    gaps = fill_sensor_major(p_s, q_s)
+    for k, rot in enumerate(_rotations(q_s, gaps.norms2)):
+        ref = Rotation.from_quat(q_s[k], scalar_first=True)
+        assert np.array_equal(rot.as_quat(), ref.as_quat())
