@@ -45,6 +45,29 @@ def sensor_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDArra
     return out.view(np.float64).reshape(len(columns), arr.shape[0], arr.shape[2])
 
 
+def component_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDArray[np.float64]:
+    """A component-major copy of some sensors' samples.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (F, S, K)
+        Per-frame samples of S sensors (quaternions: K = 4).
+    columns : sequence of int
+        The sensors to copy, in order.
+
+    Returns
+    -------
+    ndarray, shape (len(columns), K, F)
+        A new C-contiguous float64 array: each component of each sensor is one contiguous
+        row, so that per-sample arithmetic on the components runs on whole rows.
+    """
+    cols = list(columns)
+    arr = np.asarray(samples)
+    if cols != list(range(arr.shape[1])):
+        arr = np.take(arr, cols, axis=1)
+    return np.array(arr.transpose(1, 2, 0), dtype=float, order="C")
+
+
 class FilledGaps(NamedTuple):
     """Where samples of sensor-major pose streams were dropped (``fill_sensor_major``)."""
 
@@ -93,11 +116,11 @@ def fill_gaps(
     if single:
         positions, quaternions = positions[:, None], quaternions[:, None]
     every = range(positions.shape[1])
-    pos, quat = sensor_major(positions, every), sensor_major(quaternions, every)
+    pos, quat = sensor_major(positions, every), component_major(quaternions, every)
     filled = ~fill_sensor_major(pos, quat, time=time, method=method).valid
     if single:
-        return pos[0], quat[0], filled[0]
-    return pos.swapaxes(0, 1), quat.swapaxes(0, 1), filled.T
+        return pos[0], quat[0].T, filled[0]
+    return pos.swapaxes(0, 1), quat.transpose(2, 0, 1), filled.T
 
 
 def fill_sensor_major(
@@ -107,14 +130,16 @@ def fill_sensor_major(
     time: NDArray[np.float64] | None = None,
     method: str = "cubic",
 ) -> FilledGaps:
-    """``fill_gaps`` in place on sensor-major arrays, without copying them.
+    """``fill_gaps`` in place, without copying, on the layouts of ``sensor_major`` and
+    ``component_major``.
 
     Parameters
     ----------
     positions : ndarray, shape (S, F, 3)
         C-contiguous float64 positions, NaN where dropped; filled in place.
-    quaternions : ndarray, shape (S, F, 4)
-        C-contiguous float64 scalar-first rotations, NaN where dropped; filled in place.
+    quaternions : ndarray, shape (S, 4, F)
+        C-contiguous float64 scalar-first rotations, component-major, NaN where dropped;
+        filled in place.
     time, method
         As for ``fill_gaps``.
 
@@ -140,8 +165,8 @@ def fill_sensor_major(
     finite_q = np.isfinite(quaternions)
     valid = finite_p[..., 0] & finite_p[..., 1] & finite_p[..., 2]
     for k in range(4):
-        valid &= finite_q[..., k]
-    norms2 = _norms2(quaternions)
+        valid &= finite_q[:, k]
+    norms2 = _norms2(*quaternions.transpose(1, 0, 2))
     valid &= norms2 > 1e-18  # NaN compares False
     empty = ~valid.any(axis=1)
     if empty.any():
@@ -169,7 +194,6 @@ def fill_sensor_major(
     span = t[i1] - t[i0]
     frac = np.where(span > 0, (t[frame] - t[i0]) / np.where(span > 0, span, 1.0), 0.0)
     pos = positions.reshape(-1, 3)
-    quat = quaternions.reshape(-1, 4)
     base = sensor * n_frames
     p0, p1 = pos[base + i0], pos[base + i1]
     filled_pos = p0 + frac[:, None] * (p1 - p0)
@@ -192,19 +216,19 @@ def fill_sensor_major(
             filled_pos[cubic] = _lagrange(t[knots], pos[base[cubic, None] + knots],
                                           t[frame[cubic]])
     pos[bad] = filled_pos
-    q0, q1 = quat[base + i0], quat[base + i1]
+    q0, q1 = quaternions[sensor, :, i0], quaternions[sensor, :, i1]
     q0 = q0 / rows.norms(q0)[:, None]
     q1 = q1 / rows.norms(q1)[:, None]
     filled_quat = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
-    quat[bad] = filled_quat
-    norms2.reshape(-1)[bad] = _norms2(filled_quat)
+    quaternions[sensor, :, frame] = filled_quat
+    norms2[sensor, frame] = _norms2(*filled_quat.T)
     return FilledGaps(valid, longest, norms2)
 
 
-def _norms2(quaternions: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``x² + y² + z² + w²`` of each scalar-first quaternion (..., 4), in that order."""
-    vector = quaternions[..., 1:]
-    return np.asarray(rows.dots(vector, vector) + quaternions[..., 0] ** 2)
+def _norms2(w: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64],
+            z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``x² + y² + z² + w²`` of quaternions given by their components, in that order."""
+    return np.asarray(x * x + y * y + z * z + w * w)
 
 
 def _lagrange(knots_t: NDArray[np.float64], knots_p: NDArray[np.float64],

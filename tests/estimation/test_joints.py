@@ -10,7 +10,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from estimation.errors import EstimationError, InputError
-from estimation.gaps import fill_gaps, fill_sensor_major, gap_lengths, sensor_major
+from estimation.gaps import (
+    component_major,
+    fill_gaps,
+    fill_sensor_major,
+    gap_lengths,
+    sensor_major,
+)
 from estimation.joints import _percentile, effective_samples, estimate_joint, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
@@ -223,7 +229,7 @@ def test_fill_gaps_multi_sensor_and_all_nan() -> None:
         fill_gaps(pos, quat)
 
 
-def test_sensor_major_copies_the_chosen_columns() -> None:
+def test_sensor_and_component_major_copy_the_chosen_columns() -> None:
     samples = np.arange(5 * 4 * 3, dtype=float).reshape(5, 4, 3)
     out = sensor_major(samples, [2, 0])
     assert out.flags.c_contiguous
@@ -232,6 +238,12 @@ def test_sensor_major_copies_the_chosen_columns() -> None:
     assert samples[0, 2, 0] == 6.0  # a copy
     assert np.array_equal(sensor_major(samples[::2, ::-1].astype(np.float32), [0]),
                           samples[::2, 3][None])
+    rows = component_major(samples, [3, 1])
+    assert rows.flags.c_contiguous
+    assert np.array_equal(rows, samples[:, [3, 1]].transpose(1, 2, 0))
+    every = component_major(samples, range(4))
+    every[0, 0, 0] = -1.0
+    assert samples[0, 0, 0] == 0.0  # a copy
 
 
 def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
@@ -245,15 +257,15 @@ def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
     pos[drop & (rng.random(drop.shape) < 0.5)] = np.nan
     quat[drop & ~np.isnan(pos[..., 0])] = 0.0  # a zero quaternion is dropped too
     time = np.cumsum(rng.uniform(0.5, 1.5, n_frames))
-    p_s, q_s = sensor_major(pos, range(n_sensors)), sensor_major(quat, range(n_sensors))
+    p_s, q_s = sensor_major(pos, range(n_sensors)), component_major(quat, range(n_sensors))
     gaps = fill_sensor_major(p_s, q_s, time=time)
     for k in range(n_sensors):
         p_k, q_k, filled = fill_gaps(pos[:, k], quat[:, k], time=time)
         assert np.array_equal(p_s[k], p_k)
-        assert np.array_equal(q_s[k], q_k)
+        assert np.array_equal(q_s[k].T, q_k)
         assert np.array_equal(gaps.valid[k], ~filled)
         assert gaps.longest[k] == gap_lengths(~filled).max(initial=0)
-    w, x, y, z = np.moveaxis(q_s, -1, 0)
+    w, x, y, z = q_s.transpose(1, 0, 2)
     assert np.array_equal(gaps.norms2, x * x + y * y + z * z + w * w)
     with pytest.raises(ValueError, match="in place"):
         fill_sensor_major(p_s[:, ::2], q_s[:, ::2])

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation.bvh import BvhMotion
 from estimation.errors import EstimationError, InputError
-from estimation.gaps import fill_sensor_major, sensor_major
+from estimation.gaps import component_major, fill_sensor_major, sensor_major
 from estimation.model import JOINTS
 from estimation.recording import SensorRecording
 from estimation.results import JointOffset
@@ -345,8 +345,8 @@ def test_rotations_equal_scipys_from_quat_bit_for_bit() -> None:
     quat = rng.normal(size=(300, 3, 4)) * rng.uniform(0.5, 2.0, size=(300, 3, 1))
     quat[7, 1] = np.nan
     pos = np.zeros((300, 3, 3))
-    p_s, q_s = sensor_major(pos, range(3)), sensor_major(quat, range(3))
+    p_s, q_s = sensor_major(pos, range(3)), component_major(quat, range(3))
     gaps = fill_sensor_major(p_s, q_s)
     for k, rot in enumerate(_rotations(q_s, gaps.norms2)):
-        ref = Rotation.from_quat(q_s[k], scalar_first=True)
+        ref = Rotation.from_quat(q_s[k].T, scalar_first=True)
         assert np.array_equal(rot.as_quat(), ref.as_quat())
