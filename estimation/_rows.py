@@ -32,6 +32,12 @@ def apply(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]
     return np.asarray(out)
 
 
+def sum_transposed(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``Σ_t m[t]ᵀ v[t]`` (3,) over matrices ``m`` (F, 3, 3) and rows ``v`` (F, 3): one
+    product over the stacked rows of every ``m[t]``."""
+    return np.asarray(m.reshape(-1, 3).T @ v.reshape(-1))
+
+
 def finite(v: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Whether every value of each row (over the last axis) of ``v`` is finite."""
     ok = np.isfinite(v[..., 0])

@@ -51,6 +51,8 @@ class JointFit:
 
 def _fill_nan_positions(p: NDArray[np.float64]) -> tuple[NDArray[np.float64],
                                                          NDArray[np.bool_]]:
+    if np.isfinite(p.sum()):  # one pass where, as usual, every sample is finite
+        return p, np.ones(p.shape[0], dtype=bool)
     ok = rows.finite(p)
     if ok.all():
         return p, ok
@@ -76,13 +78,12 @@ def _llsf_system(ra: NDArray[np.float64], rb: NDArray[np.float64],
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Weighted normal equations of [R_a  -R_b] c = d, normalised by the total weight."""
     total = float(w.sum())
-    wd = (w[:, None] * d).reshape(-1)
+    wd = w[:, None] * d
     m = -(ra * w[:, None, None]).reshape(-1, 3).T @ rb.reshape(-1, 3) / total
     normal = np.eye(6)
     normal[:3, 3:] = m
     normal[3:, :3] = m.T
-    # Σ_t R_tᵀ (w_t d_t) as one product over the stacked rows of every R_t
-    rhs = np.concatenate([ra.reshape(-1, 3).T @ wd, -(rb.reshape(-1, 3).T @ wd)]) / total
+    rhs = np.concatenate([rows.sum_transposed(ra, wd), -rows.sum_transposed(rb, wd)]) / total
     return normal, rhs
 
 

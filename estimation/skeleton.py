@@ -108,11 +108,8 @@ def estimate_chest(waist: NDArray[np.float64], neck: NDArray[np.float64],
     """
     w, n, ls, rs = waist, neck, l_shoulder, r_shoulder
     d1, d2, r = n - w, rs - ls, w - ls
-    a = np.einsum("ij,ij->i", d1, d1)
-    b = np.einsum("ij,ij->i", d1, d2)
-    c = np.einsum("ij,ij->i", d2, d2)
-    d = np.einsum("ij,ij->i", d1, r)
-    e = np.einsum("ij,ij->i", d2, r)
+    a, b, c = rows.dots(d1, d1), rows.dots(d1, d2), rows.dots(d2, d2)
+    d, e = rows.dots(d1, r), rows.dots(d2, r)
     den = a * c - b * b
     parallel = den <= 1e-12 * np.maximum(a * c, 1e-300)
     safe = np.where(parallel, 1.0, den)
@@ -597,12 +594,13 @@ def estimate_skeleton(
     joint_offsets["root"] = JointOffset("pelvis", (joint_offsets["waist"].local
                                                    + joint_offsets["l_hip"].local
                                                    + joint_offsets["r_hip"].local) / 3.0)
-    chest_local = rotations["chest"].inv().apply(joints["chest"] - positions["chest"])
-    joint_offsets["chest"] = JointOffset("chest", chest_local.mean(axis=0))
+    # the mean of R_tᵀ (C − p) over the frames: the chest joint in the chest sensor's frame
+    chest_local = rows.sum_transposed(rotations["chest"].as_matrix(),
+                                      joints["chest"] - positions["chest"]) / n_frames
+    joint_offsets["chest"] = JointOffset("chest", chest_local)
     quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
     quality["chest"] = {"estimator": "eq. 1 of the paper",
-                        "alpha_m": float(np.linalg.norm(joints["chest"] - joints["waist"],
-                                                        axis=1).mean())}
+                        "alpha_m": float(rows.norms(joints["chest"] - joints["waist"]).mean())}
     lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
     _check_units({"torso": lt}, warnings)  # before the limbs: their priors assume metres
     std = standard_lengths(lt, anthropometry)
