@@ -35,7 +35,8 @@ class JointFit:
         ``rms_residual_m``, ``singular_value_ratio`` (smallest / largest singular value of
         the stacked LLSF system), ``hinge_ratio`` (smallest / second smallest),
         ``range_of_motion_deg``, ``hinge`` (bool), ``axis`` (hinge axis in frame a, when a
-        hinge), ``hinge_rule``, ``hinge_rule_rejected`` (a rule the data contradicted, see
+        hinge; unit, its sign chosen so that its largest-magnitude component is positive),
+        ``hinge_rule``, ``hinge_rule_rejected`` (a rule the data contradicted, see
         ``estimate_joint``), ``estimator``, ``loss``, ``outlier_fraction``.
     warnings : tuple of str
         Human-readable warnings (small range of motion, ill-conditioned system).
@@ -179,13 +180,16 @@ def _white_variance(r: NDArray[np.float64], use: NDArray[np.bool_]) -> float | N
 
 def _solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]
            ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Pseudo-inverse solution, singular values (ascending) and the weakest direction."""
+    """Pseudo-inverse solution, singular values (ascending) and the weakest direction, its
+    sign fixed so that the largest-magnitude of its first three components is positive (an
+    eigenvector's sign is arbitrary and would flip on rounding-level changes of ``normal``)."""
     lam, vec = np.linalg.eigh(normal)
     lam = np.maximum(lam, 0.0)
     coef = vec.T @ rhs
     keep = lam > 1e-12 * lam[-1]
     c = vec[:, keep] @ (coef[keep] / lam[keep])
-    return c, np.sqrt(lam), vec[:, 0]
+    weak = vec[:, 0]
+    return c, np.sqrt(lam), weak if weak[np.argmax(np.abs(weak[:3]))] >= 0 else -weak
 
 
 def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
