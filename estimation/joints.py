@@ -75,16 +75,29 @@ def _weights(r: NDArray[np.float64], w0: NDArray[np.float64], loss: str,
 
 
 def _llsf_system(ra: NDArray[np.float64], rb: NDArray[np.float64],
-                 d: NDArray[np.float64], w: NDArray[np.float64]
+                 d: NDArray[np.float64], w: NDArray[np.float64],
+                 excluded: NDArray[np.intp] | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Weighted normal equations of [R_a  -R_b] c = d, normalised by the total weight."""
-    total = float(w.sum())
-    wd = w[:, None] * d
-    m = -(ra * w[:, None, None]).reshape(-1, 3).T @ rb.reshape(-1, 3) / total
+    """Weighted normal equations of [R_a  -R_b] c = d, normalised by the total weight.
+
+    ``excluded``: when given, ``w`` is 1 but at these frames, where it is 0; the sums then
+    run over every frame less these few (no weighted (F, 3, 3) copy)."""
+    if excluded is None:
+        total = float(w.sum())
+        wd = w[:, None] * d
+        m = rows.sum_transposed(ra * w[:, None, None], rb)
+        rhs_a, rhs_b = rows.sum_transposed(ra, wd), rows.sum_transposed(rb, wd)
+    else:
+        xa, xb, xd = ra[excluded], rb[excluded], d[excluded]
+        total = float(d.shape[0] - excluded.size)
+        m = rows.sum_transposed(ra, rb) - rows.sum_transposed(xa, xb)
+        rhs_a = rows.sum_transposed(ra, d) - rows.sum_transposed(xa, xd)
+        rhs_b = rows.sum_transposed(rb, d) - rows.sum_transposed(xb, xd)
+    m = -m / total
     normal = np.eye(6)
     normal[:3, 3:] = m
     normal[3:, :3] = m.T
-    rhs = np.concatenate([rows.sum_transposed(ra, wd), -rows.sum_transposed(rb, wd)]) / total
+    rhs = np.concatenate([rhs_a, -rhs_b]) / total
     return normal, rhs
 
 
@@ -518,7 +531,9 @@ def estimate_joint(
             ok_a &= v
             ok_b &= v
     both = ok_a & ok_b
-    if both.sum() < 3:
+    excluded = np.flatnonzero(~both)
+    n_both = n - excluded.size
+    if n_both < 3:
         raise EstimationError("fewer than 3 frames where both sensors are valid",
                               field="positions")
     ra = rotations_a.as_matrix()
@@ -526,6 +541,8 @@ def estimate_joint(
     d = pb - pa
 
     w0 = both.astype(float)
+    # at unit weights the normal equations sum every frame less the few excluded ones
+    unit = excluded if 2 * excluded.size <= n else None
     rom = (range_of_motion(rotations_a, rotations_b, both) if range_of_motion_deg is None
            else range_of_motion_deg)
     warnings: list[str] = []
@@ -541,7 +558,7 @@ def estimate_joint(
     if slip_period > 0 and highpass <= 1 and method != "gdke":
         basis = _slip_basis(n, slip_period)
         if basis.shape[1] > 0:
-            c0 = _solve(*_llsf_system(ra, rb, d, w0))[0]
+            c0 = _solve(*_llsf_system(ra, rb, d, w0, unit))[0]
             r0 = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
             white = _white_variance(r0, both)
             white = max(float(np.mean(r0[both] ** 2)) if white is None else white, 1e-12)
@@ -569,7 +586,7 @@ def estimate_joint(
         sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * float(w.sum()))
         return sigma2 / effective_samples(res_vec, w)
 
-    w = w0.copy()
+    w = w0  # replaced, never changed in place
     c = np.zeros(6)
     prior_weight = 0.0
     sv = np.ones(6)
@@ -590,7 +607,7 @@ def estimate_joint(
         elif slip_terms is not None:
             normal, rhs, back = _slip_system(ra, rb, d, w, slip_terms, slip_ridge)
         else:
-            normal, rhs = _llsf_system(ra, rb, d, w)
+            normal, rhs = _llsf_system(ra, rb, d, w, unit if it == 0 else None)
         c, sv, weak = _solve(normal, rhs)
         c_data = c
         reg_normal = np.zeros((6, 6))
@@ -680,22 +697,27 @@ def estimate_joint(
         rec_a = np.einsum("tij,tj->ti", ra, c[:3] - basis @ beta[0]) + pa
         rec_b = np.einsum("tij,tj->ti", rb, c[3:] - basis @ beta[1]) + pb
     else:
-        rec_a = rows.apply(ra, c[:3]) + pa
-        rec_b = rows.apply(rb, c[3:]) + pb
-    gap = rec_a - rec_b
-    residuals = rows.norms(gap)
+        rec_a = rows.transform(ra, c[:3], pa)
+        rec_b = rows.transform(rb, c[3:], pb, out=d)  # d is no longer needed
     # the mean of the two reconstructions, or the one whose sensor was measured
-    share_b = np.where(ok_a == ok_b, 0.5, ok_b.astype(float))
-    positions = rec_a - share_b[:, None] * gap
+    one_sided = np.flatnonzero(ok_a != ok_b)
+    measured = np.where(ok_a[one_sided, None], rec_a[one_sided], rec_b[one_sided])
+    gap = np.subtract(rec_a, rec_b, out=rec_b)
+    squared = rows.dots(gap, gap)
+    residuals = np.sqrt(squared)
+    gap *= 0.5
+    positions = np.subtract(rec_a, gap, out=rec_a)
+    positions[one_sided] = measured
     quality: dict[str, Any] = {
         "estimator": estimator,
-        "rms_residual_m": float(np.sqrt(np.mean(residuals[both] ** 2))),
+        "rms_residual_m": float(np.sqrt(squared @ w0 / n_both)),
         "singular_value_ratio": float(sv[0] / sv[-1]),
         "hinge_ratio": hinge_value,
         "range_of_motion_deg": rom,
         "hinge": bool(hinge),
         "loss": loss,
-        "outlier_fraction": float(np.mean(w[both] < 0.5)),
+        # w is 0 wherever not both are valid
+        "outlier_fraction": (np.count_nonzero(w < 0.5) - excluded.size) / n_both,
     }
     if estimator == "gdke":
         quality["bias_compensation"] = bias_compensation

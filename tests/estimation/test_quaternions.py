@@ -131,3 +131,18 @@ def test_row_helpers_for_rotation_matrices_match_scipy() -> None:
                                atol=1e-14)
     np.testing.assert_allclose(rows.sum_transposed(upper.as_matrix(), v),
                                upper.inv().apply(v).sum(axis=0), atol=1e-13)
+
+
+def test_row_helpers_transform_and_sum_of_matrix_products() -> None:
+    """``_rows.transform`` (m[t] v + p[t], optionally into ``out``) and ``_rows.sum_transposed``
+    of two stacks of matrices (Σ m[t]ᵀ n[t])."""
+    m, n = Rotation.random(50, rng=6).as_matrix(), Rotation.random(50, rng=7).as_matrix()
+    rng = np.random.default_rng(8)
+    v, p = rng.normal(size=3), rng.normal(size=(50, 3))
+    expected = np.einsum("tij,j->ti", m, v) + p
+    np.testing.assert_allclose(rows.transform(m, v, p), expected, atol=1e-14)
+    out = np.empty((50, 3))
+    assert rows.transform(m, v, p, out=out) is not None
+    np.testing.assert_allclose(out, expected, atol=1e-14)
+    np.testing.assert_allclose(rows.sum_transposed(m, n), np.einsum("tji,tjk->ik", m, n),
+                               atol=1e-13)
