@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
 
@@ -228,29 +229,38 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
           else rotations_a.as_quat(scalar_first=True))
     qb = (rotations_b if isinstance(rotations_b, np.ndarray)
           else rotations_b.as_quat(scalar_first=True))
-    rel = quat.relative(qa, qb)
+    # everything runs on (4, F) and (3, F) rows: each component contiguous
+    rel = quat.relative(qa.T, qb.T, axis=0)
     if valid is not None:
-        rel = np.compress(np.asarray(valid, dtype=bool), rel, axis=0)  # 6x rel[valid]
-    # mean⁻¹ ⊗ q is linear in q: one (4, 4) × (4, F) product (the rows mean⁻¹ ⊗ e_j),
-    # and what follows runs on (4, F) and (3, F) rows
-    dev = quat.as_rotvec(quat.relative(quat.mean(rel), np.eye(4)).T @ rel.T, axis=0)
-    if dev.shape[1] >= 9:
-        # 9-frame moving average of the three components at once (cumulative sums)
-        c = np.zeros((3, dev.shape[1] + 1))
-        np.cumsum(dev, axis=1, out=c[:, 1:])
-        dev = (c[:, 9:] - c[:, :-9]) / 9.0
-    return float(2.0 * np.degrees(_percentile(np.sqrt(dev[0] ** 2 + dev[1] ** 2 + dev[2] ** 2),
-                                              95.0)))
+        rel = np.compress(np.asarray(valid, dtype=bool), rel, axis=1)  # 6x rel[:, valid]
+    dev = quat.as_rotvec(quat._relative_matrix(quat.mean(rel.T)) @ rel, axis=0)
+    n_avg = 9 if dev.shape[1] >= 9 else 1
+    if n_avg > 1:
+        # 9-frame moving sums of the three components at once, by pairwise sums (a cumulative
+        # sum runs element by element at twice the cost); the division by 9 waits for the
+        # percentile
+        pairs = dev[:, :-1] + dev[:, 1:]
+        fours = pairs[:, :-2] + pairs[:, 2:]
+        nines = fours[:, :-5] + fours[:, 4:-1]
+        nines += dev[:, 8:]
+        dev = nines
+    # the percentile of the squared norms, and the square root of its two order statistics
+    squared = rows.dots(dev.T, dev.T)
+    return float(2.0 * np.degrees(_percentile(squared, 95.0, np.sqrt)) / n_avg)
 
 
-def _percentile(x: NDArray[np.float64], q: float) -> float:
+def _percentile(x: NDArray[np.float64], q: float,
+                of: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None
+                ) -> float:
     """``np.percentile(x, q)`` (linear interpolation) by one partial sort: a quarter of the
-    cost on a few thousand values."""
+    cost on a few thousand values. With ``of`` (a non-decreasing function), the percentile of
+    ``of(x)``, applying ``of`` only to the two order statistics it needs."""
     pos = q / 100.0 * (x.size - 1)
     lo = int(np.floor(pos))
     hi = min(lo + 1, x.size - 1)
     part = np.partition(x, (lo, hi))
-    return float(part[lo] + (pos - lo) * (part[hi] - part[lo]))
+    low, high = part[[lo, hi]] if of is None else of(part[[lo, hi]])
+    return float(low + (pos - lo) * (high - low))
 
 
 def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float64]) -> float:

@@ -410,6 +410,28 @@ def test_percentile_matches_numpy(n: int) -> None:
     x = np.random.default_rng(n).random(n)
     for q in (0.0, 50.0, 95.0, 100.0):
         assert _percentile(x, q) == pytest.approx(float(np.percentile(x, q)), rel=1e-15)
+        # of a non-decreasing function of x, applied to the two order statistics only
+        assert _percentile(x, q, np.sqrt) == pytest.approx(
+            float(np.percentile(np.sqrt(x), q)), rel=1e-15)
+
+
+@pytest.mark.parametrize(("n", "drop"), [(5, 0.0), (400, 0.1)])
+def test_range_of_motion_matches_its_definition(n: int, drop: float) -> None:
+    """Twice the 95th percentile of |9-frame mean of the rotation vectors of mean⁻¹ ⊗ rel|."""
+    t = np.linspace(0.0, 4.0, n)
+    ra = Rotation.from_rotvec(np.column_stack([0.5 * np.sin(t), 0.2 * t, np.cos(3 * t)]))
+    rb = ra * Rotation.from_rotvec(np.column_stack([0.8 * np.sin(2 * t), 0.3 * np.cos(t),
+                                                    0.1 * t]))
+    valid = np.random.default_rng(n).random(n) >= drop
+    rel = (ra.inv() * rb)[valid]
+    dev = (rel.mean().inv() * rel).as_rotvec()
+    if len(dev) >= 9:
+        dev = np.stack([np.convolve(dev[:, k], np.ones(9) / 9.0, mode="valid")
+                        for k in range(3)], axis=1)
+    expected = 2.0 * np.degrees(np.percentile(np.linalg.norm(dev, axis=1), 95.0))
+    assert range_of_motion(ra, rb, valid) == pytest.approx(expected, rel=1e-9)
+    quats = (ra.as_quat(scalar_first=True), rb.as_quat(scalar_first=True))
+    assert range_of_motion(*quats, valid) == pytest.approx(expected, rel=1e-9)
 
 
 def test_hinge_axis_sign_is_canonical(rig_factory: RigFactory) -> None:
