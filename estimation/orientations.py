@@ -79,9 +79,56 @@ def _frame_from_yz(y: Float, z: Float) -> Axes:
 
 def _quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
-    z = x × y, as quaternions written into ``out`` (F, 4)."""
-    x = _normalise(x - _dot(x, y) * y)
-    return quat.from_axis_rows(x, y, _cross(x, y), out=out)
+    z = x × y, as quaternions written into ``out`` (F, 4), ``w ≥ 0``.
+
+    Composed as ``s ⊗ t`` without forming the frame's matrix: ``s = (1 + y₁, y₂, 0, −y₀)``
+    (unnormalised) the minimal rotation taking e_y onto y, ``t`` the turn about e_y taking
+    e_x onto ``(a, 0, c)``, the projection of ``sᵀ x`` on the xz plane."""
+    # for y₁ < 0 (1 + y₁ would cancel) the frame turned by P = R_z(π), which negates the
+    # first two components of y and x, is composed instead, and q = p ⊗ q' with p = (0, 0, 0, 1)
+    down = y[1] < 0
+    flip = bool(down.any())
+    if flip:
+        sign = np.where(down, -1.0, 1.0)
+        y0, y1, x0, x1 = y[0] * sign, y[1] * sign, x[0] * sign, x[1] * sign
+    else:
+        y0, y1, x0, x1 = y[0], y[1], x[0], x[1]
+    y2, x2 = y[2], x[2]
+    one_y = 1.0 + y1
+    # sᵀ x = (x₀ − y₀ h, ·, x₂ − y₂ h) with h = x₁ + (y₀ x₀ + y₂ x₂) / (1 + y₁)
+    h = y0 * x0
+    h += y2 * x2
+    h /= one_y
+    h += x1
+    a = x0 - y0 * h
+    c = x2 - y2 * h
+    r = np.sqrt(a * a + c * c)
+    zero = r <= _EPS
+    if zero.any():  # x along the bone: any x ⟂ y will do
+        a[zero], c[zero], r[zero] = 1.0, 0.0, 1.0
+    # t ∝ (r + a, 0, −c, 0), or for a < 0 (where r + a cancels) the same rotation as
+    # (−c, 0, r − a, 0); either way |t|² = 2 r (r + |a|)
+    turn = r + np.abs(a)
+    ahead = a >= 0
+    c *= -1.0
+    tw = np.where(ahead, turn, c)
+    ty = np.where(ahead, c, turn)
+    q = np.empty((4, len(one_y)))
+    np.multiply(one_y, tw, out=q[0])
+    np.multiply(y2, tw, out=q[1])
+    q[1] += y0 * ty
+    np.multiply(one_y, ty, out=q[2])
+    np.multiply(y2, ty, out=q[3])
+    q[3] -= y0 * tw
+    if flip:
+        q[:, down] = q[::-1, down] * np.array([[-1.0], [-1.0], [1.0], [1.0]])
+    scale = one_y * r
+    scale *= turn
+    np.sqrt(scale, out=scale)
+    scale *= 2.0
+    np.copysign(scale, q[0], out=scale)
+    np.divide(q, scale, out=out.T)
+    return out
 
 
 def _in_frame(axes: Axes, v: Float) -> Float:
