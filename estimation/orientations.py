@@ -6,7 +6,7 @@ bone, pointing from the distal to the proximal joint. Every function is vectoris
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from . import quaternions as quat
 from .errors import EstimationError, InputError
-from .model import JOINTS
+from .model import JOINTS, SEGMENTS
 
 __all__ = ["estimate_orientations"]
 
@@ -27,6 +27,7 @@ _LIMBS = (
     ("l_upperarm", "l_forearm", "l_hand", "l_shoulder", "l_elbow", "l_wrist", -1.0),
     ("r_upperarm", "r_forearm", "r_hand", "r_shoulder", "r_elbow", "r_wrist", -1.0),
 )
+_ENDS = ("head", "l_hand", "r_hand", "l_foot", "r_foot")
 _EPS = 1e-12
 
 # Vectors are (3, F) arrays, a row per component: numpy runs its loops over the last axis, so
@@ -55,13 +56,11 @@ def _cross(a: Float, b: Float) -> Float:
     return out
 
 
-def _canonical(q: Float) -> Float:
-    """``q`` (a fresh (F, 4) array, changed in place) with ``w ≥ 0``, as
+def _canonical(rows: Float, out: Float) -> Float:
+    """Quaternions given as (4, F) rows, written into ``out`` (F, 4) with ``w ≥ 0`` as
     ``quaternions.from_matrix`` returns rotations."""
-    sign = np.where(q[:, 0] < 0, -1.0, 1.0)
-    for k in range(4):
-        q[:, k] *= sign
-    return q
+    np.multiply(rows, np.where(rows[0] < 0, -1.0, 1.0), out=out.T)
+    return out
 
 
 Axes = tuple[Float, Float, Float]
@@ -78,16 +77,66 @@ def _frame_from_yz(y: Float, z: Float) -> Axes:
     return _cross(y, z), y, z
 
 
-def _quat(axes: Axes) -> Float:
-    x, y, z = axes
-    return quat.from_axes(x.T, y.T, z.T)
-
-
-def _quat_from_xy(x: Float, y: Float) -> Float:
+def _quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
-    z = x × y, as quaternions (F, 4)."""
-    x = _normalise(x - _dot(x, y) * y)
-    return _quat((x, y, _cross(x, y)))
+    z = x × y, as quaternions written into ``out`` (F, 4), ``w ≥ 0``.
+
+    Composed as ``s ⊗ t`` without forming the frame's matrix: ``s = (1 + y₁, y₂, 0, −y₀)``
+    (unnormalised) the minimal rotation taking e_y onto y, ``t`` the turn about e_y taking
+    e_x onto ``(a, 0, c)``, the projection of ``sᵀ x`` on the xz plane."""
+    # for y₁ < 0 (1 + y₁ would cancel) the frame turned by P = R_z(π), which negates the
+    # first two components of y and x, is composed instead, and q = p ⊗ q' with p = (0, 0, 0, 1)
+    down = y[1] < 0
+    flip = bool(down.any())
+    if flip:
+        sign = np.where(down, -1.0, 1.0)
+        y0, y1, x0, x1 = y[0] * sign, y[1] * sign, x[0] * sign, x[1] * sign
+    else:
+        y0, y1, x0, x1 = y[0], y[1], x[0], x[1]
+    y2, x2 = y[2], x[2]
+    one_y = 1.0 + y1
+    # sᵀ x = (x₀ − y₀ h, ·, x₂ − y₂ h) with h = x₁ + (y₀ x₀ + y₂ x₂) / (1 + y₁)
+    h = y0 * x0
+    h += y2 * x2
+    h /= one_y
+    h += x1
+    a = x0 - y0 * h
+    c = x2 - y2 * h
+    r = np.sqrt(a * a + c * c)
+    zero = r <= _EPS
+    if zero.any():  # x along the bone: any x ⟂ y will do
+        a[zero], c[zero], r[zero] = 1.0, 0.0, 1.0
+    # t ∝ (r + a, 0, −c, 0), or for a < 0 (where r + a cancels) the same rotation as
+    # (−c, 0, r − a, 0); either way |t|² = 2 r (r + |a|)
+    turn = r + np.abs(a)
+    ahead = a >= 0
+    c *= -1.0
+    tw = np.where(ahead, turn, c)
+    ty = np.where(ahead, c, turn)
+    q = np.empty((4, len(one_y)))
+    np.multiply(one_y, tw, out=q[0])
+    np.multiply(y2, tw, out=q[1])
+    q[1] += y0 * ty
+    np.multiply(one_y, ty, out=q[2])
+    np.multiply(y2, ty, out=q[3])
+    q[3] -= y0 * tw
+    if flip:
+        q[:, down] = q[::-1, down] * np.array([[-1.0], [-1.0], [1.0], [1.0]])
+    scale = one_y * r
+    scale *= turn
+    np.sqrt(scale, out=scale)
+    scale *= 2.0
+    np.copysign(scale, q[0], out=scale)
+    np.divide(q, scale, out=out.T)
+    return out
+
+
+def _in_frame(axes: Axes, v: Float) -> Float:
+    """``Rᵀ v``: the coordinates of vectors ``v`` (3, F) in the frames with these axes."""
+    out = np.empty_like(v)
+    for row, axis in zip(out, axes, strict=True):
+        np.einsum("i...,i...->...", axis, v, out=row)
+    return out
 
 
 def _local(q: Float, v: Float) -> Float:
@@ -102,14 +151,15 @@ def _local(q: Float, v: Float) -> Float:
     return out
 
 
-def _align_y(frames_q: Float, target_y: Float) -> Float:
+def _align_y(frames_q: Float, local: Float, out: Float) -> Float:
     """Eq. 10: ``R · R(θ, n)``, the minimal rotation about an axis fixed in the frame that
-    turns its y axis onto ``target_y`` (3, F); scalar-first quaternions (F, 4).
+    turns its y axis onto the target direction, written into ``out`` (F, 4).
 
-    ``frames_q`` (F, 4) are the rotations ``R``. The minimal rotation taking e_y to the unit
-    vector ``l = R⁻¹ target`` is the half-way quaternion ``(1 + e_y·l, e_y × l)``
+    ``frames_q`` (F, 4) are the rotations ``R``, ``local`` the target in their frames,
+    ``R⁻¹ target`` (3, F), a fresh array. The minimal rotation taking e_y to the unit vector
+    ``l`` along it is the half-way quaternion ``(1 + e_y·l, e_y × l)``
     ``= (1 + l_y, l_z, 0, −l_x)`` normalised."""
-    lx, ly, lz = _normalise(_local(frames_q, target_y))
+    lx, ly, lz = _normalise(local)
     hw, hx, hz = 1.0 + ly, lz, -lx
     norm = np.sqrt(hw * hw + hx * hx + hz * hz)
     # at θ = π the axis is undefined: any axis ⟂ y will do (z)
@@ -119,12 +169,12 @@ def _align_y(frames_q: Float, target_y: Float) -> Float:
     hw[flip], hx[flip], hz[flip] = 0.0, 0.0, 1.0
     # R ⊗ h, h's y component being zero
     qw, qx, qy, qz = frames_q.T
-    out = np.empty_like(frames_q)
-    out[:, 0] = qw * hw - qx * hx - qz * hz
-    out[:, 1] = qw * hx + qx * hw + qy * hz
-    out[:, 2] = qy * hw - qx * hz + qz * hx
-    out[:, 3] = qw * hz - qy * hx + qz * hw
-    return _canonical(out)
+    rows = np.empty((4, len(hw)))
+    rows[0] = qw * hw - qx * hx - qz * hz
+    rows[1] = qw * hx + qx * hw + qy * hz
+    rows[2] = qy * hw - qx * hz + qz * hx
+    rows[3] = qw * hz - qy * hx + qz * hw
+    return _canonical(rows, out)
 
 
 def _flexion_axis(upper_bone: Float, lower_bone: Float, sensor: Float | None,
@@ -150,6 +200,32 @@ def _flexion_axis(upper_bone: Float, lower_bone: Float, sensor: Float | None,
     out = steady * (np.pi - theta)
     out += weighted
     return out
+
+
+def _rows(pos: Mapping[str, Float], a: str, b: str) -> Float:
+    """Joint ``a`` minus joint ``b``, (3, F)."""
+    return np.ascontiguousarray((pos[a] - pos[b]).T)
+
+
+def _trunk(pos: Mapping[str, Float], slots: Iterator[Float], i0: int,
+           ) -> tuple[dict[str, Float], dict[str, Float], Float]:
+    """The pelvis, chest, spine and cervical frames (eqs. 8–10) written into ``slots``; the
+    pelvis and chest x axes (the limbs' fallback flexion axes); the pelvis z at ``i0``
+    (3, 1)."""
+    lh, rh = _rows(pos, "l_hip", "waist"), _rows(pos, "r_hip", "waist")
+    ls, rs = _rows(pos, "l_shoulder", "waist"), _rows(pos, "r_shoulder", "waist")
+    pelvis_y = lh + rh
+    pelvis_y *= -0.5
+    chest_y = ls + rs
+    chest_y *= 0.5
+    pelvis = _frame_from_yz(pelvis_y, _cross(rh, lh))
+    chest = _frame_from_yz(chest_y, _cross(ls, rs))
+    quats = {"pelvis": quat.from_axis_rows(*pelvis, out=next(slots)),
+             "chest": quat.from_axis_rows(*chest, out=next(slots))}
+    for seg, top, bottom in (("spine", "chest", "waist"), ("cervical", "neck", "chest")):
+        local = _in_frame(chest, _rows(pos, top, bottom))
+        quats[seg] = _align_y(quats["chest"], local, next(slots))
+    return quats, {"pelvis": pelvis[0], "chest": chest[0]}, pelvis[2][:, [i0]]
 
 
 def _as_joint(joints: Mapping[str, ArrayLike], name: str, n: int | None) -> Float:
@@ -234,55 +310,51 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
 
     # Frames come from their axes, and are composed as quaternion arrays: Rotation.__mul__
     # on 6,283 rotations costs 3–5 ms in scipy 1.17, quaternions.multiply 0.1 ms.
-    col = {name: np.ascontiguousarray(v.T) for name, v in pos.items()}
-    w, lh, rh = col["waist"], col["l_hip"], col["r_hip"]
-    ls, rs = col["l_shoulder"], col["r_shoulder"]
-    axes: dict[str, Axes] = {
-        "pelvis": _frame_from_yz(w - 0.5 * (lh + rh), _cross(rh - w, lh - w)),
-        "chest": _frame_from_yz(0.5 * (ls + rs) - w, _cross(ls - w, rs - w)),
-    }
-    quats: dict[str, Float] = {seg: _quat(a) for seg, a in axes.items()}
-    quats["spine"] = _align_y(quats["chest"], col["chest"] - w)
-    quats["cervical"] = _align_y(quats["chest"], col["neck"] - col["chest"])
-
-    pelvis_x, pelvis_y, pelvis_z = axes["pelvis"]
-    pelvis_i0 = quat.from_axes(pelvis_x[:, i0], pelvis_y[:, i0], pelvis_z[:, i0])
-    ends = ("head", "l_hand", "r_hand", "l_foot", "r_foot")
+    # Memory: the results are slices of one block, and the temporaries alive at any time take
+    # less room than it: glibc returns a freed heap top to the system once it exceeds twice the
+    # largest block freed so far, and faulting that memory in again cost 2–3 ms a call
+    slots = iter(np.empty((len(SEGMENTS) + 2, n, 4)))
+    quats, parent_x, forward_i0 = _trunk(pos, slots, i0)
+    pelvis_i0 = quats["pelvis"][i0]
     if isinstance(calibration, str):
         if calibration == "pelvis":
-            reference = dict.fromkeys(ends, pelvis_i0)
+            reference = dict.fromkeys(_ENDS, pelvis_i0)
         elif calibration == "upright":
             y = np.array(up, dtype=float).reshape(3, 1)
-            upright = _quat(_frame_from_yz(y, pelvis_z[:, [i0]]))[0]
-            reference = dict.fromkeys(ends, upright)
+            upright = quat.from_axis_rows(*_frame_from_yz(y, forward_i0))[0]
+            reference = dict.fromkeys(_ENDS, upright)
         else:
             raise InputError(f"unknown calibration {calibration!r}; use 'pelvis', 'upright' "
                              "or a mapping of rotations", field="calibration")
     else:
         reference = {s: calibration[s].as_quat(scalar_first=True) if s in calibration
-                     else pelvis_i0 for s in ends}
-    for seg, ref in reference.items():
-        sensor = sensor_rotations.get(seg)
-        if sensor is not None:
-            q = sensor.as_quat(scalar_first=True)
-            # q ⊗ c for one quaternion c is linear in q: rows e_j ⊗ c of a 4 × 4 matrix
-            offset = quat.multiply(np.eye(4), quat.relative(q[i0], ref))
-            quats[seg] = _canonical(q @ offset)
+                     else pelvis_i0 for s in _ENDS}
+    ends = [s for s in _ENDS if s in sensor_rotations]
+    if ends:
+        # scipy's own, scalar-last quaternions (a third of the cost of scalar-first ones)
+        last = [sensor_rotations[s].as_quat() for s in ends]
+        offset = quat.relative(np.array([q[i0, [3, 0, 1, 2]] for q in last]),
+                               np.array([np.reshape(reference[s], 4) for s in ends]))
+        # q ⊗ c for one quaternion c is linear in q: rows e_j ⊗ c of a 4 × 4 matrix, here
+        # ordered as scipy's components
+        matrices = quat.multiply(np.eye(4)[[1, 2, 3, 0]], offset[:, None])
+        for seg, q, m in zip(ends, last, matrices, strict=True):
+            quats[seg] = _canonical(m.T @ q.T, next(slots))
 
     for upper, lower, distal, prox, mid, end, sign in _LIMBS:
-        upper_bone = _normalise(col[prox] - col[mid])
-        lower_bone = _normalise(col[mid] - col[end])
-        parent_x = axes["pelvis" if upper.endswith("thigh") else "chest"][0]
+        upper_bone = _normalise(_rows(pos, prox, mid))
+        lower_bone = _normalise(_rows(pos, mid, end))
         sensor = sensor_rotations.get(upper)
-        x = _flexion_axis(upper_bone, lower_bone,
-                          None if sensor is None else sensor.as_matrix(), sign * parent_x)
+        x = _flexion_axis(upper_bone, lower_bone, None if sensor is None else sensor.as_matrix(),
+                          sign * parent_x["pelvis" if upper.endswith("thigh") else "chest"])
         x *= sign
-        quats[upper] = _quat_from_xy(x, upper_bone)
+        quats[upper] = _quat_from_xy(x, upper_bone, next(slots))
         if distal not in quats:
-            quats[lower] = _quat_from_xy(x, lower_bone)
+            quats[lower] = _quat_from_xy(x, lower_bone, next(slots))
             quats[distal] = quats[lower]
         elif sign < 0:
-            quats[lower] = _align_y(quats[distal], lower_bone)
+            hand = quats[distal]
+            quats[lower] = _align_y(hand, _local(hand, lower_bone), next(slots))
         else:
-            quats[lower] = _quat_from_xy(x, lower_bone)
+            quats[lower] = _quat_from_xy(x, lower_bone, next(slots))
     return quats

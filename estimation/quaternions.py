@@ -19,7 +19,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "continuous", "from_axes",
-           "from_matrix", "from_rotvec", "mean", "multiply", "relative", "rotate"]
+           "from_axis_rows", "from_matrix", "from_rotvec", "mean", "multiply", "relative",
+           "rotate"]
 
 Float = NDArray[np.float64]
 
@@ -242,9 +243,32 @@ def from_axes(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Float:
     return _shepperd(m00, m01, m02, m10, m11, m12, m20, m21, m22).reshape(*xx.shape[:-1], 4)
 
 
+def from_axis_rows(x: ArrayLike, y: ArrayLike, z: ArrayLike, *,
+                   out: Float | None = None) -> Float:
+    """``from_axes`` of axes given component-major, as rows.
+
+    Parameters
+    ----------
+    x, y, z : array_like, shape (3, N)
+        The body axes in the world frame, a row per component (orthonormal and right-handed
+        by construction).
+    out : ndarray, shape (N, 4), optional
+        Where to write the result.
+
+    Returns
+    -------
+    ndarray, shape (N, 4)
+        The same values as ``from_axes(x.T, y.T, z.T)``.
+    """
+    xx, yy, zz = (np.asarray(v, dtype=float) for v in (x, y, z))
+    if not xx.shape == yy.shape == zz.shape or xx.ndim != 2 or xx.shape[0] != 3:
+        raise ValueError(f"axes must be (3, N) rows, got {xx.shape}, {yy.shape}, {zz.shape}")
+    return _shepperd(xx[0], yy[0], zz[0], xx[1], yy[1], zz[1], xx[2], yy[2], zz[2], out=out)
+
+
 def _shepperd(m00: Float, m01: Float, m02: Float, m10: Float, m11: Float, m12: Float,
-              m20: Float, m21: Float, m22: Float) -> Float:
-    """(N, 4) quaternions from the nine (N,) matrix entries."""
+              m20: Float, m21: Float, m22: Float, out: Float | None = None) -> Float:
+    """(N, 4) quaternions from the nine (N,) matrix entries (into ``out`` if given)."""
     # 4·(w², x², y², z²) on the diagonal of 4 q qᵀ; each of its rows is a multiple of q,
     # and the row of the largest diagonal entry is the accurate one. Steps run in place
     # (a new array per step costs about as much as the arithmetic)
@@ -274,7 +298,8 @@ def _shepperd(m00: Float, m01: Float, m02: Float, m10: Float, m11: Float, m12: F
     norm = np.sqrt(np.einsum("ij,ij->j", q, q))
     # normalised through a transposed view of the (N, 4) result: scaling (N, 4) rows by a
     # per-row factor broadcasts over a length-4 axis, which numpy loops over slowly
-    out = np.empty((d0.shape[0], 4))
+    if out is None:
+        out = np.empty((d0.shape[0], 4))
     np.divide(q, np.copysign(norm, q[0], out=norm), out=out.T)
     return out
 

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation.errors import InputError
 from estimation.model import SEGMENTS
-from estimation.orientations import estimate_orientations
+from estimation.orientations import _quat_from_xy, estimate_orientations
 
 # Upright rest pose, facing +z, left = +x, metres.
 REST = {
@@ -190,3 +190,25 @@ def test_bad_inputs() -> None:
         estimate_orientations(missing, sensors)
     with pytest.raises(InputError, match="calibration"):
         estimate_orientations(joints, sensors, calibration="sideways")
+
+
+def test_limb_frame_quaternions_match_scipy_for_every_direction() -> None:
+    rng = np.random.default_rng(7)
+    y = rng.normal(size=(3, 400))
+    # bones straight up and down, and twists of a half turn (x opposite the swung e_x)
+    y[:, :4] = [[0.0, 0.0, 0.0, 0.0], [1.0, -1.0, 1.0, -1.0], [0.0, 0.0, 0.0, 0.0]]
+    y /= np.linalg.norm(y, axis=0)
+    x = rng.normal(size=(3, 400))
+    x[:, :4] = [[1.0, 1.0, -1.0, -1.0], [0.3, 0.0, 0.0, 0.2], [0.0, 0.0, 0.0, 0.0]]
+    q = _quat_from_xy(x, y, np.empty((400, 4)))
+    assert np.all(q[:, 0] >= 0)
+    xu = x - np.einsum("ij,ij->j", x, y) * y
+    xu /= np.linalg.norm(xu, axis=0)
+    frames = np.stack([xu.T, y.T, np.cross(xu.T, y.T)], axis=-1)
+    truth = Rotation.from_matrix(frames).as_quat(scalar_first=True)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", q, truth)), 1.0, atol=1e-14)
+    # x along the bone leaves the twist arbitrary but the frame valid
+    along = _quat_from_xy(y[:, :5].copy(), y[:, :5], np.empty((5, 4)))
+    np.testing.assert_allclose(np.linalg.norm(along, axis=1), 1.0, atol=1e-14)
+    y_axis = Rotation.from_quat(along, scalar_first=True).apply([0.0, 1.0, 0.0])
+    np.testing.assert_allclose(y_axis, y[:, :5].T, atol=1e-14)

@@ -66,6 +66,25 @@ def test_from_matrix_round_trip_including_half_turns(rots: tuple[Rotation, Rotat
     assert quat.from_axes(*np.eye(3)).shape == (4,)
 
 
+def test_from_axis_rows_matches_scipy_and_writes_into_out(
+        rots: tuple[Rotation, Rotation]) -> None:
+    a, _ = rots
+    m = a.as_matrix()
+    x, y, z = (np.ascontiguousarray(m[..., k].T) for k in range(3))
+    q = quat.from_axis_rows(x, y, z)
+    assert q.shape == (500, 4)
+    assert np.all(q[:, 0] >= 0)
+    _same_rotation(q, _wxyz(a))
+    np.testing.assert_array_equal(q, quat.from_axes(m[..., 0], m[..., 1], m[..., 2]))
+    block = np.zeros((2, 500, 4))
+    out = block[1]
+    assert quat.from_axis_rows(x, y, z, out=out) is out
+    np.testing.assert_array_equal(block[1], q)
+    assert not block[0].any()
+    with pytest.raises(ValueError, match="rows"):
+        quat.from_axis_rows(x.T, y.T, z.T)
+
+
 def test_angle_and_rotvec_match_scipy(rots: tuple[Rotation, Rotation]) -> None:
     a, b = rots
     rel = a.inv() * b
