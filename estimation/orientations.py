@@ -86,13 +86,13 @@ def _quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     e_x onto ``(a, 0, c)``, the projection of ``sᵀ x`` on the xz plane."""
     # for y₁ < 0 (1 + y₁ would cancel) the frame turned by P = R_z(π), which negates the
     # first two components of y and x, is composed instead, and q = p ⊗ q' with p = (0, 0, 0, 1)
-    down = y[1] < 0
-    flip = bool(down.any())
-    if flip:
-        sign = np.where(down, -1.0, 1.0)
-        y0, y1, x0, x1 = y[0] * sign, y[1] * sign, x[0] * sign, x[1] * sign
-    else:
-        y0, y1, x0, x1 = y[0], y[1], x[0], x[1]
+    # (few frames: changed through their indices, not through masks over every frame)
+    down = np.flatnonzero(y[1] < 0)
+    y0, y1, x0, x1 = y[0], y[1], x[0], x[1]
+    if down.size:
+        y0, y1, x0, x1 = y0.copy(), y1.copy(), x0.copy(), x1.copy()
+        for v in (y0, y1, x0, x1):
+            v[down] *= -1.0
     y2, x2 = y[2], x[2]
     one_y = 1.0 + y1
     # sᵀ x = (x₀ − y₀ h, ·, x₂ − y₂ h) with h = x₁ + (y₀ x₀ + y₂ x₂) / (1 + y₁)
@@ -120,7 +120,7 @@ def _quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     np.multiply(one_y, ty, out=q[2])
     np.multiply(y2, ty, out=q[3])
     q[3] -= y0 * tw
-    if flip:
+    if down.size:
         q[:, down] = q[::-1, down] * np.array([[-1.0], [-1.0], [1.0], [1.0]])
     scale = one_y * r
     scale *= turn
