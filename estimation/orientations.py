@@ -163,18 +163,17 @@ def _align_y(frames_q: Float, local: Float, out: Float) -> Float:
     hw, hx, hz = 1.0 + ly, lz, -lx
     norm = np.sqrt(hw * hw + hx * hx + hz * hz)
     # at θ = π the axis is undefined: any axis ⟂ y will do (z)
-    flip = norm <= _EPS
-    norm[flip] = 1.0
-    hw, hx, hz = hw / norm, hx / norm, hz / norm
-    hw[flip], hx[flip], hz[flip] = 0.0, 0.0, 1.0
-    # R ⊗ h, h's y component being zero
+    flip = np.flatnonzero(norm <= _EPS)
+    hw[flip], hx[flip], hz[flip], norm[flip] = 0.0, 0.0, 1.0, 1.0
+    # R ⊗ h (h's y component being zero), divided by |h| with the sign that makes w ≥ 0
     qw, qx, qy, qz = frames_q.T
     rows = np.empty((4, len(hw)))
     rows[0] = qw * hw - qx * hx - qz * hz
     rows[1] = qw * hx + qx * hw + qy * hz
     rows[2] = qy * hw - qx * hz + qz * hx
     rows[3] = qw * hz - qy * hx + qz * hw
-    return _canonical(rows, out)
+    np.divide(rows, np.copysign(norm, rows[0], out=norm), out=out.T)
+    return out
 
 
 def _flexion_axis(upper_bone: Float, lower_bone: Float, sensor: Float | None,
