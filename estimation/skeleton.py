@@ -261,17 +261,18 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
 
 def _rotations(quaternions: NDArray[np.float64], norms2: NDArray[np.float64]) -> list[Rotation]:
     """``Rotation.from_quat(q.T, scalar_first=True)`` of each sensor's quaternions ``q`` in
-    ``quaternions`` (S, 4, F), given their squared norms (S, F) as ``FilledGaps.norms2``
-    sums them: the same rotations bit for bit.
+    rows 0 to 3 of ``quaternions`` (S, 5, F), given their squared norms (S, F) as
+    ``FilledGaps.norms2`` sums them: the same rotations bit for bit. The quaternions are
+    normalised in place and row 4 set to row 0 (w), so that rows 1 to 4 are the unit
+    quaternions in scipy's scalar-last order: the rotations wrap views of them.
 
-    scipy normalises and reorders quaternion by quaternion (0.15 ms per 6,283 rotations);
-    here a component at a time, and the rotations wrap the result."""
-    norms = np.sqrt(norms2)
-    n_sensors, _, n_frames = quaternions.shape
-    unit = np.empty((n_sensors, n_frames, 4))  # scalar last, as scipy stores them
-    for k, component in enumerate((1, 2, 3, 0)):
-        np.divide(quaternions[:, component], norms, out=unit[..., k])
-    return [Rotation(q, normalize=False, copy=False) for q in unit]
+    scipy normalises and reorders quaternion by quaternion into a new array (0.15 ms per
+    6,283 rotations, and the first touch of new memory costs as much again); here one
+    division over contiguous rows, in place. scipy reads the strided views as fast."""
+    unit = quaternions[:, :4]
+    np.divide(unit, np.sqrt(norms2)[:, None], out=unit)
+    quaternions[:, 4] = quaternions[:, 0]
+    return [Rotation(q[1:].T, normalize=False, copy=False) for q in quaternions]
 
 
 @dataclass(frozen=True)
@@ -281,7 +282,7 @@ class _SensorPoses:
     positions: dict[str, NDArray[np.float64]]  # (F, 3) each, rows of ``stacked``
     rotations: dict[str, Rotation]
     ok: dict[str, NDArray[np.bool_]]  # measured (not interpolated) samples
-    # (F, 4) scalar-first, as recorded or filled: transposed rows, each component contiguous
+    # (F, 4) scalar-first, filled and normalised: transposed rows, each component contiguous
     quaternions: dict[str, NDArray[np.float64]]
     stacked: NDArray[np.float64]  # (S, F, 3), sensor-major in the order used
 
@@ -291,11 +292,13 @@ class _SensorPoses:
         """Fill the gaps of the sensors ``use``; warn about gaps longer than 0.5 s; raise
         InputError naming a sensor with no valid sample."""
         cols = [recording.index(s) for s in use]
-        # each sensor's positions contiguous, and each component of its quaternions
+        # each sensor's positions contiguous, and each component of its quaternions; a
+        # fifth row per sensor for _rotations
         pos = sensor_major(recording.positions, cols)
-        quat = component_major(recording.quaternions, cols)
+        quat = np.empty((len(use), 5, recording.n_frames))
+        component_major(recording.quaternions, cols, out=quat[:, :4])
         try:
-            gaps = fill_sensor_major(pos, quat, time=recording.time)
+            gaps = fill_sensor_major(pos, quat[:, :4], time=recording.time)
         except InputError as exc:
             if exc.sensor is None:
                 raise
@@ -309,7 +312,7 @@ class _SensorPoses:
         return cls(positions={s: pos[k] for k, s in enumerate(use)},
                    rotations=dict(zip(use, _rotations(quat, gaps.norms2), strict=True)),
                    ok={s: gaps.valid[k] for k, s in enumerate(use)},
-                   quaternions={s: quat[k].T for k, s in enumerate(use)}, stacked=pos)
+                   quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
 
 
 def estimate_skeleton(

@@ -244,6 +244,11 @@ def test_sensor_and_component_major_copy_the_chosen_columns() -> None:
     every = component_major(samples, range(4))
     every[0, 0, 0] = -1.0
     assert samples[0, 0, 0] == 0.0  # a copy
+    block = np.zeros((2, 4, 5))  # rows 1 to 3 of each sensor's block
+    into = block[:, 1:]
+    assert component_major(samples, [3, 1], out=into) is into
+    assert np.array_equal(into, rows)
+    assert not block[:, 0].any()
 
 
 def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
@@ -267,6 +272,12 @@ def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
         assert gaps.longest[k] == gap_lengths(~filled).max(initial=0)
     w, x, y, z = q_s.transpose(1, 0, 2)
     assert np.array_equal(gaps.norms2, x * x + y * y + z * z + w * w)
+    # the quaternions may be the first rows of a larger block per sensor
+    p_5, q_5 = sensor_major(pos, range(n_sensors)), np.zeros((n_sensors, 5, n_frames))
+    component_major(quat, range(n_sensors), out=q_5[:, :4])
+    assert np.array_equal(fill_sensor_major(p_5, q_5[:, :4], time=time).valid, gaps.valid)
+    assert np.array_equal(q_5[:, :4], q_s)
+    assert not q_5[:, 4].any()
     with pytest.raises(ValueError, match="in place"):
         fill_sensor_major(p_s[:, ::2], q_s[:, ::2])
 
