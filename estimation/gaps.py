@@ -169,14 +169,16 @@ def fill_sensor_major(
                              "quaternions: blocks per sensor) in place")
     n_sensors, n_frames = positions.shape[:2]
     t = np.arange(n_frames, dtype=float) if time is None else np.asarray(time, dtype=float)
-    # one pass of isfinite over the contiguous arrays, then the components' masks
+    # one pass of isfinite over the contiguous positions, then the components' masks
     finite_p = np.isfinite(positions)
-    finite_q = np.isfinite(quaternions)
     valid = finite_p[..., 0] & finite_p[..., 1] & finite_p[..., 2]
-    for k in range(4):
-        valid &= finite_q[:, k]
+    # the quaternions' squared norms tell most: a NaN component makes them NaN, which
+    # compares False; an infinite one makes them infinite, as does (hardly ever) the
+    # overflow of finite ones, so those few samples are checked component by component
     norms2 = _norms2(*quaternions.transpose(1, 0, 2))
-    valid &= norms2 > 1e-18  # NaN compares False
+    valid &= norms2 > 1e-18
+    sensor_inf, frame_inf = np.nonzero(norms2 == np.inf)
+    valid[sensor_inf, frame_inf] &= rows.finite(quaternions[sensor_inf, :, frame_inf])
     empty = ~valid.any(axis=1)
     if empty.any():
         s = int(np.flatnonzero(empty)[0])

@@ -261,9 +261,12 @@ def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
     drop[10, :] = False
     pos[drop & (rng.random(drop.shape) < 0.5)] = np.nan
     quat[drop & ~np.isnan(pos[..., 0])] = 0.0  # a zero quaternion is dropped too
+    quat[20, 2, 1] = np.inf  # dropped too
+    drop[20, 2] = True
     time = np.cumsum(rng.uniform(0.5, 1.5, n_frames))
     p_s, q_s = sensor_major(pos, range(n_sensors)), component_major(quat, range(n_sensors))
     gaps = fill_sensor_major(p_s, q_s, time=time)
+    assert np.array_equal(gaps.valid, ~drop.T)
     for k in range(n_sensors):
         p_k, q_k, filled = fill_gaps(pos[:, k], quat[:, k], time=time)
         assert np.array_equal(p_s[k], p_k)
