@@ -45,7 +45,8 @@ def sensor_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDArra
     return out.view(np.float64).reshape(len(columns), arr.shape[0], arr.shape[2])
 
 
-def component_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDArray[np.float64]:
+def component_major(samples: NDArray[np.float64], columns: Sequence[int],
+                    out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """A component-major copy of some sensors' samples.
 
     Parameters
@@ -54,18 +55,24 @@ def component_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDA
         Per-frame samples of S sensors (quaternions: K = 4).
     columns : sequence of int
         The sensors to copy, in order.
+    out : ndarray, shape (len(columns), K, F), optional
+        float64 array to copy into (for instance the first K rows of each sensor's block
+        of a larger array); returned.
 
     Returns
     -------
     ndarray, shape (len(columns), K, F)
-        A new C-contiguous float64 array: each component of each sensor is one contiguous
-        row, so that per-sample arithmetic on the components runs on whole rows.
+        A new C-contiguous float64 array (or ``out``): each component of each sensor is one
+        contiguous row, so that per-sample arithmetic on the components runs on whole rows.
     """
     cols = list(columns)
     arr = np.asarray(samples)
     if cols != list(range(arr.shape[1])):
         arr = np.take(arr, cols, axis=1)
-    return np.array(arr.transpose(1, 2, 0), dtype=float, order="C")
+    if out is None:
+        return np.array(arr.transpose(1, 2, 0), dtype=float, order="C")
+    np.copyto(out, arr.transpose(1, 2, 0))
+    return out
 
 
 class FilledGaps(NamedTuple):
@@ -138,8 +145,9 @@ def fill_sensor_major(
     positions : ndarray, shape (S, F, 3)
         C-contiguous float64 positions, NaN where dropped; filled in place.
     quaternions : ndarray, shape (S, 4, F)
-        C-contiguous float64 scalar-first rotations, component-major, NaN where dropped;
-        filled in place.
+        float64 scalar-first rotations, component-major (each sensor's (4, F) block
+        C-contiguous, as in ``component_major``'s result or the first four rows of each
+        block of an (S, 5, F) array), NaN where dropped; filled in place.
     time, method
         As for ``fill_gaps``.
 
@@ -155,19 +163,22 @@ def fill_sensor_major(
     """
     if method not in ("cubic", "linear"):
         raise InputError(f"unknown gap-filling method {method!r}", field="method")
-    for arr in (positions, quaternions):
-        if arr.dtype != np.float64 or not arr.flags.c_contiguous:
-            raise ValueError("fill_sensor_major fills C-contiguous float64 arrays in place")
+    for arr, layout in ((positions, positions), (quaternions, quaternions[0])):
+        if arr.dtype != np.float64 or not layout.flags.c_contiguous:
+            raise ValueError("fill_sensor_major fills C-contiguous float64 arrays (for the "
+                             "quaternions: blocks per sensor) in place")
     n_sensors, n_frames = positions.shape[:2]
     t = np.arange(n_frames, dtype=float) if time is None else np.asarray(time, dtype=float)
-    # one pass of isfinite over the contiguous arrays, then the components' masks
+    # one pass of isfinite over the contiguous positions, then the components' masks
     finite_p = np.isfinite(positions)
-    finite_q = np.isfinite(quaternions)
     valid = finite_p[..., 0] & finite_p[..., 1] & finite_p[..., 2]
-    for k in range(4):
-        valid &= finite_q[:, k]
+    # the quaternions' squared norms tell most: a NaN component makes them NaN, which
+    # compares False; an infinite one makes them infinite, as does (hardly ever) the
+    # overflow of finite ones, so those few samples are checked component by component
     norms2 = _norms2(*quaternions.transpose(1, 0, 2))
-    valid &= norms2 > 1e-18  # NaN compares False
+    valid &= norms2 > 1e-18
+    sensor_inf, frame_inf = np.nonzero(norms2 == np.inf)
+    valid[sensor_inf, frame_inf] &= rows.finite(quaternions[sensor_inf, :, frame_inf])
     empty = ~valid.any(axis=1)
     if empty.any():
         s = int(np.flatnonzero(empty)[0])

@@ -244,6 +244,11 @@ def test_sensor_and_component_major_copy_the_chosen_columns() -> None:
     every = component_major(samples, range(4))
     every[0, 0, 0] = -1.0
     assert samples[0, 0, 0] == 0.0  # a copy
+    block = np.zeros((2, 4, 5))  # rows 1 to 3 of each sensor's block
+    into = block[:, 1:]
+    assert component_major(samples, [3, 1], out=into) is into
+    assert np.array_equal(into, rows)
+    assert not block[:, 0].any()
 
 
 def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
@@ -256,9 +261,12 @@ def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
     drop[10, :] = False
     pos[drop & (rng.random(drop.shape) < 0.5)] = np.nan
     quat[drop & ~np.isnan(pos[..., 0])] = 0.0  # a zero quaternion is dropped too
+    quat[20, 2, 1] = np.inf  # dropped too
+    drop[20, 2] = True
     time = np.cumsum(rng.uniform(0.5, 1.5, n_frames))
     p_s, q_s = sensor_major(pos, range(n_sensors)), component_major(quat, range(n_sensors))
     gaps = fill_sensor_major(p_s, q_s, time=time)
+    assert np.array_equal(gaps.valid, ~drop.T)
     for k in range(n_sensors):
         p_k, q_k, filled = fill_gaps(pos[:, k], quat[:, k], time=time)
         assert np.array_equal(p_s[k], p_k)
@@ -267,6 +275,12 @@ def test_fill_sensor_major_matches_fill_gaps_per_sensor() -> None:
         assert gaps.longest[k] == gap_lengths(~filled).max(initial=0)
     w, x, y, z = q_s.transpose(1, 0, 2)
     assert np.array_equal(gaps.norms2, x * x + y * y + z * z + w * w)
+    # the quaternions may be the first rows of a larger block per sensor
+    p_5, q_5 = sensor_major(pos, range(n_sensors)), np.zeros((n_sensors, 5, n_frames))
+    component_major(quat, range(n_sensors), out=q_5[:, :4])
+    assert np.array_equal(fill_sensor_major(p_5, q_5[:, :4], time=time).valid, gaps.valid)
+    assert np.array_equal(q_5[:, :4], q_s)
+    assert not q_5[:, 4].any()
     with pytest.raises(ValueError, match="in place"):
         fill_sensor_major(p_s[:, ::2], q_s[:, ::2])
 

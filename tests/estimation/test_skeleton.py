@@ -345,8 +345,11 @@ def test_rotations_equal_scipys_from_quat_bit_for_bit() -> None:
     quat = rng.normal(size=(300, 3, 4)) * rng.uniform(0.5, 2.0, size=(300, 3, 1))
     quat[7, 1] = np.nan
     pos = np.zeros((300, 3, 3))
-    p_s, q_s = sensor_major(pos, range(3)), component_major(quat, range(3))
-    gaps = fill_sensor_major(p_s, q_s)
+    p_s, q_s = sensor_major(pos, range(3)), np.empty((3, 5, 300))
+    component_major(quat, range(3), out=q_s[:, :4])
+    gaps = fill_sensor_major(p_s, q_s[:, :4])
+    filled = q_s[:, :4].copy()
     for k, rot in enumerate(_rotations(q_s, gaps.norms2)):
-        ref = Rotation.from_quat(q_s[k].T, scalar_first=True)
+        ref = Rotation.from_quat(filled[k].T, scalar_first=True)
         assert np.array_equal(rot.as_quat(), ref.as_quat())
+        assert np.array_equal(q_s[k, :4].T, ref.as_quat(scalar_first=True))  # normalised
