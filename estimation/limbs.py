@@ -209,8 +209,9 @@ def _world(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rot
 
 def _in_upper_frame(world: _World) -> _Limb:
     ru = world.ru
-    b = np.einsum("fji,fj->fi", ru, world.pd - world.pu)
-    h = np.einsum("fji,fj->fi", ru, world.hip - world.pu)
+    ru_t = ru.transpose(0, 2, 1)
+    b = rows.apply_each(ru_t, world.pd - world.pu)
+    h = rows.apply_each(ru_t, world.hip - world.pu)
     q = rows.relative_matrices(ru, world.rd)
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
