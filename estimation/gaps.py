@@ -13,15 +13,6 @@ from .errors import InputError
 from .quaternions import as_rotvec, from_rotvec, multiply, relative
 
 
-def gap_lengths(valid: NDArray[np.bool_]) -> NDArray[np.intp]:
-    """Lengths (in frames) of the runs of ``False`` in a 1-D mask."""
-    padded = np.concatenate(([True], np.asarray(valid, dtype=bool), [True]))
-    change = np.diff(padded.astype(np.int8))
-    starts = np.flatnonzero(change == -1)
-    stops = np.flatnonzero(change == 1)
-    return np.asarray(stops - starts, dtype=np.intp)
-
-
 def sensor_major(samples: NDArray[np.float64], columns: Sequence[int]) -> NDArray[np.float64]:
     """A sensor-major copy of some sensors' samples.
 

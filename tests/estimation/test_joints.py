@@ -14,12 +14,18 @@ from estimation.gaps import (
     component_major,
     fill_gaps,
     fill_sensor_major,
-    gap_lengths,
     sensor_major,
 )
 from estimation.joints import _percentile, effective_samples, estimate_joint, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
+
+
+def gap_lengths(valid: np.ndarray) -> np.ndarray:
+    """Lengths (in frames) of the runs of ``False`` in a 1-D mask: the reference for
+    ``FilledGaps.longest``."""
+    change = np.diff(np.concatenate(([True], valid, [True])).astype(np.int8))
+    return np.flatnonzero(change == 1) - np.flatnonzero(change == -1)
 
 
 def local_error_mm(fit_local: np.ndarray, true_local: np.ndarray) -> float:
