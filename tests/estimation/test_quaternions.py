@@ -148,6 +148,9 @@ def test_row_helpers_for_rotation_matrices_match_scipy() -> None:
     v = np.random.default_rng(5).normal(size=(50, 3))
     np.testing.assert_allclose(rows.apply_each(upper.as_matrix(), v), upper.apply(v),
                                atol=1e-14)
+    # a transposed view (strided columns), as the limb data passes Rᵤᵀ
+    np.testing.assert_allclose(rows.apply_each(upper.as_matrix().transpose(0, 2, 1), v),
+                               upper.inv().apply(v), atol=1e-14)
     np.testing.assert_allclose(rows.sum_transposed(upper.as_matrix(), v),
                                upper.inv().apply(v).sum(axis=0), atol=1e-13)
 
@@ -173,7 +176,8 @@ def test_row_helpers_transform_and_sum_of_matrix_products() -> None:
     expected = np.einsum("tij,j->ti", m, v) + p
     np.testing.assert_allclose(rows.transform(m, v, p), expected, atol=1e-14)
     out = np.empty((50, 3))
-    assert rows.transform(m, v, p, out=out) is not None
+    into = rows.transform(m, v, p, out=out)
+    assert np.shares_memory(into, out)
     np.testing.assert_allclose(out, expected, atol=1e-14)
     np.testing.assert_allclose(rows.sum_transposed(m, n), np.einsum("tji,tjk->ik", m, n),
                                atol=1e-13)
