@@ -22,7 +22,7 @@ from .orientations import estimate_orientations
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
-from .slip import SlipFit, estimate_slip, rotation_noise_variance
+from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
 
 METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
 
@@ -69,6 +69,9 @@ _MIRRORED_PAIRS: Final[dict[tuple[str, str], str]] = {("l_shoulder", "r_shoulder
                                                       ("l_hip", "r_hip"): "pelvis"}
 # joints fitted by estimate_joint on the sensor positions without the shared model's slip
 _DESLIPPED: Final[frozenset[str]] = frozenset(("l_wrist", "r_wrist"))
+# limb joints that take their centre from the shared model where it sees enough motion
+_LIMB_SHARED: Final[frozenset[str]] = frozenset(("l_elbow", "r_elbow", "l_wrist", "r_wrist",
+                                                 "l_knee", "r_knee", "l_ankle", "r_ankle"))
 _MIRRORED: Final[frozenset[str]] = frozenset(j for pair in _MIRRORED_PAIRS for j in pair)
 # joint -> the pair of joints it sits midway between (sideways), in the same sensor frame
 _MIDLINE: Final[dict[str, tuple[str, str]]] = {"waist": ("l_hip", "r_hip"),
@@ -80,6 +83,9 @@ NECK_RISE: Final[float] = 0.15
 (0.05–0.2 in the CMU and Bandai Namco rigs)."""
 PRIOR_SIGMA_M: Final[dict[str, float]] = {"neck": 0.03, "mirror": 0.03}
 """Standard deviation of each anatomical prior, metres."""
+LIMB_PRIOR_SIGMA_M: Final[float] = 0.02
+"""Standard deviation (metres) of the prior that a limb joint's own robust fit (with its
+hinge rule) puts on its centre from the shared slip model."""
 SYMMETRY_SIGMA_M: Final[float] = 0.03
 """Standard deviation of the waist (neck) across the hips' (shoulders') mid-plane, metres,
 when the joint's centre comes from the shared slip model."""
@@ -220,38 +226,67 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
     return np.asarray(point - 2.0 * float((point - base) @ normal) * normal)
 
 
+@dataclass(frozen=True)
+class _Anchor:
+    """How uncertain the estimated joints are that a prior is built from, in sensor a's
+    frame: the covariance (3, 3) of the prior's point and the variance (m²) of a symmetry
+    plane's position across it. A prior is only as certain as what it is anchored to."""
+
+    point: NDArray[np.float64] | None = None
+    plane: float = 0.0
+
+
 def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
                 pa_true: NDArray[np.float64], ra_rot: Rotation, pb_true: NDArray[np.float64],
                 rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_], *,
                 symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
-                prior: tuple[NDArray[np.float64], float] | None) -> JointFit:
+                prior: tuple[NDArray[np.float64], float] | None,
+                anchor: _Anchor | None = None,
+                hinge_axis: NDArray[np.float64] | None = None,
+                ) -> tuple[JointFit, NDArray[np.float64]]:
     """The joint's centre from the shared slip model (posterior mean and covariance of its
-    centre, every sensor's slip integrated out) combined with its anatomical priors (Gaussian,
-    in absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision), and its path from
-    the sensor positions without their estimated slip (``pa_true``, ``pb_true``)."""
+    centre, every sensor's slip integrated out) combined with its priors (Gaussian, in
+    absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision, less where its
+    ``anchor`` is itself uncertain), and its path from the sensor positions without their
+    estimated slip (``pa_true``, ``pb_true``). Along ``hinge_axis`` (in frame a) the model's
+    precision is dropped: there it counts orientation noise as rotation. Also returns the
+    posterior covariance of the centre in frame a (3, 3)."""
     cov = shared.covariances[j]
     mean = shared.centres[j].reshape(6)
     scale = float(np.trace(cov)) / 6.0
     # the data precision (a flat prior leaves static directions with ~zero precision)
     lam, vec = np.linalg.eigh(cov / scale)
     precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
-    normal = precision.copy()
-    rhs = precision @ mean
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
-    tau = 0.0
+    count = max(int(both.sum()), 1)
+    # c_b = N̄ c_a + const over the frames, N̄ = mean R_bᵀR_a: frame a's directions in frame b
+    n_bar = np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
+    if hinge_axis is not None:
+        g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
+        g /= np.linalg.norm(g)
+        keep = np.eye(6) - np.outer(g, g)
+        precision = keep @ precision @ keep
+    normal = precision.copy()
+    rhs = precision @ mean
+    prior_precision = np.zeros((6, 6))
     if prior is not None:
         x0 = np.asarray(prior[0], dtype=float)
         x0_b = np.einsum("tji,tj->i", rb[both], rows.apply(ra[both], x0) + pa_true[both]
-                         - pb_true[both]) / max(int(both.sum()), 1)
-        tau = 1.0 / prior[1] ** 2
-        normal += tau * np.eye(6)
-        rhs += tau * np.concatenate([x0, x0_b])
+                         - pb_true[both]) / count
+        spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
+        base = prior[1] ** 2 * np.eye(3)
+        prior_precision[:3, :3] = np.linalg.inv(base + spread)
+        prior_precision[3:, 3:] = np.linalg.inv(base + n_bar @ spread @ n_bar.T)
+        normal += prior_precision
+        rhs += prior_precision @ np.concatenate([x0, x0_b])
     if symmetry is not None:
+        var = SYMMETRY_SIGMA_M**2 + (0.0 if anchor is None else anchor.plane)
         g = np.concatenate([symmetry[1], np.zeros(3)])
-        normal += np.outer(g, g) / SYMMETRY_SIGMA_M**2
-        rhs += g * float(symmetry[1] @ symmetry[0]) / SYMMETRY_SIGMA_M**2
-    c = np.linalg.solve(normal + 1e-12 * float(np.trace(normal)) * np.eye(6), rhs)
+        normal += np.outer(g, g) / var
+        rhs += g * float(symmetry[1] @ symmetry[0]) / var
+    normal += 1e-12 * float(np.trace(normal)) * np.eye(6)
+    c = np.linalg.solve(normal, rhs)
     rec_a = rows.apply(ra, c[:3]) + pa_true
     rec_b = rows.apply(rb, c[3:]) + pb_true
     gap = rec_a - rec_b
@@ -260,14 +295,20 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     quality["estimator"] = "llsf-shared-slip"
     quality["rotation_noise_corrected"] = shared.corrected[j]
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
+    quality["signal_share"] = shared.signal_share[j]
     if prior is not None:
-        weakest = float(np.linalg.eigvalsh(precision)[0])
-        quality["data_weight"] = weakest / (weakest + tau)
+        # the data's share along their weakest direction
+        lam_data, vec_data = np.linalg.eigh(precision)
+        tau = float(vec_data[:, 0] @ prior_precision @ vec_data[:, 0])
+        quality["data_weight"] = float(lam_data[0]) / (float(lam_data[0]) + tau)
         quality["prior_sigma_m"] = float(prior[1])
         quality["prior_shift_m"] = float(np.linalg.norm(c[:3] - mean[:3]))
-    return replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
-                   positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
-                   quality=quality)
+        if anchor is not None and anchor.point is not None:
+            quality["prior_anchor_sd_m"] = float(np.sqrt(np.trace(anchor.point) / 3.0))
+    fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
+                     positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
+                     quality=quality)
+    return fitted, np.linalg.inv(normal)[:3, :3]
 
 
 def _rotations(quaternions: NDArray[np.float64], norms2: NDArray[np.float64]) -> list[Rotation]:
@@ -522,12 +563,14 @@ def estimate_skeleton(
                         for s, slip in shared.slip.items()}
     shared_index = {j: i for i, j in enumerate(pairs)}
     raw: dict[str, JointFit] = {}  # estimate_joint's own fits
+    posterior: dict[str, NDArray[np.float64]] = {}  # shared-model centres' covariance, frame a
 
     def joint(name: str, est: str, neighbours: tuple[NDArray[np.float64] | None,
                                                      NDArray[np.float64] | None] = (None, None),
               bone_length: float | None = None,
               symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
               prior: tuple[NDArray[np.float64], float] | None = None,
+              anchor: _Anchor | None = None,
               quiet: bool = False) -> JointFit:
         a, b = JOINT_SEGMENTS[name]
         pa, pb = positions[a], positions[b]
@@ -551,9 +594,20 @@ def estimate_skeleton(
                 raise EstimationError(f"{name}: {exc.detail}", field=name) from None
             raw[name] = fit
         if shared is not None and torso_shared:
-            fit = _shared_fit(fit, shared, shared_index[name], without_slip[a], rotations[a],
-                              without_slip[b], rotations[b], ok[a], ok[b],
-                              symmetry=symmetry, prior=prior)
+            fit, posterior[name] = _shared_fit(
+                fit, shared, shared_index[name], without_slip[a], rotations[a],
+                without_slip[b], rotations[b], ok[a], ok[b], symmetry=symmetry, prior=prior,
+                anchor=anchor)
+        elif shared is not None and name in _LIMB_SHARED and name in shared_index \
+                and shared.signal_share[shared_index[name]] >= EIV_SIGNAL_SHARE:
+            # a limb joint that moves well above the orientation noise: the shared model's
+            # centre, with the joint's own robust fit (and its hinge rule) as a prior
+            axis = fit.quality.get("axis") if fit.quality.get("hinge") else None
+            fit, posterior[name] = _shared_fit(
+                fit, shared, shared_index[name], without_slip[a], rotations[a],
+                without_slip[b], rotations[b], ok[a], ok[b], symmetry=None,
+                prior=(fit.local_a, LIMB_PRIOR_SIGMA_M),
+                hinge_axis=None if axis is None else np.asarray(axis, dtype=float))
         if name in static:
             source = ("anatomical priors" if prior is not None or neighbours[0] is not None
                       else "the few frames available")
@@ -577,13 +631,20 @@ def estimate_skeleton(
     quality: dict[str, dict[str, Any]] = {}
     for k, name in enumerate(_TORSO_JOINTS):
         sym = None
+        anchor = None
         if name in _MIDLINE and method == "auto":
-            left, right = (fits[j].local_a for j in _MIDLINE[name])
+            pair = _MIDLINE[name]
+            left, right = (fits[j].local_a for j in pair)
             across = left - right
             sym = (0.5 * (left + right), across / max(float(np.linalg.norm(across)), 1e-9))
+            if all(j in posterior for j in pair):
+                # the mid-plane and the neck prior are as uncertain as the pair's midpoint
+                spread = 0.25 * (posterior[pair[0]] + posterior[pair[1]])
+                anchor = _Anchor(point=spread if name == "neck" else None,
+                                 plane=float(sym[1] @ spread @ sym[1]))
         prior = _neck_prior(fits) if name == "neck" and method == "auto" else None
         # shoulders and hips are refitted below with their mirror priors: warn only then
-        fit = joint(name, estimator, symmetry=sym, prior=prior,
+        fit = joint(name, estimator, symmetry=sym, prior=prior, anchor=anchor,
                     quiet=method == "auto" and name in _MIRRORED)
         fits[name] = fit
         joints[name] = fit.positions
@@ -596,8 +657,13 @@ def estimate_skeleton(
         for pair, seg in _MIRRORED_PAIRS.items():
             plane = _sagittal_plane(seg, fits)
             mirrored = {a: _reflect(fits[b].local_a, plane) for a, b in (pair, pair[::-1])}
+            # the mirror image is as uncertain as the joint it mirrors
+            flip = np.eye(3) - 2.0 * np.outer(plane[1], plane[1])
+            anchors = {a: _Anchor(point=flip @ posterior[b] @ flip)
+                       for a, b in (pair, pair[::-1]) if b in posterior}
             for name in pair:
-                fit = joint(name, estimator, prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]))
+                fit = joint(name, estimator, prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]),
+                            anchor=anchors.get(name))
                 fits[name] = fit
                 joints[name] = fit.positions
                 joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)

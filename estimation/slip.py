@@ -58,6 +58,10 @@ class SlipFit:
     corrected: tuple[bool, ...]
     """Per joint: its centre and covariance come from the system corrected for orientation
     noise (``estimate_slip(rotation_noise=...)``)."""
+    signal_share: tuple[float, ...]
+    """Per joint: the share of the weakest eigenvalue of its plain normal matrix that is
+    motion rather than orientation noise (1 without a noise level; at most 0 where the noise
+    alone explains it, as along a hinge's axis)."""
 
 
 def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
@@ -207,6 +211,7 @@ def estimate_slip(
     # the errors-in-variables change of each corrected joint's block and right-hand side
     eiv: list[tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]] = []
     corrected = [False] * len(pairs)
+    share = [1.0] * len(pairs)
     v_eiv = rotation_noise * _noise_gain(n, fps)
     white: list[float] = []
     slow: dict[str, list[float]] = {s: [] for s in sensors}
@@ -262,7 +267,8 @@ def estimate_slip(
             gain = 1.0 / (1.0 - v_eiv) ** 2
             s_max = float(np.linalg.svd(msum / total, compute_uv=False)[0])
             # weakest eigenvalue of the plain block: 1 − s_max before, 1 − gain·s_max after
-            if gain * s_max <= 1.0 - EIV_SIGNAL_SHARE * (1.0 - s_max):
+            share[j] = (1.0 - gain * s_max) / max(1.0 - s_max, 1e-300)
+            if share[j] >= EIV_SIGNAL_SHARE:
                 mdep = np.zeros_like(big)
                 for r_, c_ in ((ca, cb), (ca, bb), (cb, ba), (ba, bb)):
                     mdep[r_, c_] = big[r_, c_]
@@ -286,14 +292,14 @@ def estimate_slip(
     centres = x[n_s:].reshape(-1, 2, 3)
     slip = {s: basis @ x[index[s]:index[s] + 3 * k].reshape(k, 3) for s in sensors}
     if not eiv:
-        return SlipFit(slip, centres, blocks_c, tuple(corrected))
+        return SlipFit(slip, centres, blocks_c, tuple(corrected), tuple(share))
     for idx, delta, rhs in eiv:
         normal[np.ix_(idx, idx)] += delta
         rhs_all[idx] += rhs
     try:
         x_e, blocks_e = _solve_system(normal, rhs_all, n_s)
     except np.linalg.LinAlgError:  # the corrections together left no positive definite system
-        return SlipFit(slip, centres, blocks_c, (False,) * len(pairs))
+        return SlipFit(slip, centres, blocks_c, (False,) * len(pairs), tuple(share))
     centres_e = x_e[n_s:].reshape(-1, 2, 3)
     centres, blocks_c = centres.copy(), blocks_c.copy()
     for j in range(len(pairs)):
@@ -305,4 +311,4 @@ def estimate_slip(
             blocks_c[j] = blocks_e[j]
         else:
             corrected[j] = False
-    return SlipFit(slip, centres, blocks_c, tuple(corrected))
+    return SlipFit(slip, centres, blocks_c, tuple(corrected), tuple(share))

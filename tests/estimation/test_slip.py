@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from estimation.joints import estimate_joint
 from estimation.simulate.sensors import example_motion, simulate_sensors
 from estimation.skeleton import estimate_skeleton
-from estimation.slip import estimate_slip, rotation_noise_variance
+from estimation.slip import EIV_SIGNAL_SHARE, estimate_slip, rotation_noise_variance
 
 FPS = 60.0
 N = 600  # 10 s
@@ -196,3 +196,36 @@ def test_no_correction_where_the_noise_rivals_the_motion() -> None:
                         rotation_noise=rotation_noise_variance(quats, valid))
     assert fit.corrected == (False,) * 3
     assert np.array_equal(fit.centres, plain.centres)
+
+
+def test_signal_share_tells_motion_from_orientation_noise() -> None:
+    # the share of each joint's weakest eigenvalue that is motion: near 1 for 4° under
+    # 0.25° of noise, below EIV_SIGNAL_SHARE for 3° under 1.5°; 1 without a noise level
+    for motion_deg, noise_deg, high in ((4.0, 0.25, True), (3.0, 1.5, False)):
+        pos, quats, valid, pairs, _ = noisy_star(0, motion_deg, noise_deg)
+        fit = estimate_slip(pos, quats, valid, pairs, fps=FPS,
+                            rotation_noise=rotation_noise_variance(quats, valid))
+        assert len(fit.signal_share) == len(pairs)
+        for share in fit.signal_share:
+            assert (share > 0.95) if high else (share < EIV_SIGNAL_SHARE), (motion_deg, share)
+    plain = estimate_slip(pos, quats, valid, pairs, fps=FPS)
+    assert plain.signal_share == (1.0,) * len(pairs)
+
+
+def test_signal_share_of_a_hinge_is_noise() -> None:
+    # a joint turning 40° about one axis: along the axis only the noise "rotates"
+    rng = np.random.default_rng(5)
+    n = 1200
+    hub = Rotation.from_rotvec(smooth_signal(rng, n, (0.2, 0.8), 0.3))
+    angle = smooth_signal(rng, n, (0.3, 1.0), np.radians(40.0))[:, 0]
+    limb = hub * Rotation.from_rotvec(angle[:, None] * np.array([0.0, 0.0, 1.0]))
+    hub_pos = smooth_signal(rng, n, (0.1, 0.5), 0.3)
+    in_hub, in_limb = np.array([0.0, -0.2, 0.03]), np.array([0.0, 0.15, 0.04])
+    pos = {"hub": hub_pos, "limb": hub_pos + hub.apply(in_hub) - limb.apply(in_limb)}
+    noise = np.radians(0.5)
+    quats = {s: (r * Rotation.from_rotvec(rng.normal(scale=noise, size=(n, 3)))
+                 ).as_quat(scalar_first=True) for s, r in (("hub", hub), ("limb", limb))}
+    valid = {s: np.ones(n, dtype=np.bool_) for s in pos}
+    fit = estimate_slip(pos, quats, valid, [("hub", "limb")], fps=FPS,
+                        rotation_noise=rotation_noise_variance(quats, valid))
+    assert fit.signal_share[0] < 0.5, fit.signal_share
