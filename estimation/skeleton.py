@@ -405,7 +405,10 @@ def estimate_skeleton(
         shoulders, hips) from that shared model with their anatomical priors (below),
         robust LLSF (Huber IRLS) for the limb joints, hinge knees and elbows resolved by the
         straight-limb rule, wrists fitted on the positions without slip and, when they
-        twist, placed by the bone-length rule (``joints.estimate_joint``), limbs whose
+        twist, placed by the bone-length rule (``joints.estimate_joint``); limb joints whose
+        motion is well above the orientation noise (``SlipFit.signal_share`` at least
+        ``slip.EIV_SIGNAL_SHARE``) then take their centre from the shared model, with that
+        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs whose
         middle sensor is missing by ``estimate_limb(method="improved")``, and zero-phase
         smoothing of the joint paths.
     optimizer : {"least-squares", "nelder-mead"}
@@ -484,6 +487,12 @@ def estimate_skeleton(
     - waist and neck: the mid-plane between the hips (shoulders), ``s0 =
       SYMMETRY_SIGMA_M`` across it (``estimate_joint(symmetry_weight=0.01)`` of the
       normalised LLSF cost without the shared model).
+
+    These priors are built from other estimated joints; with the shared model each one's
+    covariance is widened by those joints' posterior covariance (the neck's by that of the
+    shoulders' midpoint, a mirror image's by that of the mirrored joint, a mid-plane's by
+    that of the pair's midpoint across it), so a prior anchored on joints that barely move
+    pulls less (``quality[joint]["prior_anchor_sd_m"]``).
 
     Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
     carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
