@@ -11,7 +11,8 @@ Usage::
 
 Clips longer than ``--max-frames`` are decimated by an integer stride (same duration, lower
 frame rate) to keep the run to a few minutes on two cores. ``--only`` (substring of the clip
-name) and ``--runs`` (labels such as ``auto:15,llsf:15``) restrict the run while iterating.
+name) and ``--runs`` (labels such as ``auto:15,llsf:15``) restrict the run while iterating;
+``--seeds 1,2,3,4,5`` prints only the summary statistics for each simulation seed.
 
 Reports, per method and sensor count: the acceptance statistic of the skeleton issue — the
 mean error of each joint over the frames of each clip, then the median and 95th percentile
@@ -30,6 +31,7 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -133,41 +135,39 @@ def acceptance(summary: dict[str, dict[str, float]], refused: dict[str, list[str
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
-    parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
-    parser.add_argument("--only", default="", help="substring filter on clip names")
-    parser.add_argument("--runs", default="", help="comma-separated labels like auto:15")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--json", type=Path, help="write the raw numbers here")
-    args = parser.parse_args(argv)
-    if not (args.data / "motions").is_dir():
-        print(f"no motions under {args.data}", file=sys.stderr)
-        return 2
-    runs = RUNS
-    if args.runs:
-        wanted = set(args.runs.split(","))
-        runs = [r for r in RUNS if f"{r[0]}:{r[1]}" in wanted]
-    # errors[(label, n)][joint] -> list of per-frame error arrays (one per clip)
+class Evaluation(NamedTuple):
+    """Per-frame errors and bookkeeping of one pass over the clips (one simulation seed)."""
+
+    errors: dict[str, dict[str, list[np.ndarray]]]  # run -> joint -> per-clip errors, mm
+    n_clips: dict[str, int]
+    seconds: dict[str, float]
+    failures: list[str]
+    refused: dict[str, list[str]]
+    priors: list[str]
+    pairs: dict[str, list[tuple[float, str, str]]]  # run -> (mean error mm, clip, joint)
+    n_total: int
+
+
+def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,
+             max_frames: int, only: str, verbose: bool) -> Evaluation:
+    """Simulate every clip with ``seed`` and run every method on it."""
     errors: dict[str, dict[str, list[np.ndarray]]] = {}
     n_clips: dict[str, int] = {}
     seconds: dict[str, float] = {}
     failures: list[str] = []
     refused: dict[str, list[str]] = {}
     priors: list[str] = []
-    # (mean error of the joint over the clip's frames in mm, clip, joint) per run
     pairs: dict[str, list[tuple[float, str, str]]] = {}
     n_total = 0
-    for name, path, units, fps in clips(args.data):
-        if args.only and args.only not in name:
+    for name, path, units, fps in clips(data):
+        if only and only not in name:
             continue
         n_total += 1
-        motion, rate = thinned(path, fps, args.max_frames)
+        motion, rate = thinned(path, fps, max_frames)
         line = [f"{name:50s} {motion.n_frames:5d} fr {rate:5.1f} fps"]
         for n in sorted({r[1] for r in runs}, reverse=True):
             rec, truth = simulate_sensors(motion, units_m=units, n_sensors=n, fps=rate,
-                                          seed=args.seed)
+                                          seed=seed)
             for label, n_sensors, kwargs in runs:
                 if n_sensors != n:
                     continue
@@ -194,7 +194,51 @@ def main(argv: list[str] | None = None) -> int:
                     means.append(e.mean() * 1000.0)
                     pairs.setdefault(key, []).append((float(e.mean() * 1000.0), name, joint))
                 line.append(f"{key}={np.median(means):.1f}/{np.max(means):.0f}")
-        print("  ".join(line), flush=True)
+        if verbose:
+            print("  ".join(line), flush=True)
+    return Evaluation(errors, n_clips, seconds, failures, refused, priors, pairs, n_total)
+
+
+def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: list[int], *,
+               max_frames: int, only: str) -> None:
+    """The acceptance statistics of every run for each simulation seed: how much of a
+    figure is the particular draw of sensor placement, noise and slip."""
+    print(f"{'seed':>4s}  {'method:sensors':16s}{'clip-joint median':>18s}{'p95':>7s}"
+          f"{'pairs > 25 mm':>15s}{'limb clip-joint median':>24s}")
+    for seed in seeds:
+        ev = evaluate(data, runs, seed=seed, max_frames=max_frames, only=only, verbose=False)
+        for key, per in ev.errors.items():
+            s = summarise(per, ev.n_clips[key], ev.seconds[key])
+            over = sum(e > P95_15_MM for e, _, _ in ev.pairs[key])
+            print(f"{seed:4d}  {key:16s}{s['clip_joint_median']:18.1f}{s['clip_joint_p95']:7.1f}"
+                  f"{over:15d}{s['limb_clip_joint_median']:24.1f}", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
+    parser.add_argument("--only", default="", help="substring filter on clip names")
+    parser.add_argument("--runs", default="", help="comma-separated labels like auto:15")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seeds", default="",
+                        help="comma-separated seeds: only the summary statistics per seed")
+    parser.add_argument("--json", type=Path, help="write the raw numbers here")
+    args = parser.parse_args(argv)
+    if not (args.data / "motions").is_dir():
+        print(f"no motions under {args.data}", file=sys.stderr)
+        return 2
+    runs = RUNS
+    if args.runs:
+        wanted = set(args.runs.split(","))
+        runs = [r for r in RUNS if f"{r[0]}:{r[1]}" in wanted]
+    if args.seeds:
+        seed_table(args.data, runs, [int(x) for x in args.seeds.split(",")],
+                   max_frames=args.max_frames, only=args.only)
+        return 0
+    errors, n_clips, seconds, failures, refused, priors, pairs, n_total = evaluate(
+        args.data, runs, seed=args.seed, max_frames=args.max_frames, only=args.only,
+        verbose=True)
 
     keys = [f"{label}:{n}" for label, n, _ in runs if f"{label}:{n}" in errors]
     print("\nMean error per joint (mm), averaged over clips")
