@@ -60,8 +60,8 @@ class SlipFit:
     noise (``estimate_slip(rotation_noise=...)``)."""
     signal_share: tuple[float, ...]
     """Per joint: the share of the weakest eigenvalue of its plain normal matrix that is
-    motion rather than orientation noise (1 without a noise level; at most 0 where the noise
-    alone explains it, as along a hinge's axis)."""
+    motion rather than orientation noise (1 without a noise level; 0 where the noise alone
+    explains it, as along a hinge's axis)."""
 
 
 def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
@@ -267,7 +267,7 @@ def estimate_slip(
             gain = 1.0 / (1.0 - v_eiv) ** 2
             s_max = float(np.linalg.svd(msum / total, compute_uv=False)[0])
             # weakest eigenvalue of the plain block: 1 − s_max before, 1 − gain·s_max after
-            share[j] = (1.0 - gain * s_max) / max(1.0 - s_max, 1e-300)
+            share[j] = max((1.0 - gain * s_max) / max(1.0 - s_max, 1e-300), 0.0)
             if share[j] >= EIV_SIGNAL_SHARE:
                 mdep = np.zeros_like(big)
                 for r_, c_ in ((ca, cb), (ca, bb), (cb, ba), (ba, bb)):
