@@ -260,8 +260,10 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
     count = max(int(both.sum()), 1)
-    # c_b = N̄ c_a + const over the frames, N̄ = mean R_bᵀR_a: frame a's directions in frame b
-    n_bar = np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
+    # frame a to frame b over the frames: c_b = N̄ c_a + o, N̄ = mean R_bᵀR_a (frame a's
+    # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
+    n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
+             if prior is not None or hinge_axis is not None else np.eye(3))
     if hinge_axis is not None:
         g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
         g /= np.linalg.norm(g)
@@ -272,8 +274,7 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     prior_precision = np.zeros((6, 6))
     if prior is not None:
         x0 = np.asarray(prior[0], dtype=float)
-        x0_b = np.einsum("tji,tj->i", rb[both], rows.apply(ra[both], x0) + pa_true[both]
-                         - pb_true[both]) / count
+        x0_b = n_bar @ x0 + rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
         spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
         base = prior[1] ** 2 * np.eye(3)
         prior_precision[:3, :3] = np.linalg.inv(base + spread)
