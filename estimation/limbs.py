@@ -843,6 +843,22 @@ def _hinge_weight(doubt: float) -> float:
     return _W_HINGE * (1.0 - doubt)
 
 
+_MIN_MEASURED = 10
+
+
+def _measured(limb: _Limb, valid: ArrayLike | None) -> _Limb:
+    """The frames of ``limb`` flagged in ``valid`` (all of them without a mask, or with fewer
+    than ``_MIN_MEASURED`` flagged)."""
+    if valid is None:
+        return limb
+    keep = np.asarray(valid, dtype=bool)
+    if keep.shape != (limb.n,):
+        raise InputError(f"valid must have shape ({limb.n},), got {keep.shape}", field="valid")
+    if keep.all() or keep.sum() < _MIN_MEASURED:
+        return limb
+    return _Limb(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
+
+
 def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float],
                   robust_scale: float | None) -> tuple[Float, int, bool, dict[str, Any]]:
     n_eval, ok = 0, False
@@ -914,6 +930,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
                   standard_lengths: tuple[float, float], method: str = "improved",
                   optimizer: str = "least-squares", w_s: float = 0.01, w_l: float = 0.01,
                   robust_scale: float | None = 0.01,
+                  valid: ArrayLike | None = None,
                   progress: Progress | None = None) -> LimbFit:
     """Knee and ankle (elbow and wrist) from the thigh and foot (upper-arm and hand) sensors.
 
@@ -944,6 +961,11 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     robust_scale : float or None, default 0.01
         ``"improved"`` only: residual scale (metres) of the soft-L1 loss; None for plain least
         squares.
+    valid : array_like of bool, shape (F,), optional
+        ``"improved"`` only: the frames in which both sensors were measured (not gap-filled).
+        The joints are fitted on those alone (when there are at least 10) and placed in every
+        frame: an interpolated pose during fast motion is a guess, which the fit would trust.
+        The paper's method uses every frame, as published.
     progress : callable, optional
         ``progress(fraction, stage)``.
 
@@ -1023,6 +1045,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     limb = _in_upper_frame(world)
     # a start needs only means over the frames: the subsample's are as good
     x0 = _initial_point(_coarse(limb) or limb, lengths)
+    measured = _measured(limb, valid)
     quality: dict[str, Any] = {"method": method}
     objective = _paper_normal(limb, lengths, w_s, w_l)
     if method == "paper" and optimizer == "nelder-mead":
@@ -1033,15 +1056,16 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
         quality["optimizer"] = "least-squares"
         if method == "improved":
             report(0.3, "limbs")
-            h_bar = limb.h.mean(axis=0)
-            toward = limb.b.mean(axis=0) - h_bar
+            h_bar = measured.h.mean(axis=0)
+            toward = measured.b.mean(axis=0) - h_bar
             straight = np.concatenate([
                 h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9),
                 np.zeros(3)])
-            theta, more, ok, extra = _fit_improved(limb, [theta, x0, straight], lengths,
+            theta, more, ok, extra = _fit_improved(measured, [theta, x0, straight], lengths,
                                                    robust_scale)
             n_eval += more
             quality.update(extra)
+            quality["fitted_frames"] = measured.n
     # after least squares on E, its last point: cached, no extra pass over the frames
     cost = objective.cost(theta)
     ll, lu = objective.lengths(theta)

@@ -409,9 +409,11 @@ def estimate_skeleton(
         twist, placed by the bone-length rule (``joints.estimate_joint``); limb joints whose
         motion is well above the orientation noise (``SlipFit.signal_share`` at least
         ``slip.EIV_SIGNAL_SHARE``) then take their centre from the shared model, with that
-        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs whose
-        middle sensor is missing by ``estimate_limb(method="improved")``, and zero-phase
-        smoothing of the joint paths.
+        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs
+        whose middle sensor is missing by ``estimate_limb(method="improved")`` on the frames
+        in which both their sensors were measured, and zero-phase smoothing of the joint
+        paths. Gap-filled samples never enter a fit (nor, through the slip model's rotation
+        filter, the frames around them); the joints are placed in every frame.
     optimizer : {"least-squares", "nelder-mead"}
         Minimiser of E for ``method="reduced"``.
     torso : {"llsf", "gdke"}
@@ -722,7 +724,8 @@ def estimate_skeleton(
                 joints[prox], positions[upper], rotations[upper], positions[distal],
                 rotations[distal], standard_lengths=(std[keys[0]], std[keys[1]]),
                 method="paper" if method == "reduced" else "improved",
-                optimizer=optimizer, w_s=w_s, w_l=w_l, progress=stage)
+                optimizer=optimizer, w_s=w_s, w_l=w_l, progress=stage,
+                valid=ok[upper] & ok[distal] if method == "auto" else None)
             joints[mid] = lf.middle
             joints[dist] = lf.distal
             joint_offsets[mid] = JointOffset(upper, lf.middle_local)

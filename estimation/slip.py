@@ -109,9 +109,10 @@ def _noise_gain(n: int, fps: float) -> float:
     return 1.0
 
 
-def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
-                        ) -> NDArray[np.float64]:
-    """Rotation matrices (F, S, 3, 3) of sensors' quaternions (F, S, 4), low-passed.
+def _smoothed_rotations(quaternions: NDArray[np.float64], valid: NDArray[np.bool_],
+                        fps: float) -> NDArray[np.float64]:
+    """Rotation matrices (F, S, 3, 3) of sensors' quaternions (F, S, 4), low-passed; samples
+    with ``valid`` (F, S) False (filled gaps) carry no weight.
 
     White orientation noise in the regressors of a linear model biases it (errors in
     variables) and, with a slip term able to absorb anything slow, makes the slip estimate
@@ -121,9 +122,41 @@ def _smoothed_rotations(quaternions: NDArray[np.float64], fps: float
     q = quat.continuous(quaternions)
     window = round(ROTATION_SMOOTH_S * fps) | 1
     if 5 <= window < q.shape[0]:
-        q = savgol_filter(q, window, 3, axis=0, mode="interp")
+        smooth = savgol_filter(q, window, 3, axis=0, mode="interp")
+        _refit_around_gaps(q, valid, window, out=smooth)
+        q = smooth
     q /= np.sqrt(rows.dots(q, q))[:, :, None]
     return quat.as_matrix(q)
+
+
+def _refit_around_gaps(q: NDArray[np.float64], valid: NDArray[np.bool_], window: int, *,
+                       out: NDArray[np.float64]) -> None:
+    """Where the filter's window holds a filled sample, ``out`` becomes the cubic fitted to
+    the measured samples of the window alone, or the sample itself where fewer than four
+    are measured.
+
+    An interpolated gap is a guess at the rotation; through the filter it would bias the
+    measured frames around it, which the joint equations then trust (a 20-frame clip with a
+    5-frame gap: 12 mm on the waist's centre, noise-free)."""
+    n = q.shape[0]
+    half = window // 2
+    # the filter's window of each frame, shifted inside the recording at its ends
+    # (savgol_filter's mode="interp")
+    win = np.clip(np.arange(n) - half, 0, n - window)[:, None] + np.arange(window)
+    frames, sensors = np.nonzero(~valid[win].all(axis=1))
+    w = valid[win[frames], sensors[:, None]].astype(float)  # (m, W)
+    enough = w.sum(axis=1) >= 4
+    out[frames[~enough], sensors[~enough]] = q[frames[~enough], sensors[~enough]]
+    frames, sensors, w = frames[enough], sensors[enough], w[enough]
+    if frames.size == 0:
+        return
+    cols = win[frames]
+    powers = ((cols - frames[:, None]) / half)[:, :, None] ** np.arange(4)  # (m, W, 4)
+    weighted = powers * w[:, :, None]
+    normal = np.einsum("mwp,mwq->mpq", weighted, powers)
+    rhs = np.einsum("mwp,mwc->mpc", weighted, q[cols, sensors[:, None]])
+    # the polynomial's value at the frame itself: its constant term
+    out[frames, sensors] = np.linalg.solve(normal, rhs)[:, 0]
 
 
 def estimate_slip(
@@ -175,7 +208,8 @@ def estimate_slip(
     white residual variance. The maximum a posteriori slip is the solution of one sparse-ish
     linear system ((6J + 3KS) unknowns), whose blocks are sums of ``φ_k φ_l M_t`` terms
     (``M_t = R_aᵀR_b``) as in ``joints._slip_system``. The rotations used as regressors are
-    low-passed (``ROTATION_SMOOTH_S``); the measured ones serve to remove the slip.
+    low-passed (``ROTATION_SMOOTH_S``, on the measured samples: a filled gap carries no
+    weight); the measured ones serve to remove the slip.
 
     Errors in variables (``rotation_noise``): a rotation with white noise of variance ``v``
     per axis has ``E[R] = (1 − v) R̄``, so the sums ``Σ R_aᵀR_b`` of a joint come out
@@ -199,7 +233,8 @@ def estimate_slip(
     n = next(iter(positions.values())).shape[0]
     basis = _slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
     k = basis.shape[1]
-    smoothed = _smoothed_rotations(np.stack([quaternions[s] for s in sensors], axis=1), fps)
+    smoothed = _smoothed_rotations(np.stack([quaternions[s] for s in sensors], axis=1),
+                                    np.stack([valid[s] for s in sensors], axis=1), fps)
     rot = {s: smoothed[:, i] for i, s in enumerate(sensors)}
     n_c = 6 * len(pairs)
     # unknowns: every sensor's slip coefficients, then every joint's centre (last, so that

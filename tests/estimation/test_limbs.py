@@ -304,6 +304,38 @@ def test_torso_length_and_standard_lengths() -> None:
         standard_lengths(0.5, {"torso": 1.0, "thigh": 1.0})
 
 
+def test_improved_fits_only_measured_frames() -> None:
+    # gap-filled frames are guesses: with ``valid`` the fit ignores whatever they hold
+    leg = make_leg(seed=2)
+    valid = np.ones(400, dtype=bool)
+    for start in (40, 120, 200, 290, 350):
+        valid[start:start + 8] = False
+    fits = []
+    for shift in (60, 150):
+        rot = leg.distal_rot.as_quat()
+        rot[~valid] = np.roll(rot, shift, axis=0)[~valid]
+        pos = leg.distal_pos.copy()
+        pos[~valid] = np.roll(pos, shift, axis=0)[~valid]
+        args = (leg.hip, leg.upper_pos, leg.upper_rot, pos, Rotation.from_quat(rot))
+        fits.append(estimate_limb(*args, standard_lengths=(0.9 * THIGH, 1.1 * SHANK),
+                                  method="improved", valid=valid))
+        blind = estimate_limb(*args, standard_lengths=(0.9 * THIGH, 1.1 * SHANK),
+                              method="improved")
+        # measured: knee 212–316 mm, ankle 68–96 mm off when the guesses are trusted
+        assert np.linalg.norm(blind.distal_local - leg.ankle_local) > 0.02
+    for fit in fits:
+        # measured: 1.2 and 5.2 mm
+        assert fit.quality["fitted_frames"] == 360
+        assert np.linalg.norm(fit.middle_local - leg.knee_local) < 0.003
+        assert np.linalg.norm(fit.distal_local - leg.ankle_local) < 0.010
+        # joints placed in every frame, the unmeasured ones included
+        assert fit.middle.shape == (400, 3)
+    assert np.allclose(fits[0].middle_local, fits[1].middle_local, atol=1e-4)
+    assert np.allclose(fits[0].distal_local, fits[1].distal_local, atol=1e-4)
+    with pytest.raises(InputError, match="valid"):
+        estimate_limb(*leg.args(), standard_lengths=(0.4, 0.4), valid=valid[:-1])
+
+
 def test_bad_inputs_are_named() -> None:
     leg = make_leg(n=50)
     hip = leg.hip.copy()

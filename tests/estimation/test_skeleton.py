@@ -87,6 +87,21 @@ def test_eleven_sensors(sim11: Sim) -> None:
     assert np.median([auto[j] for j in LIMB]) < np.median([paper[j] for j in LIMB])
 
 
+def test_eleven_sensor_limbs_are_fitted_on_measured_frames(sim11: Sim) -> None:
+    rec, _ = sim11
+    result = estimate_skeleton(rec)
+    for mid, upper, distal in (("l_knee", "l_thigh", "l_foot"),
+                               ("r_elbow", "r_upperarm", "r_hand")):
+        pos = rec.positions
+        measured = ~(np.isnan(pos[:, rec.index(upper), 0])
+                     | np.isnan(pos[:, rec.index(distal), 0]))
+        assert not measured.all()  # the protocol drops 1 % of the samples
+        assert result.quality[mid]["fitted_frames"] == int(measured.sum())
+        assert result.joints[mid].shape == (rec.n_frames, 3)
+    # the paper's method fits every frame, as published
+    assert "fitted_frames" not in estimate_skeleton(rec, method="reduced").quality["l_knee"]
+
+
 def test_llsf_needs_all_sensors(sim11: Sim) -> None:
     with pytest.raises(InputError, match="l_forearm") as info:
         estimate_skeleton(sim11[0], method="llsf")
