@@ -483,7 +483,8 @@ def estimate_joint(
       neighbouring joint, i.e. the bone is taken perpendicular to the axis.
       When the axis runs along the bone instead (|cos| > 0.5; a wrist that mostly twists
       about the forearm), that point is meaningless: with ``bone_length`` given the centre
-      is put on the axis at that distance from the neighbour (``"bone-length"``), otherwise
+      is put on the axis at that distance from the neighbour, on the side where the other
+      body's sensor lies (the hand sensor, beyond the wrist; ``"bone-length"``), otherwise
       the data alone decide. The rule is also dropped (``quality["hinge_rule_rejected"]``)
       when its shift — the data's own ``|bone|·cos(bone, axis)`` — exceeds
       ``RULE_GATE_SIGMA`` = 3 standard deviations of the data's estimate along the axis
@@ -678,10 +679,15 @@ def estimate_joint(
                 if bone_length is None:
                     rule, shift = None, 0.0
                 else:
-                    # the axis runs along the bone: put the centre at the given distance
+                    # the axis runs along the bone: put the centre at the given distance,
+                    # on the side of the neighbour where the other body's sensor lies (the
+                    # hand sensor is beyond the wrist, seen from the elbow). The side of the
+                    # data's own centre is no guide: along an exact hinge it is arbitrary.
                     h0 = rows.dots(bone, axis_world)
                     rho2 = rows.dots(bone, bone) - h0**2
-                    target = np.sign(h0) * np.sqrt(np.maximum(bone_length**2 - rho2, 0.0))
+                    far = pb if neighbours[0] is not None else pa
+                    side = np.sign(np.median(rows.dots(far - pt, axis_world)[both]))
+                    target = side * np.sqrt(np.maximum(bone_length**2 - rho2, 0.0))
                     shift = float(np.mean((target - h0)[both]))
                     rule = "bone-length"
         if rule == "foot-of-perpendicular":
