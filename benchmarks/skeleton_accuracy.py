@@ -74,6 +74,8 @@ MEDIAN_15_MM = 10.0
 P95_15_MM = 25.0
 LIMB_MEDIAN_11_MM = 25.0
 LIMB_GAIN_11 = 0.30
+SD_BINS_MM = ((0.0, 5.0), (5.0, 10.0), (10.0, 15.0), (15.0, 25.0), (25.0, 50.0),
+              (50.0, math.inf))
 
 
 def clips(data: Path) -> list[tuple[str, Path, float, float | None]]:
@@ -180,6 +182,8 @@ class Evaluation(NamedTuple):
     priors: list[str]
     pairs: dict[str, list[tuple[float, str, str]]]  # run -> (mean error mm, clip, joint)
     n_total: int
+    # run -> (mean error mm, quality data_sd_m in mm) of the pairs that carry it
+    data_sd: dict[str, list[tuple[float, float]]]
 
 
 def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,
@@ -193,6 +197,7 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
     refused: dict[str, list[str]] = {}
     priors: list[str] = []
     pairs: dict[str, list[tuple[float, str, str]]] = {}
+    data_sd: dict[str, list[tuple[float, float]]] = {}
     n_total = 0
     for name, path, units, fps in clips(data):
         if only and only not in name:
@@ -228,10 +233,15 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
                     per.setdefault(joint, []).append(e * 1000.0)
                     means.append(e.mean() * 1000.0)
                     pairs.setdefault(key, []).append((float(e.mean() * 1000.0), name, joint))
+                    if "data_sd_m" in result.quality[joint]:
+                        data_sd.setdefault(key, []).append(
+                            (float(e.mean() * 1000.0),
+                             1000.0 * float(result.quality[joint]["data_sd_m"])))
                 line.append(f"{key}={np.median(means):.1f}/{np.max(means):.0f}")
         if verbose:
             print("  ".join(line), flush=True)
-    return Evaluation(errors, n_clips, seconds, failures, refused, priors, pairs, n_total)
+    return Evaluation(errors, n_clips, seconds, failures, refused, priors, pairs, n_total,
+                      data_sd)
 
 
 def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: list[int], *,
@@ -279,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         seed_table(args.data, runs, [int(x) for x in args.seeds.split(",")],
                    max_frames=args.max_frames, only=args.only, noise=args.noise)
         return 0
-    errors, n_clips, seconds, failures, refused, priors, pairs, n_total = evaluate(
+    errors, n_clips, seconds, failures, refused, priors, pairs, n_total, data_sd = evaluate(
         args.data, runs, seed=args.seed, max_frames=args.max_frames, only=args.only,
         verbose=True, noise=args.noise)
 
@@ -308,6 +318,17 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {err:6.1f}  {clip:50s} {joint}")
     for item in priors:
         print("  flagged \"prior\" (rotates < 2°; auto uses its priors there):", item)
+    for key, found in data_sd.items():
+        print(f"\n{key}: (clip, joint) pairs by quality[joint][\"data_sd_m\"] (how well the "
+              "recording alone locates the joint)")
+        print(f"{'data_sd_m (mm)':>16s}{'pairs':>7s}{'median error':>14s}"
+              f"{f'above {P95_15_MM:g} mm':>13s}")
+        err, sd = np.array(found).T
+        for lo, hi in SD_BINS_MM:
+            inside = (sd >= lo) & (sd < hi)
+            if inside.any():
+                print(f"{f'{lo:g}–{hi:g}':>16s}{inside.sum():7d}{np.median(err[inside]):14.1f}"
+                      f"{np.sum(err[inside] > P95_15_MM):13d}")
     for f in failures:
         print("  refused:", f)
     verdicts = acceptance(summary, refused, n_total) if protocol else []

@@ -499,7 +499,11 @@ def estimate_skeleton(
 
     Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
     carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
-    rotates less than ``min_range_deg``).
+    rotates less than ``min_range_deg``). With the shared slip model, every joint between two
+    sensors also has ``data_sd_m``: the standard deviation (metres, root of the trace of its
+    covariance in the first sensor's frame) of its centre from the recording alone, before
+    any prior or hinge rule; along a hinge's axis, where orientation noise passes for
+    rotation, it is optimistic.
 
     Miura, Kaiga, Tajima, Shibata & Tamamoto, "Sensor Number Reduction in Skeleton
     Estimation from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707 (2015);
@@ -574,6 +578,11 @@ def estimate_skeleton(
         without_slip = {s: positions[s] - rows.apply_each(rotations[s].as_matrix(), slip)
                         for s, slip in shared.slip.items()}
     shared_index = {j: i for i, j in enumerate(pairs)}
+    # how well the recording alone locates each centre: the shared model's posterior with a
+    # flat prior (every sensor's slip integrated out), in the joint's first sensor's frame
+    data_sd = ({} if shared is None else
+               {j: float(np.sqrt(np.trace(shared.covariances[i][:3, :3])))
+                for j, i in shared_index.items()})
     raw: dict[str, JointFit] = {}  # estimate_joint's own fits
     posterior: dict[str, NDArray[np.float64]] = {}  # shared-model centres' covariance, frame a
 
@@ -620,6 +629,8 @@ def estimate_skeleton(
                 without_slip[b], rotations[b], ok[a], ok[b], symmetry=None,
                 prior=(fit.local_a, LIMB_PRIOR_SIGMA_M),
                 hinge_axis=None if axis is None else np.asarray(axis, dtype=float))
+        if name in data_sd:
+            fit = replace(fit, quality={**fit.quality, "data_sd_m": data_sd[name]})
         if name in static:
             source = ("anatomical priors" if prior is not None or neighbours[0] is not None
                       else "the few frames available")

@@ -174,6 +174,38 @@ def test_one_still_joint_is_located_from_priors_with_a_warning() -> None:
     plain = mean_errors_mm(estimate_skeleton(rec, method="llsf").joints, truth)
     assert errors["neck"] < 15.0
     assert errors["neck"] < 0.5 * plain["neck"], (errors["neck"], plain["neck"])
+    # the recording alone does not locate it: its data_sd_m stands out
+    sds = {j: q["data_sd_m"] for j, q in result.quality.items() if "data_sd_m" in q}
+    assert sds["neck"] > 0.03
+    assert sds["neck"] > 10.0 * np.median(list(sds.values())), sds
+
+
+def test_data_sd_tells_how_well_the_recording_locates_a_joint() -> None:
+    # the head turning on the chest with all, a third and a tenth of the example's motion:
+    # the centre's data-only uncertainty grows about as 1 / motion
+    sds = []
+    for factor in (1.0, 0.3, 0.1):
+        motion = freeze(example_motion(240, fps=60.0, seed=0), ("Neck",), factor)
+        rec, _ = simulate_sensors(motion, units_m=0.01, seed=10)
+        result = estimate_skeleton(rec)
+        sds.append(result.quality["neck"]["data_sd_m"])
+        two_sensor = [j for j in JOINTS if j not in ("root", "chest")]
+        assert all(np.isfinite(result.quality[j]["data_sd_m"]) for j in two_sensor)
+        assert "data_sd_m" not in result.quality["root"]
+    assert 0.0 < sds[0] < 0.003, sds
+    assert 2.0 * sds[0] < sds[1] < sds[2] / 2.0, sds
+
+
+def test_data_sd_only_where_the_shared_slip_model_runs(sim15: Sim, sim11: Sim) -> None:
+    for rec, method in ((sim15[0], "llsf"), (sim11[0], "reduced")):
+        quality = estimate_skeleton(rec, method=method).quality
+        assert not any("data_sd_m" in q for q in quality.values()), method
+    quality = estimate_skeleton(sim11[0]).quality
+    # 11 sensors: the torso joints are in the model, the limbs' middle sensors are missing
+    assert all("data_sd_m" in quality[j] for j in ("waist", "neck", "l_hip", "r_shoulder"))
+    assert not any("data_sd_m" in quality[j] for j in LIMB)
+    assert not any("data_sd_m" in q for q in estimate_skeleton(sim15[0], slip_hz=0.0)
+                   .quality.values())
 
 
 def test_neck_prior_beats_plain_llsf_on_a_weakly_moving_neck() -> None:
