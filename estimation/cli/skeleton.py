@@ -207,14 +207,16 @@ def summary(result: SkeletonResult, recording: SensorRecording | None = None) ->
         for name, length in result.bone_lengths.items():
             lines.append(f"  {name:<12} {100 * float(length):7.1f}")
     if result.quality:
-        lines.append("joints:          rms mm  sv ratio  motion deg  hinge  estimator")
+        lines.append("joints:          rms mm  sv ratio  motion deg  data sd mm  hinge  "
+                     "estimator")
         for name in [j for j in JOINTS if j in result.quality] + [
                 j for j in result.quality if j not in JOINTS]:
             q = result.quality[name]
             lines.append(
                 f"  {name:<12} {_fmt(q.get('rms_residual_m'), 1000, '8.1f')} "
                 f"{_fmt(q.get('singular_value_ratio'), 1, '9.3g')} "
-                f"{_fmt(q.get('range_of_motion_deg'), 1, '11.0f')}  "
+                f"{_fmt(q.get('range_of_motion_deg'), 1, '11.0f')} "
+                f"{_fmt(q.get('data_sd_m'), 1000, '11.1f')}  "
                 f"{'yes' if q.get('hinge') else 'no':<5}  {q.get('estimator', '-')}")
     for warning in result.warnings:
         lines.append(f"warning: {warning}")

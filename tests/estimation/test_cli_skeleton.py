@@ -172,7 +172,8 @@ def fake_result(rec: SensorRecording) -> SkeletonResult:
         method="fake", fps=rec.fps, joints={j: root + rest[j] for j in JOINTS}, offsets={},
         bone_lengths={"l_thigh": 0.4},
         orientations=dict.fromkeys((*SEGMENTS, "spine", "cervical"), identity),
-        quality={"l_knee": {"rms_residual_m": 0.0012, "hinge": True, "estimator": "fake"}},
+        quality={"l_knee": {"rms_residual_m": 0.0012, "data_sd_m": 0.0347, "hinge": True,
+                            "estimator": "fake"}},
         warnings=("a warning",), timings={"estimate_s": 0.25})
 
 
@@ -214,6 +215,8 @@ def test_summary_without_output(capsys: pytest.CaptureFixture[str],
     assert "40.0" in out        # bone length in cm
     assert "l_knee" in out
     assert "1.2" in out         # rms residual in mm
+    assert "data sd mm" in out
+    assert "34.7" in out        # the data's uncertainty of the joint, mm
     assert "warning: a warning" in out
 
 
