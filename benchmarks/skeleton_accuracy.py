@@ -230,13 +230,13 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
                 means = []
                 for joint in JOINTS:
                     e = np.linalg.norm(result.joints[joint] - truth.joints[joint], axis=1)
+                    mean_mm = float(e.mean() * 1000.0)
                     per.setdefault(joint, []).append(e * 1000.0)
-                    means.append(e.mean() * 1000.0)
-                    pairs.setdefault(key, []).append((float(e.mean() * 1000.0), name, joint))
+                    means.append(mean_mm)
+                    pairs.setdefault(key, []).append((mean_mm, name, joint))
                     if "data_sd_m" in result.quality[joint]:
                         data_sd.setdefault(key, []).append(
-                            (float(e.mean() * 1000.0),
-                             1000.0 * float(result.quality[joint]["data_sd_m"])))
+                            (mean_mm, 1000.0 * float(result.quality[joint]["data_sd_m"])))
                 line.append(f"{key}={np.median(means):.1f}/{np.max(means):.0f}")
         if verbose:
             print("  ".join(line), flush=True)

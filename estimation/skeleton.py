@@ -578,11 +578,6 @@ def estimate_skeleton(
         without_slip = {s: positions[s] - rows.apply_each(rotations[s].as_matrix(), slip)
                         for s, slip in shared.slip.items()}
     shared_index = {j: i for i, j in enumerate(pairs)}
-    # how well the recording alone locates each centre: the shared model's posterior with a
-    # flat prior (every sensor's slip integrated out), in the joint's first sensor's frame
-    data_sd = ({} if shared is None else
-               {j: float(np.sqrt(np.trace(shared.covariances[i][:3, :3])))
-                for j, i in shared_index.items()})
     raw: dict[str, JointFit] = {}  # estimate_joint's own fits
     posterior: dict[str, NDArray[np.float64]] = {}  # shared-model centres' covariance, frame a
 
@@ -629,8 +624,12 @@ def estimate_skeleton(
                 without_slip[b], rotations[b], ok[a], ok[b], symmetry=None,
                 prior=(fit.local_a, LIMB_PRIOR_SIGMA_M),
                 hinge_axis=None if axis is None else np.asarray(axis, dtype=float))
-        if name in data_sd:
-            fit = replace(fit, quality={**fit.quality, "data_sd_m": data_sd[name]})
+        if shared is not None and name in shared_index:
+            # how well the recording alone locates the centre: the shared model's posterior
+            # with a flat prior (every sensor's slip integrated out), in frame a
+            cov_a = shared.covariances[shared_index[name]][:3, :3]
+            fit = replace(fit, quality={**fit.quality,
+                                        "data_sd_m": float(np.sqrt(np.trace(cov_a)))})
         if name in static:
             source = ("anatomical priors" if prior is not None or neighbours[0] is not None
                       else "the few frames available")
