@@ -111,6 +111,8 @@ def keep(settings: Settings, worker_id: str, parent_pid: int) -> int:
             for line in lines:
                 command, _, arg = line.partition(" ")
                 job_id = arg if command == "hold" and arg else None
+            if job_id is not None:
+                due = time.monotonic()  # renew at once: the keeper may have started late
             continue
         due = time.monotonic() + interval
         if os.getppid() != parent_pid:
