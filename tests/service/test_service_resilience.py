@@ -140,13 +140,18 @@ def test_rolling_restarts_never_use_up_a_long_jobs_attempts(tmp_path: Path) -> N
                                       shutdown_grace_seconds=0))
     job_id = queued_job(runtime, tmp_path)
     for restart in range(3):  # more restarts than attempts
-        release = threading.Event()
-        worker = Worker(runtime, slow_kind(lambda release=release: release.wait(30)),
-                        worker_id=f"w:{restart}")
+        release, ended = threading.Event(), threading.Event()
+
+        def step(release: threading.Event = release, ended: threading.Event = ended) -> None:
+            release.wait(10)
+            ended.set()
+
+        worker = Worker(runtime, slow_kind(step), worker_id=f"w:{restart}")
         stopper = threading.Timer(0.2, worker.shutdown)
         stopper.start()
         try:
             assert runtime.queue.run_next(worker.run_job)
+            assert not ended.is_set()  # handed back during the step, not after it
         finally:
             release.set()
             stopper.join()
@@ -170,6 +175,8 @@ from service.settings import Settings
 from service.worker import reap
 runtime = open_runtime(Settings())
 end = time.time() + float(sys.argv[1])
+reap(runtime)
+print("ready", flush=True)
 while time.time() < end:
     for job_id in reap(runtime):
         print(job_id, flush=True)
@@ -213,6 +220,8 @@ def test_the_lease_outlives_a_job_that_holds_the_cpu(tmp_path: Path,
     reaper = subprocess.Popen([sys.executable, "-c", REAPER, "600"], env=env,
                               stdout=subprocess.PIPE, text=True)
     try:
+        assert reaper.stdout is not None
+        assert reaper.stdout.readline() == "ready\n"
         assert runtime.queue.run_next(worker.run_job)
     finally:
         reaper.terminate()
