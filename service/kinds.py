@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import importlib
+import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -213,18 +214,15 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
     from estimation.io.sensors import read_recording
-    from estimation.io.skeleton import (
-        offsets_from_dict,
-        write_skeleton_bvh,
-        write_skeleton_csv,
-        write_skeleton_json,
-    )
+    from estimation.io.skeleton import offsets_from_dict, write_skeleton_files
     from estimation.skeleton import estimate_skeleton
 
     source = inputs["recording"]
     progress(0.0, "reading")
+    started = time.perf_counter()
     recording = read_recording(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
                                units=params.units, fps=params.fps, stations=params.stations)
+    read_s = time.perf_counter() - started
     result = estimate_skeleton(
         recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
         up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
@@ -235,26 +233,28 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     progress(0.95, "writing")
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
            "csv": outdir / "skeleton.csv"}
-    write_skeleton_json(result, out["json"])
-    write_skeleton_bvh(result, out["bvh"])
-    write_skeleton_csv(result, out["csv"])
+    result = replace(result, timings={**result.timings, "read_s": read_s})
+    write_skeleton_files(result, json_path=out["json"], bvh_path=out["bvh"],
+                         csv_path=out["csv"])
     return out
 
 
 def run_translation(inputs: Mapping[str, Input], params: TranslationParams, progress: Progress,
                     outdir: Path) -> dict[str, Path]:
     """Read the kinematics (and accelerations), estimate the root path, write the results."""
-    from estimation.io.kinematics import read_kinematics, write_translation
+    from estimation.io.kinematics import read_kinematics, write_translation_files
     from estimation.translation import estimate_translation
 
     source = inputs["recording"]
     progress(0.0, "reading")
+    started = time.perf_counter()
     accelerations = inputs.get("accelerations")
     recording = read_kinematics(
         source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
         accelerations=accelerations.path if accelerations else None,
         left_foot=params.left_foot, right_foot=params.right_foot,
         acceleration_units=params.acceleration_units)
+    read_s = time.perf_counter() - started
     result = estimate_translation(recording, method=params.method, left_foot=params.left_foot,
                                   right_foot=params.right_foot,
                                   progress=scaled(progress, 0.02, 0.95),
@@ -264,8 +264,8 @@ def run_translation(inputs: Mapping[str, Input], params: TranslationParams, prog
     if source.format == "kinematics-csv":  # a corrected CSV needs a CSV input to correct
         out["csv"] = outdir / "translation.csv"
     writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv"}
-    for fmt, path in out.items():
-        write_translation(result, recording, path, format=writers[fmt])
+    result = replace(result, timings={**result.timings, "read_s": read_s})
+    write_translation_files(result, recording, [(writers[f], p) for f, p in out.items()])
     return out
 
 

@@ -262,3 +262,37 @@ def test_a_job_over_its_memory_limit_fails_once_and_the_worker_lives_on(
     fine = submit(client, upload(client)["id"])
     drain(runtime, worker)
     assert client.get(f"/v1/jobs/{fine['id']}").json()["status"] == "succeeded"
+
+
+# ----------------------------------------------------------------- the timings contract
+
+
+def csv_bytes(write: Callable[[Any, Path], None], recording: Any, tmp_path: Path) -> bytes:
+    path = tmp_path / "rec.csv"
+    write(recording, path)
+    return path.read_bytes()
+
+
+def test_service_results_carry_the_three_timings(client: TestClient, runtime: Runtime,
+                                                 tmp_path: Path) -> None:
+    from estimation.io.kinematics import write_kinematics_csv
+    from estimation.io.sensors import write_sensor_csv
+    from estimation.simulate.inertial import simulate_walker
+    from estimation.simulate.sensors import example_motion, simulate_sensors
+
+    sensors, _ = simulate_sensors(example_motion(), units_m=0.01, seed=0)
+    walker, _, _ = simulate_walker(fps=30)
+    skeleton = submit(client, upload(client, csv_bytes(write_sensor_csv, sensors,
+                                                       tmp_path))["id"])
+    rec = upload(client, csv_bytes(write_kinematics_csv, walker, tmp_path))
+    r = client.post("/v1/jobs", json={"kind": "translation", "recording_id": rec["id"],
+                                      "params": {"left_foot": walker.left_foot,
+                                                 "right_foot": walker.right_foot}})
+    assert r.status_code == 202, r.text
+    drain(runtime, Worker(runtime, default_kinds()))
+    for job in (skeleton, r.json()):
+        done = client.get(f"/v1/jobs/{job['id']}").json()
+        assert done["status"] == "succeeded", done
+        timings = client.get(f"/v1/jobs/{job['id']}/result?format=json").json()["timings"]
+        assert list(timings)[:3] == ["read_s", "estimate_s", "write_s"]
+        assert all(timings[k] > 0 for k in ("read_s", "estimate_s", "write_s")), timings
