@@ -18,6 +18,8 @@ MIN_FPS: Final[float] = 1.0
 MAX_FPS: Final[float] = 10_000.0
 """Highest frame rate accepted, Hz (above any motion-capture system's)."""
 
+WEIGHT_MAX: Final[float] = 1e6
+"""Largest ``w_s`` / ``w_l`` of ``estimate_skeleton`` (the defaults are 0.01)."""
 
 CONTACT_OPTION_RANGES: Final[dict[str, tuple[float, float, bool]]] = {
     "smoothing_s": (0.0, 1.0, False),

@@ -19,16 +19,13 @@ from .joints import JointFit, estimate_joint, range_of_motion
 from .limbs import estimate_limb, standard_lengths, torso_length
 from .model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
 from .orientations import estimate_orientations
-from .params import check_fps, check_integer, check_number
+from .params import WEIGHT_MAX, check_fps, check_integer, check_number
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
 
 METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
-
-WEIGHT_MAX: Final[float] = 1e6
-"""Largest ``w_s`` / ``w_l`` accepted (the defaults are 0.01)."""
 
 BONES: Final[dict[str, tuple[str, str]]] = {
     "pelvis": ("root", "waist"),

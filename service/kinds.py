@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -25,6 +25,7 @@ from estimation.params import (
     HACHAJ_WINDOW_RANGE,
     MAX_FPS,
     MIN_FPS,
+    WEIGHT_MAX,
 )
 from estimation.progress import Progress, scaled
 
@@ -70,7 +71,7 @@ class JointOffsetIn(BaseModel):
 
 ANTHROPOMETRY_KEYS = Literal["torso", "thigh", "shank", "upperarm", "forearm"]
 """Keys of a custom anthropometric table (``limbs.standard_lengths``)."""
-TABLE_KEYS = ("torso", "thigh", "shank", "upperarm", "forearm")
+TABLE_KEYS: tuple[str, ...] = get_args(ANTHROPOMETRY_KEYS)
 
 ANTHROPOMETRY_TABLE: TypeAdapter[dict[ANTHROPOMETRY_KEYS, float]] = TypeAdapter(
     dict[ANTHROPOMETRY_KEYS, Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]])
@@ -88,8 +89,8 @@ class SkeletonParams(BaseModel):
     anthropometry: Literal["aist", "winter"] | dict[str, float] = Field(
         "aist", description="A table name, or lengths (or ratios) of torso, thigh, shank, "
                             "upperarm and forearm in any one unit.")
-    w_s: float = Field(0.01, ge=0, le=1e6, description="Weight of eq. 5's length term.")
-    w_l: float = Field(0.01, ge=0, le=1e6, description="Weight of eq. 5's ratio term.")
+    w_s: float = Field(0.01, ge=0, le=WEIGHT_MAX, description="Weight of eq. 5's length term.")
+    w_l: float = Field(0.01, ge=0, le=WEIGHT_MAX, description="Weight of eq. 5's ratio term.")
     smooth: StrictBool | None = None
     up: tuple[float, float, float] = Field(
         (0.0, 1.0, 0.0), description="World up direction of the source frame (non-zero).")
