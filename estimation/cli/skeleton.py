@@ -13,6 +13,7 @@ from ..errors import InputError
 from ..io.sensors import FORMATS, UNITS, example_path, parse_stations, read_recording
 from ..io.skeleton import read_skeleton_offsets, write_skeleton_files
 from ..model import JOINTS
+from ..params import check_fps
 from ..recording import SensorRecording
 from ..results import SkeletonResult
 from .progress import ProgressBar
@@ -128,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--up must be one of {', '.join(UP_AXES)}, got {args.up!r}",
                          field="--up")
     fps = _number(args.fps, "--fps", float)
+    if fps is not None:
+        check_fps(fps, "--fps")
     i0 = _number(args.i0, "--i0", int)
     stations = parse_stations(args.stations) if args.stations is not None else None
     offsets = read_skeleton_offsets(args.offsets) if args.offsets is not None else None
