@@ -514,6 +514,37 @@ def test_readyz_needs_a_live_worker(client: TestClient, runtime: Runtime) -> Non
     assert client.get("/readyz").json()["failed"] == ["workers"]  # it unregistered
 
 
+def test_a_worker_counts_as_alive_once_loaded_and_until_it_stops(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import service.worker as worker_module
+
+    settings = sqlite_settings(tmp_path, lease_seconds=3)
+    runtime = open_runtime(settings)
+    seen: dict[str, list[str]] = {}
+
+    def loading() -> None:  # the ~20 s import of the estimation code
+        seen["loading"] = runtime.store.live_workers(0)
+
+    def stop_once_alive() -> None:
+        wait_until(lambda: bool(runtime.store.live_workers(0)), 30)
+        seen["serving"] = runtime.store.live_workers(0)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(worker_module, "preload", loading)
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    watcher = threading.Thread(target=stop_once_alive)
+    watcher.start()
+    try:
+        assert run_worker(settings) == 0
+    finally:
+        watcher.join(60)
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
+    assert seen["loading"] == []
+    assert len(seen["serving"]) == 1
+    assert runtime.store.live_workers(0) == []
+
+
 def test_readyz_reports_low_disk_space(client: TestClient, runtime: Runtime,
                                        monkeypatch: pytest.MonkeyPatch) -> None:
     import shutil
