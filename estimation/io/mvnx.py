@@ -136,6 +136,8 @@ def _stream(path: PathLike) -> Iterator[tuple[str, ET.Element, ET.Element | None
     except ET.ParseError as exc:
         line = exc.position[0] if hasattr(exc, "position") else None
         raise InputError(f"malformed MVNX: {exc}", line=line) from None
+    except LookupError as exc:  # an XML declaration naming an unknown encoding
+        raise InputError(f"malformed MVNX: {exc}", field="encoding") from None
 
 
 @dataclass
