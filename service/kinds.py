@@ -69,6 +69,10 @@ class SkeletonParams(BaseModel):
     units: Literal["m", "cm", "mm", "in"] | None = None
     fps: float | None = Field(None, gt=0)
     stations: dict[str, str] | None = Field(None, description="Tracker station → segment.")
+    tracker_layout: str | None = Field(
+        None, max_length=200,
+        description="Tracker columns, e.g. 'frame,station,x,y,z,az,el,roll' or "
+                    "'time,x,y,z,qx,qy,qz,qw;time=ns' (docs/skeleton-io.md); default detected.")
     offsets: dict[str, JointOffsetIn] | None = Field(
         None, max_length=64,
         description="A calibration: the `offsets` of an earlier skeleton result of the same "
@@ -88,6 +92,9 @@ class TranslationParams(BaseModel):
                                 "second-differences"] | None = None
     options: dict[str, float | int | bool | str] = Field(
         default_factory=dict, description="Method options (hachaj2018: window, eps).")
+    subject: str | None = Field(
+        None, min_length=1, max_length=100,
+        description="MVNX subject to read, by label or 1-based number; default the first.")
 
 
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
@@ -105,7 +112,8 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     source = inputs["recording"]
     progress(0.0, "reading")
     recording = read_recording(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
-                               units=params.units, fps=params.fps, stations=params.stations)
+                               units=params.units, fps=params.fps, stations=params.stations,
+                               tracker_layout=params.tracker_layout)
     result = estimate_skeleton(
         recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
         up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
@@ -135,7 +143,7 @@ def run_translation(inputs: Mapping[str, Input], params: TranslationParams, prog
         source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
         accelerations=accelerations.path if accelerations else None,
         left_foot=params.left_foot, right_foot=params.right_foot,
-        acceleration_units=params.acceleration_units)
+        acceleration_units=params.acceleration_units, subject=params.subject)
     result = estimate_translation(recording, method=params.method, left_foot=params.left_foot,
                                   right_foot=params.right_foot,
                                   progress=scaled(progress, 0.02, 0.95), **params.options)
