@@ -458,7 +458,7 @@ def _column_stats(values: NDArray[np.float64]) -> dict[str, Any]:
             "monotone": bool(np.all(steps >= 0)) and positive.size > 0,
             "distinct": int(np.unique(finite).size),
             "repeats": bool(np.any(steps == 0)),
-            "step": float(np.median(positive)) if positive.size else 0.0,
+            "min_step": float(positive.min()) if positive.size else 0.0,
             "min": float(finite.min()), "max": float(finite.max())}
 
 
@@ -470,7 +470,7 @@ def _extra_role(stats: dict[str, Any], have: set[str]) -> str | None:
         # 1, 2, 3 ... without repeats is a station per record as much as a counter of
         # one-station frames: a counter then, only past the number of stations there can be
         counter = stats["repeats"] or stats["distinct"] > MAX_STATIONS
-        if stats["integer"] and stats["step"] == 1:
+        if stats["integer"] and stats["min_step"] == 1:
             if counter and "frame" not in have:
                 return "frame"
             if not counter and "station" not in have and stats["min"] >= 0:
@@ -658,7 +658,7 @@ def _integer(token: str, line: int, column: int, what: str) -> int:
 
 
 def _time_value(token: str, line: int, column: int) -> float | int:
-    if token.isdigit():
+    if token.isdigit() and len(token) <= 19:  # nanoseconds: exact as integers, not as floats
         return int(token)
     value = _number(token, line, column)
     if not math.isfinite(value):
@@ -749,11 +749,7 @@ def _frame_index(records: _Records, fps: float | None, has_time: bool,
         if rate is None:
             rate = _snap(float(index[-1]) / float(times[-1]), index, times) \
                 if index[-1] > 0 else fps_from_time(times)
-    dropped = int(index[-1]) + 1 - index.size
-    if dropped > MAX_DROPPED_FRAMES:
-        raise InputError(f"the frame counter or time skips {dropped} frames (limit "
-                         f"{MAX_DROPPED_FRAMES}): corrupt counter or wrong time unit",
-                         field="frame")
+    _check_dropped(int(index[-1]) + 1 - index.size)
     return index, rate
 
 
@@ -766,8 +762,16 @@ def _frames_of_steps(steps: NDArray[np.float64], step: float | None) -> NDArray[
         for _ in range(2):
             count = np.maximum(np.rint(steps / step), 1.0)
             step = float(steps.sum() / count.sum())
-    index = np.concatenate([[0], np.cumsum(np.rint(steps / step))])
+    index = np.concatenate([[0.0], np.cumsum(np.rint(steps / step))])
+    _check_dropped(float(index[-1]) + 1 - index.size)
     return index.astype(np.int64)
+
+
+def _check_dropped(dropped: float) -> None:
+    if not dropped <= MAX_DROPPED_FRAMES:  # NaN too
+        raise InputError(f"the frame counter or time skips {dropped:.0f} frames (limit "
+                         f"{MAX_DROPPED_FRAMES}): corrupt counter or wrong time unit",
+                         field="frame")
 
 
 def _snap(rate: float, index: NDArray[np.int64], times: NDArray[np.float64]) -> float:

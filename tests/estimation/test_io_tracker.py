@@ -8,6 +8,7 @@ of that motion to 0.1 mm.
 from __future__ import annotations
 
 import contextlib
+import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from estimation.cli import main
 from estimation.errors import BonefitError, InputError
 from estimation.io.sensors import detect_format, read_recording, sniff_recording, write_sensor_csv
 from estimation.io.tracker import (
@@ -338,3 +340,35 @@ def test_fuzzed_tracker_files_raise_only_bonefit_errors(lines: list[str], layout
                  lambda: detect_format(path)):
         with contextlib.suppress(BonefitError):
             call()
+
+
+def test_counter_with_a_dropped_frame_is_a_counter_not_a_time(tmp_path: Path) -> None:
+    path = tmp_path / "c.txt"
+    path.write_text("1000 1 10.00 20.00 -30.00 90.00 0.00 0.00\n"
+                    "1000 2 12.00 30.00 -31.00 30.00 20.00 -40.00\n"
+                    "1002 1 10.50 20.00 -30.00 45.00 10.00 5.00\n"
+                    "1002 2 12.50 30.00 -31.00 30.00 20.00 -40.00\n"
+                    "1003 1 11.00 20.00 -30.00 40.00 10.00 5.00\n"
+                    "1003 2 13.00 30.00 -31.00 31.00 21.00 -41.00\n")
+    assert detect_tracker_layout(path).spec() == "frame,station,x,y,z,az,el,roll"
+    rec = read_tracker_ascii(path, stations="1=pelvis,2=chest", fps=240)
+    assert rec.valid().tolist() == [[True, True], [False, False], [True, True], [True, True]]
+
+
+def test_cli_prints_the_detected_layout_and_takes_an_explicit_one(
+        motion: Motion, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    path = tmp_path / "take.txt"
+    path.write_text(trakstar(motion), encoding="utf-8")
+    assert main(["skeleton", "--quiet", str(path), "--format", "tracker", "--stations",
+                 motion.stations, "-o", str(tmp_path / "a.json")]) == 0
+    err = capsys.readouterr().err
+    spec = "station,x,y,z,az,el,roll,time,quality;time=s"
+    assert f"detected: tracker layout from the data: columns {spec.split(';')[0]}" in err
+    assert f"--tracker-layout '{spec}'" in err
+    document = json.loads((tmp_path / "a.json").read_text())
+    assert any("3 dropped frame(s)" in w for w in document["warnings"])
+    # the spec read with another time unit: 1000 times too slow a rate
+    assert main(["skeleton", "--quiet", str(path), "--stations", motion.stations,
+                 "--tracker-layout", spec.replace("time=s", "time=ms"),
+                 "-o", str(tmp_path / "b.json")]) == 2
+    assert "detected" not in capsys.readouterr().err
