@@ -367,8 +367,12 @@ def test_cli_prints_the_detected_layout_and_takes_an_explicit_one(
     assert f"--tracker-layout '{spec}'" in err
     document = json.loads((tmp_path / "a.json").read_text())
     assert any("3 dropped frame(s)" in w for w in document["warnings"])
-    # the spec read with another time unit: 1000 times too slow a rate
+    # an explicit layout is used as given, and nothing is printed about detection
     assert main(["skeleton", "--quiet", str(path), "--stations", motion.stations,
-                 "--tracker-layout", spec.replace("time=s", "time=ms"),
-                 "-o", str(tmp_path / "b.json")]) == 2
+                 "--tracker-layout", spec, "-o", str(tmp_path / "b.json")]) == 0
     assert "detected" not in capsys.readouterr().err
+    assert main(["skeleton", "--quiet", str(path), "--stations", motion.stations,
+                 "--tracker-layout", "station,x,y,z,az,el,roll", "-o",
+                 str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert "line 1 has 9 fields; the layout 'station,x,y,z,az,el,roll' has 7" in err
