@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..model import SEGMENTS
 from ..recording import SensorRecording
 from .sensors import (
+    UNITS,
     PathLike,
     check_recording,
     fps_from_time,
@@ -105,6 +106,9 @@ class TrackerLayout:
         then fixed-width numbers that may touch (``12.34-123.45``); ``station`` is the digit.
     skip_lines : int
         Lines at the top (banners, header row) that are not records.
+    units : str
+        Default units of the positions: ``in`` (Polhemus, trakSTAR factory setting), ``m``
+        for ROS exports (REP 103); the reader's ``units`` and a ``# units:`` comment win.
     source : str
         ``"header"``, ``"data"`` or ``"explicit"``: where the layout came from.
     """
@@ -114,6 +118,7 @@ class TrackerLayout:
     degrees: bool = True
     fastrak: bool = False
     skip_lines: int = 0
+    units: str = "in"
     source: str = field(default="explicit", compare=False)
 
     def __post_init__(self) -> None:
@@ -156,6 +161,8 @@ class TrackerLayout:
             options.append("fastrak")
         if self.skip_lines:
             options.append(f"skip={self.skip_lines}")
+        if self.units != "in":
+            options.append(f"units={self.units}")
         return ";".join([",".join(self.columns), *options])
 
     def describe(self) -> str:
@@ -174,6 +181,7 @@ class TrackerLayout:
             parts.append(f"time in {self.time_unit}")
         if self.skip_lines:
             parts.append(f"{self.skip_lines} banner/header line(s) skipped")
+        parts.append(f"positions in {self.units} unless units are given")
         return f"tracker layout from the {self.source}: " + "; ".join(parts) + \
             f" (--tracker-layout '{self.spec()}')"
 
@@ -240,9 +248,12 @@ def parse_tracker_layout(spec: str | TrackerLayout) -> TrackerLayout:
             kwargs["fastrak"] = True
         elif key == "skip" and value.strip().isdigit():
             kwargs["skip_lines"] = int(value)
+        elif key == "units" and value.strip() in UNITS:
+            kwargs["units"] = value.strip()
         else:
             raise InputError(f"unknown tracker layout option {option!r}; options are "
-                             f"time=s|ms|us|ns, rad, fastrak, skip=N", field="tracker_layout")
+                             f"time=s|ms|us|ns, rad, fastrak, skip=N, units=in|cm|mm|m",
+                             field="tracker_layout")
     if kwargs.get("fastrak") and columns[:1] != ("station",):
         raise InputError("a fastrak layout starts with the station column",
                          field="tracker_layout")
@@ -555,8 +566,9 @@ def detect_layout_of_lines(lines: Sequence[str]) -> TrackerLayout:
             columns, unit = found
             if "time" in columns and unit is None:
                 unit = _time_unit_from_step(_time_step(records, columns.index("time")))
+            ros = any(t.startswith(("%time", "field.")) for t in tokens[first - 1])
             return TrackerLayout(columns, time_unit=unit or "s", skip_lines=first,
-                                 source="header")
+                                 units="m" if ros else "in", source="header")
     table = np.array([[float(t) if _is_number(t) else math.nan for t in rec] for rec in records])
     columns = _layout_from_data(table)
     unit = "s"
@@ -851,7 +863,8 @@ def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | No
         (``SensorRecording.warnings``). Without a station column the records of a frame are
         the mapping's stations in number order.
     units : {"in", "cm", "mm", "m"}, optional
-        Units of the positions; default inches (the trackers' factory setting).
+        Units of the positions; default the layout's: inches (the trackers' factory setting),
+        metres for ROS exports.
     fps : float, optional
         Frame rate, Hz. Measured from the time column when there is one; required otherwise
         (LIBERTY 240, PATRIOT 60, trakSTAR 80 Hz by default).
@@ -911,7 +924,7 @@ def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | No
     if n_frames > index.size:
         warnings.append(f"{n_frames - index.size} dropped frame(s) (frame counter or time "
                         "stamps skip them) left as gaps")
-    units = units if units is not None else meta.get("units", "in")
+    units = units if units is not None else meta.get("units", plan.units)
     lines = np.zeros(n_frames, dtype=np.int64)
     lines[index] = records.lines
     quats = _quaternions(table, plan, sensors, lines)
@@ -972,4 +985,4 @@ def sniff_tracker(path: PathLike) -> dict[str, Any]:
                 frames = math.ceil(frames / len(mapping))
     fps = parse_fps(meta["fps"]) if "fps" in meta else None
     return {"format": "tracker", "frames": frames, "sensors": sensors, "fps": fps,
-            "units": meta.get("units", "in"), "layout": plan.spec()}
+            "units": meta.get("units", plan.units), "layout": plan.spec()}

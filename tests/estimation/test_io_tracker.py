@@ -109,9 +109,11 @@ def euler_fields(m: Motion, f: int, s: int, sep: str = " ") -> str:
     return sep.join(f2(v) for v in (*m.inches[f, s], *m.angles[f, s]))
 
 
-def quat_fields(m: Motion, f: int, s: int, order: str = "wxyz", sep: str = " ") -> str:
+def quat_fields(m: Motion, f: int, s: int, order: str = "wxyz", sep: str = " ",
+                metres: bool = False) -> str:
     q = dict(zip("wxyz", m.quats[f, s], strict=True))
-    return sep.join([*(f2(v) for v in m.inches[f, s]), *(f"{q[c]:.9f}" for c in order)])
+    pos = [f"{v * 0.0254:.9f}" if metres else f2(v) for v in m.inches[f, s]]
+    return sep.join([*pos, *(f"{q[c]:.9f}" for c in order)])
 
 
 def plain(m: Motion) -> str:
@@ -163,7 +165,7 @@ def trakstar(m: Motion) -> str:
 
 
 def ros_csv(m: Motion) -> str:
-    """``rostopic echo -p`` of PoseStamped, every sensor on one topic, no ids, w last."""
+    """``rostopic echo -p`` of PoseStamped, every sensor on one topic, no ids, w last, m."""
     head = ("%time,field.header.seq,field.header.stamp,field.header.frame_id,"
             "field.pose.position.x,field.pose.position.y,field.pose.position.z,"
             "field.pose.orientation.x,field.pose.orientation.y,field.pose.orientation.z,"
@@ -173,7 +175,7 @@ def ros_csv(m: Motion) -> str:
     def fmt(f: int, s: int) -> str:
         stamp = t0 + round(f * 1e9 / FPS)
         return (f"{stamp + 1000 * s + 250_000},{f * len(m.sensors) + s},{stamp},tracker,"
-                + quat_fields(m, f, s, "xyzw", ","))
+                + quat_fields(m, f, s, "xyzw", ",", metres=True))
     return head + "\n" + "\n".join(records(m, fmt, DROPPED)) + "\n"
 
 
@@ -220,7 +222,7 @@ def test_detected_layouts_are_described(motion: Motion, tmp_path: Path) -> None:
         "frame-counter": "frame,station,x,y,z,az,el,roll",
         "timestamp-ms": "time,station,x,y,z,az,el,roll;time=ms",
         "trakstar-time-quality": "station,x,y,z,az,el,roll,time,quality;time=s",
-        "ros-csv": "-,-,time,-,x,y,z,qx,qy,qz,qw;time=ns;skip=1",
+        "ros-csv": "-,-,time,-,x,y,z,qx,qy,qz,qw;time=ns;skip=1;units=m",
     }
     for name, spec in expected.items():
         path = tmp_path / f"{name}.txt"
