@@ -123,6 +123,9 @@ class TrackerLayout:
 
     def __post_init__(self) -> None:
         _validate_columns(self.columns)
+        if self.units not in UNITS:
+            raise InputError(f"units {self.units!r} are not one of {', '.join(UNITS)}",
+                             field="tracker_layout")
         if self.time_unit not in TIME_UNITS:
             raise InputError(f"time unit {self.time_unit!r} is not one of "
                              f"{', '.join(TIME_UNITS)}", field="tracker_layout")
@@ -181,7 +184,8 @@ class TrackerLayout:
             parts.append(f"time in {self.time_unit}")
         if self.skip_lines:
             parts.append(f"{self.skip_lines} banner/header line(s) skipped")
-        parts.append(f"positions in {self.units} unless units are given")
+        names = {"in": "inches", "m": "metres", "cm": "centimetres", "mm": "millimetres"}
+        parts.append(f"positions in {names[self.units]} unless units are given")
         return f"tracker layout from the {self.source}: " + "; ".join(parts) + \
             f" (--tracker-layout '{self.spec()}')"
 
