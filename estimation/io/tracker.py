@@ -186,7 +186,9 @@ class TrackerLayout:
             parts.append(f"{self.skip_lines} banner/header line(s) skipped")
         names = {"in": "inches", "m": "metres", "cm": "centimetres", "mm": "millimetres"}
         parts.append(f"positions in {names[self.units]} unless units are given")
-        return f"tracker layout from the {self.source}: " + "; ".join(parts) + \
+        origin = {"header": "from the header row", "data": "from the data"}.get(
+            self.source, "as given")
+        return f"tracker layout {origin}: " + "; ".join(parts) + \
             f" (--tracker-layout '{self.spec()}')"
 
 
