@@ -1,5 +1,8 @@
 """Readers of 6-DOF sensor recordings: bonefit sensor CSV, tracker ASCII and NPZ.
 
+Tracker exports are read by :mod:`estimation.io.tracker`, which shares the public helpers
+here (``open_text``, ``check_recording`` ...).
+
 Every reader returns a :class:`~estimation.recording.SensorRecording` in metres with unit
 scalar-first quaternions (sensor → source frame) and NaN for dropped samples, and raises
 :class:`~estimation.errors.InputError` naming the line, column, field or sensor at fault.
@@ -87,6 +90,8 @@ def unit_scale(units: str) -> float:
 
 
 def open_text(path: PathLike) -> io.TextIOWrapper:
+    """Text handle of a recording (UTF-8, BOM dropped, bad bytes as U+FFFD); InputError for a
+    directory or an unreadable file."""
     try:
         # undecodable bytes become U+FFFD and then fail as a named column or number
         return open(path, encoding="utf-8-sig", errors="replace", newline="")
@@ -113,6 +118,7 @@ def metadata_comment(line: str) -> tuple[str, str] | None:
 
 
 def parse_fps(value: Any, field: str = "fps") -> float:
+    """A positive finite frame rate (Hz) from ``value``; InputError naming ``field``."""
     try:
         fps = float(value)
     except (TypeError, ValueError):
@@ -167,10 +173,12 @@ def check_recording(rec: SensorRecording, units: str) -> SensorRecording:
 
 
 def time_from_fps(n_frames: int, fps: float) -> NDArray[np.float64]:
+    """Frame times (F,), seconds, from 0 at ``fps``."""
     return np.arange(n_frames, dtype=float) / fps
 
 
 def fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
+    """Frame rate (Hz) of increasing frame times (F,) in seconds; InputError otherwise."""
     if time.size < 2:
         raise InputError("one frame only: give fps to set the frame rate", field="fps")
     steps = np.diff(time)
