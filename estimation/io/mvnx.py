@@ -66,12 +66,16 @@ def _tag(elem: ET.Element) -> str:
     return elem.tag.rsplit("}", 1)[-1]
 
 
-def _floats(text: str | None, expected: int, what: str, frame: int) -> NDArray[np.float64]:
+def _numbers(text: str, what: str, frame: int) -> NDArray[np.float64]:
     try:
-        values = np.array((text or "").split(), dtype=float)
+        return np.array(text.split(), dtype=float)
     except ValueError:
         raise InputError(f"frame {frame}: {what} holds a value that is not a number",
                          field=what) from None
+
+
+def _floats(values: NDArray[np.float64], expected: int, what: str,
+            frame: int) -> NDArray[np.float64]:
     if values.size != expected:
         raise InputError(f"frame {frame}: {what} has {values.size} values, expected {expected}",
                          field=what)
@@ -150,7 +154,7 @@ class _Subject:
     segments: list[str] = field(default_factory=list)
     sensors: list[str] = field(default_factory=list)
     contact_labels: list[str] = field(default_factory=list)
-    frames: list[dict[str, str]] = field(default_factory=list)
+    frames: list[dict[str, NDArray[np.float64]]] = field(default_factory=list)
     times: list[float] = field(default_factory=list)
 
 
@@ -169,7 +173,7 @@ class _Scanner:
         self.current: _Subject | None = None
         self.section = ""
         self.in_frame = False
-        self.frame: dict[str, str] | None = None
+        self.frame: dict[str, str] | None = None  # texts of the normal frame being read
         self.frame_elements = 0
         self.header_elements = 0
 
@@ -192,7 +196,6 @@ class _Scanner:
             self.frame_elements = 0
             if self.current is not None and elem.get("type", "normal") == "normal":
                 self.frame = {}
-                self.current.frames.append(self.frame)
                 ms = elem.get("time")
                 self.current.times.append(_ms(ms) if ms not in (None, "") else math.nan)
             return True
@@ -215,10 +218,20 @@ class _Scanner:
                 return False
         return True
 
+    @staticmethod
+    def _numbers(texts: dict[str, str], k: int) -> dict[str, NDArray[np.float64]]:
+        """A frame's fields as numbers, once read (MVNX 3 fields only when needed)."""
+        if "sensorFreeAcceleration" in texts:
+            texts.pop("sensorAcceleration", None)
+            texts.pop("sensorOrientation", None)
+        return {what: _numbers(text, what, k) for what, text in texts.items()}
+
     def end(self, elem: ET.Element, parent: ET.Element | None) -> None:
         tag = _tag(elem)
         subject = self.current
         if tag == "frame" and self.in_frame and (parent is None or _tag(parent) == "frames"):
+            if self.frame is not None and subject is not None:
+                subject.frames.append(self._numbers(self.frame, len(subject.frames)))
             self.in_frame = False
             self.frame = None
         elif self.in_frame:
