@@ -959,16 +959,24 @@ def sniff_tracker(path: PathLike) -> dict[str, Any]:
     frames = 0
     last_key: str | None = None
     started = False
+    # the station and counter come before the numbers that may touch: split only up to them
+    wanted = [c for c in (station_col, frame_col) if c is not None]
+    quick = not plan.fastrak and max(wanted, default=0) < min(plan.rotation_columns)
     with open_text(path) as handle:
         for n, (line, text) in enumerate(_data_lines(handle, meta)):
             if n < plan.skip_lines:
                 continue
-            tokens = _tokens(text, plan.fastrak)
-            if not started and not _is_record(tokens):
-                continue
-            started = True
-            if len(tokens) != len(plan.columns):
-                continue
+            if started and quick:
+                tokens = _SPLIT.split(text.strip(), maxsplit=max(wanted, default=0) + 1)
+                if len(tokens) <= max(wanted, default=0):
+                    continue
+            else:
+                tokens = _tokens(text, plan.fastrak)
+                if not started and not _is_record(tokens):
+                    continue
+                started = True
+                if len(tokens) != len(plan.columns):
+                    continue
             number = 0
             if station_col is not None:
                 number = _integer(tokens[station_col], line, station_col + 1, "station")
