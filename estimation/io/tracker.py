@@ -563,6 +563,10 @@ def detect_layout_of_lines(lines: Sequence[str]) -> TrackerLayout:
     records = [t for t in records if len(t) == width]
     if fastrak:
         numbers = width - 2
+        if numbers not in (6, 7):
+            raise InputError(f"FASTRAK records with {numbers} numbers: give tracker_layout "
+                             "(position and Euler angles or quaternion are 6 or 7)",
+                             field="tracker_layout")
         rot = ("qw", "qx", "qy", "qz") if numbers == 7 else ("az", "el", "roll")
         return TrackerLayout(("station", "quality", "x", "y", "z", *rot), fastrak=True,
                              skip_lines=first, source="data")
