@@ -88,17 +88,18 @@ def _floats(values: NDArray[np.float64], expected: int, what: str,
 def _check_prolog(path: PathLike) -> int:
     """Refuse a DOCTYPE (entity tricks) and files too dense in elements; returns the size.
 
-    The declarations must precede the root element, so the bytes before ``<mvnx`` are all
-    that needs looking at; the density check counts ``<`` in binary blocks, which costs
-    milliseconds where parsing millions of empty elements would cost a minute.
+    The declarations must precede the root element, which must start in the first
+    ``PROLOG_BYTES``, so those are all that needs looking at; the density check counts ``<``
+    in binary blocks, which costs milliseconds where parsing millions of empty elements would
+    cost a minute.
     """
     size = os.path.getsize(path)
     tags = 0
     with open(path, "rb") as handle:
         head = handle.read(PROLOG_BYTES)
         root = head.find(b"<mvnx")
-        prolog = head if root < 0 else head[:root]
-        if b"<!DOCTYPE" in prolog.upper() or b"<!ENTITY" in prolog.upper():
+        # the whole head, not only what precedes "<mvnx": that may sit in a comment
+        if b"<!DOCTYPE" in head.upper() or b"<!ENTITY" in head.upper():
             raise InputError("MVNX with a DOCTYPE or entity declarations is refused (MVN "
                              "never writes them; entities can expand without bound)",
                              field="input")
