@@ -44,6 +44,10 @@ MAX_DROPPED_FRAMES: Final[int] = 100_000
 """Frames a frame counter or time stamps may skip in all: a counter that jumps further is
 corrupt and would otherwise allocate a huge table of dropped frames."""
 
+MAX_EXTRA_COLUMNS: Final[int] = 4
+"""Columns besides position and rotation (station, counter, time, quality) that detection
+from the data accepts; wider records (a kinematics CSV, say) need a header or a layout."""
+
 DETECT_RECORDS: Final[int] = 400
 """Data records read from the top of the file to detect its layout."""
 
@@ -508,6 +512,10 @@ def _unit_norm(table: NDArray[np.float64], start: int) -> bool:
 def _layout_from_data(table: NDArray[np.float64]) -> tuple[str, ...]:
     """Roles of a header-less table (records × columns, NaN where a field is text)."""
     n = table.shape[1]
+    if not 6 <= n <= 7 + MAX_EXTRA_COLUMNS:
+        raise InputError(f"records of {n} fields are no tracker layout bonefit can tell "
+                         f"(6 or 7 values and up to {MAX_EXTRA_COLUMNS} more columns); give "
+                         "tracker_layout (--tracker-layout)", field="tracker_layout")
     stats = [_column_stats(table[:, c]) for c in range(n)]
     roles: list[str] = []
     have: set[str] = set()
@@ -532,6 +540,10 @@ def _layout_from_data(table: NDArray[np.float64]) -> tuple[str, ...]:
         raise InputError("cannot tell which columns hold the position and the rotation; give "
                          "tracker_layout (--tracker-layout), e.g. 'station,x,y,z,az,el,roll'",
                          field="tracker_layout")
+    if n - 6 - (roles.count("qw") > 0) > MAX_EXTRA_COLUMNS:
+        raise InputError(f"{n} fields per record: more columns besides the position and "
+                         f"rotation than a tracker writes ({MAX_EXTRA_COLUMNS}); give "
+                         "tracker_layout (--tracker-layout)", field="tracker_layout")
     for c in range(col, n):
         role = _extra_role(stats[c], have)
         role = role if role in ("time", "-") else "quality"

@@ -378,3 +378,17 @@ def test_cli_prints_the_detected_layout_and_takes_an_explicit_one(
                  str(tmp_path / "c.json")]) == 2
     err = capsys.readouterr().err
     assert "line 1 has 9 fields; the layout 'station,x,y,z,az,el,roll' has 7" in err
+
+
+def test_wide_tables_are_not_taken_for_tracker_records(tmp_path: Path) -> None:
+    # a kinematics CSV whose joint names are no segment names: 1 + 3·J columns of numbers
+    path = tmp_path / "kin.csv"
+    rng = np.random.default_rng(0)
+    header = "Time," + ",".join(f"J{j}.D{c}" for c in "xyz" for j in range(8))
+    rows = [f"{i / 60:.4f}," + ",".join(f"{v:.3f}" for v in rng.normal(0, 30, 24))
+            for i in range(50)]
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(InputError, match="no tracker layout") as err:
+        detect_tracker_layout(path)
+    assert err.value.field == "tracker_layout"
+    assert detect_format(path) == "csv"
