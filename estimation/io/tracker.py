@@ -643,17 +643,19 @@ def detect_tracker_layout(path: PathLike) -> TrackerLayout:
 
 
 def looks_like_tracker(text: str) -> bool:
-    """Whether the start of a file (decoded text) reads as a tracker export."""
+    """Whether the start of a file (decoded text) reads as a tracker export: its layout is
+    detected, and a header row right above the records, if any, names tracker columns (a
+    CSV of other columns, such as a bonefit sensor CSV or foot accelerations, is not one)."""
     lines = [t.strip() for t in text.splitlines()[:-1] if t.strip()
-             and not t.strip().startswith("#")]
-    if any("." in cell and cell.split(".")[0].strip().lower() in SEGMENTS
-           for cell in lines[0].split(",")) if lines else True:
-        return False  # a bonefit sensor CSV header: <segment>.<component>
+             and not t.strip().startswith("#")][:DETECT_RECORDS]
     try:
-        detect_layout_of_lines(lines[:DETECT_RECORDS])
+        layout = detect_layout_of_lines(lines)
     except InputError:
         return False
-    return True
+    if layout.source == "header" or layout.fastrak or layout.skip_lines == 0:
+        return True
+    above = _tokens(lines[layout.skip_lines - 1], False)
+    return len(above) != len(_tokens(lines[layout.skip_lines], False))
 
 
 # --------------------------------------------------------------------------- reading

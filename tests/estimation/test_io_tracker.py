@@ -392,3 +392,15 @@ def test_wide_tables_are_not_taken_for_tracker_records(tmp_path: Path) -> None:
         detect_tracker_layout(path)
     assert err.value.field == "tracker_layout"
     assert detect_format(path) == "csv"
+
+
+def test_csv_headers_of_other_columns_are_not_tracker_headers(tmp_path: Path) -> None:
+    # foot accelerations: time and six numbers per row would read as a tracker record
+    path = tmp_path / "feet.csv"
+    rows = [f"{i / 60:.4f},{0.1 * i % 1:.3f},1.0,0.02,0.5,0.9,-0.1" for i in range(30)]
+    path.write_text("time,LeftFoot.ax,LeftFoot.ay,LeftFoot.az,RightFoot.ax,RightFoot.ay,"
+                    "RightFoot.az\n" + "\n".join(rows) + "\n")
+    assert detect_format(path) == "csv"
+    # without the header the rows are records, with a banner above them too
+    path.write_text("\n".join(rows) + "\n")
+    assert detect_format(path) == "tracker"
