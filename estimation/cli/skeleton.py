@@ -162,13 +162,13 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"cannot write {out}: directory {out.parent} does not exist",
                              field="output")
 
-    layout = _tracker_layout(source, fmt, args.tracker_layout)
     start = time.perf_counter()
+    layout = _tracker_layout(source, fmt, args.tracker_layout)
     recording = read_recording(source, format=fmt, units=units, fps=fps, stations=stations,
                                tracker_layout=layout)
+    read_s = time.perf_counter() - start
     if layout is not None and args.tracker_layout is None:
         print(f"detected: {layout.describe()}", file=sys.stderr)
-    read_s = time.perf_counter() - start
     if i0 >= recording.n_frames:
         raise InputError(f"--i0 {i0} is past the last frame ({recording.n_frames - 1})",
                          field="--i0")
