@@ -173,7 +173,7 @@ class _Scanner:
         self.subject: _Subject | None = None
         self.current: _Subject | None = None
         self.section = ""
-        self.in_frame = False
+        self.in_frame: ET.Element | None = None  # the <frame> being read
         self.frame: dict[str, str] | None = None  # texts of the normal frame being read
         self.frame_elements = 0
         self.header_elements = 0
@@ -186,14 +186,14 @@ class _Scanner:
     def start(self, elem: ET.Element) -> bool:
         """Handle a start tag; False to stop reading."""
         tag = _tag(elem)
-        if self.in_frame:
+        if self.in_frame is not None:
             self.frame_elements += 1
             if self.frame_elements > MAX_FRAME_ELEMENTS:
                 raise InputError(f"an MVNX frame holds more than {MAX_FRAME_ELEMENTS} "
                                  "elements (limit)", field="frames")
             return True
         if tag == "frame":
-            self.in_frame = True
+            self.in_frame = elem
             self.frame_elements = 0
             if self.current is not None and elem.get("type", "normal") == "normal":
                 self.frame = {}
@@ -230,12 +230,12 @@ class _Scanner:
     def end(self, elem: ET.Element, parent: ET.Element | None) -> None:
         tag = _tag(elem)
         subject = self.current
-        if tag == "frame" and self.in_frame and (parent is None or _tag(parent) == "frames"):
+        if elem is self.in_frame:
             if self.frame is not None and subject is not None:
                 subject.frames.append(self._numbers(self.frame, len(subject.frames)))
-            self.in_frame = False
+            self.in_frame = None
             self.frame = None
-        elif self.in_frame:
+        elif self.in_frame is not None:
             if self.frame is not None and parent is not None and _tag(parent) == "frame" \
                     and tag in _FRAME_FIELDS:
                 self.frame[tag] = elem.text or ""

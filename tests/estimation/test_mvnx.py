@@ -318,3 +318,10 @@ def test_fuzzed_mvnx_raises_only_bonefit_errors(mvnx_file: MvnxFixture, tmp_path
     for call in (read_kinematics, sniff_kinematics):
         with contextlib.suppress(BonefitError):
             call(fuzzed)
+
+
+def test_frames_without_their_frames_wrapper(mvnx_file: MvnxFixture, tmp_path: Path) -> None:
+    path, truth, _ = mvnx_file
+    bare = tmp_path / "bare.mvnx"
+    bare.write_text(re.sub(r"<frames[^>]*>\n|</frames>\n", "", path.read_text()))
+    np.testing.assert_allclose(read_kinematics(bare).positions, truth.positions, atol=2e-6)
