@@ -15,6 +15,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -65,7 +66,16 @@ def arrays_of(key: str, result: SkeletonResult) -> dict[str, np.ndarray]:
     out[f"{key}/bones"] = np.array([result.bone_lengths[b] for b in sorted(result.bone_lengths)])
     out.update({f"{key}/orientation/{s}": np.asarray(q)
                 for s, q in result.orientations.items()})
+    out[f"{key}/warnings"] = np.array(result.warnings, dtype=str)
+    out.update({f"{key}/quality/{j}": np.array(json.dumps(quality_dict(q), sort_keys=True))
+                for j, q in result.quality.items()})
     return out
+
+
+def quality_dict(quality: Any) -> dict[str, Any]:
+    """A joint's quality as the JSON writer sees it (a dict, or a typed record's fields)."""
+    as_dict = getattr(quality, "as_dict", None)
+    return dict(quality) if as_dict is None else dict(as_dict())
 
 
 def run(data: Path, max_frames: int, seed: int) -> dict[str, np.ndarray]:
@@ -102,7 +112,7 @@ def compare(now: dict[str, np.ndarray], saved: dict[str, np.ndarray]) -> int:
             print(f"  shape {key}: {a.shape} -> {b.shape}")
             differ += 1
         elif not np.array_equal(a, b):
-            diff = float(np.max(np.abs(a - b)))
+            diff = float(np.max(np.abs(a - b))) if a.dtype.kind == "f" else np.inf
             worst = max(worst, diff)
             differ += 1
             print(f"  differs {key}: max |diff| {diff:.3g}")
@@ -126,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         np.savez_compressed(args.save, **now)
         print(f"saved {len(now)} arrays to {args.save}")
         return 0
-    with np.load(args.compare) as saved:
+    with np.load(args.compare, allow_pickle=False) as saved:
         return compare(now, dict(saved))
 
 
