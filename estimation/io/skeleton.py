@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, write_bvh
 from ..errors import InputError
-from ..model import JOINTS
+from ..model import BVH_TREE, JOINTS
 from ..results import JointOffset, SkeletonResult, timings_document
 from .sensors import unit_scale
 
@@ -31,24 +31,7 @@ PathLike = str | os.PathLike[str]
 
 JSON_KIND: Final[str] = "skeleton"
 
-BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = (
-    ("root", None, "pelvis"),
-    ("waist", "root", "spine"),
-    ("chest", "waist", "chest"),
-    ("neck", "chest", "head"),
-    ("l_shoulder", "chest", "l_upperarm"),
-    ("l_elbow", "l_shoulder", "l_forearm"),
-    ("l_wrist", "l_elbow", "l_hand"),
-    ("r_shoulder", "chest", "r_upperarm"),
-    ("r_elbow", "r_shoulder", "r_forearm"),
-    ("r_wrist", "r_elbow", "r_hand"),
-    ("l_hip", "root", "l_thigh"),
-    ("l_knee", "l_hip", "l_shank"),
-    ("l_ankle", "l_knee", "l_foot"),
-    ("r_hip", "root", "r_thigh"),
-    ("r_knee", "r_hip", "r_shank"),
-    ("r_ankle", "r_knee", "r_foot"),
-)
+BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = BVH_TREE
 """BVH joints as (node, parent node, segment whose orientation drives it), parents first."""
 
 END_SITES: Final[dict[str, tuple[str, tuple[float, float, float], float]]] = {

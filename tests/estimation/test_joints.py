@@ -16,7 +16,7 @@ from estimation.gaps import (
     fill_sensor_major,
     sensor_major,
 )
-from estimation.joints import effective_samples, percentile, estimate_joint, range_of_motion
+from estimation.joints import effective_samples, estimate_joint, percentile, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
 
