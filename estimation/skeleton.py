@@ -238,12 +238,7 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int,
     estimated slip (``pa_true``, ``pb_true``). Along ``hinge_axis`` (in frame a) the model's
     precision is dropped: there it counts orientation noise as rotation. Also returns the
     posterior covariance of the centre in frame a (3, 3)."""
-    cov = shared.covariances[j]
     mean = shared.centres[j].reshape(6)
-    scale = float(np.trace(cov)) / 6.0
-    # the data precision (a flat prior leaves static directions with ~zero precision)
-    lam, vec = np.linalg.eigh(cov / scale)
-    precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
     count = max(int(both.sum()), 1)
@@ -251,23 +246,15 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int,
     # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
              if prior is not None or hinge_axis is not None else np.eye(3))
-    if hinge_axis is not None:
-        g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
-        g /= np.linalg.norm(g)
-        keep = np.eye(6) - np.outer(g, g)
-        precision = keep @ precision @ keep
+    precision = _data_precision(shared.covariances[j], n_bar, hinge_axis)
     normal = precision.copy()
     rhs = precision @ mean
     prior_precision = np.zeros((6, 6))
     if prior is not None:
-        x0 = np.asarray(prior[0], dtype=float)
-        x0_b = n_bar @ x0 + rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
-        spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
-        base = prior[1] ** 2 * np.eye(3)
-        prior_precision[:3, :3] = np.linalg.inv(base + spread)
-        prior_precision[3:, 3:] = np.linalg.inv(base + n_bar @ spread @ n_bar.T)
+        offset_b = rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
+        prior_precision, point = _prior_terms(prior, anchor, n_bar, offset_b)
         normal += prior_precision
-        rhs += prior_precision @ np.concatenate([x0, x0_b])
+        rhs += prior_precision @ point
     if symmetry is not None:
         var = SYMMETRY_SIGMA_M**2 + (0.0 if anchor is None else anchor.plane)
         g = np.concatenate([symmetry[1], np.zeros(3)])
@@ -285,18 +272,58 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int,
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
     quality["signal_share"] = shared.signal_share[j]
     if prior is not None:
-        # the data's share along their weakest direction
-        lam_data, vec_data = np.linalg.eigh(precision)
-        tau = float(vec_data[:, 0] @ prior_precision @ vec_data[:, 0])
-        quality["data_weight"] = float(lam_data[0]) / (float(lam_data[0]) + tau)
-        quality["prior_sigma_m"] = float(prior[1])
-        quality["prior_shift_m"] = float(np.linalg.norm(c[:3] - mean[:3]))
-        if anchor is not None and anchor.point is not None:
-            quality["prior_anchor_sd_m"] = float(np.sqrt(np.trace(anchor.point) / 3.0))
+        quality.update(_prior_quality(precision, prior_precision, prior, anchor,
+                                      float(np.linalg.norm(c[:3] - mean[:3]))))
     fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
                      positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
                      quality=quality)
     return fitted, np.linalg.inv(normal)[:3, :3]
+
+
+def _data_precision(cov: NDArray[np.float64], n_bar: NDArray[np.float64],
+                    hinge_axis: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The data's precision (6, 6) of the centre from its covariance ``cov`` (a flat prior
+    leaves static directions with ~zero precision), none along ``hinge_axis`` (frame a;
+    ``n_bar`` carries it to frame b)."""
+    scale = float(np.trace(cov)) / 6.0
+    lam, vec = np.linalg.eigh(cov / scale)
+    precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
+    if hinge_axis is not None:
+        g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
+        g /= np.linalg.norm(g)
+        keep = np.eye(6) - np.outer(g, g)
+        precision = keep @ precision @ keep
+    return np.asarray(precision, dtype=np.float64)
+
+
+def _prior_terms(prior: tuple[NDArray[np.float64], float], anchor: Anchor | None,
+                 n_bar: NDArray[np.float64], offset_b: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The prior's precision (6, 6, block-diagonal: frame a, frame b) and point (6,):
+    ``s0² I`` widened by the anchor's covariance, the point carried to frame b by
+    ``c_b = N̄ c_a + o``."""
+    x0 = np.asarray(prior[0], dtype=float)
+    x0_b = n_bar @ x0 + offset_b
+    spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
+    base = prior[1] ** 2 * np.eye(3)
+    prior_precision = np.zeros((6, 6))
+    prior_precision[:3, :3] = np.linalg.inv(base + spread)
+    prior_precision[3:, 3:] = np.linalg.inv(base + n_bar @ spread @ n_bar.T)
+    return prior_precision, np.concatenate([x0, x0_b])
+
+
+def _prior_quality(precision: NDArray[np.float64], prior_precision: NDArray[np.float64],
+                   prior: tuple[NDArray[np.float64], float], anchor: Anchor | None,
+                   shift: float) -> dict[str, Any]:
+    """The quality figures of a prior: the data's share along their weakest direction, the
+    prior's sd, the shift it caused (metres) and its anchor's sd."""
+    lam_data, vec_data = np.linalg.eigh(precision)
+    tau = float(vec_data[:, 0] @ prior_precision @ vec_data[:, 0])
+    quality: dict[str, Any] = {"data_weight": float(lam_data[0]) / (float(lam_data[0]) + tau),
+                               "prior_sigma_m": float(prior[1]), "prior_shift_m": shift}
+    if anchor is not None and anchor.point is not None:
+        quality["prior_anchor_sd_m"] = float(np.sqrt(np.trace(anchor.point) / 3.0))
+    return quality
 
 
 def unit_rotations(quaternions: NDArray[np.float64], norms2: NDArray[np.float64]) -> list[Rotation]:
