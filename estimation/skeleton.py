@@ -277,7 +277,7 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int,
     fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
                      positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
                      quality=quality)
-    return fitted, np.linalg.inv(normal)[:3, :3]
+    return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
 
 
 def _data_precision(cov: NDArray[np.float64], n_bar: NDArray[np.float64],
