@@ -27,7 +27,12 @@ if TYPE_CHECKING:
     from .progress import Progress
     from .recording import SensorRecording
     from .results import JointOffset, SkeletonResult
-    from .skeleton import estimate_chest, estimate_root, estimate_skeleton
+    from .skeleton import (
+        estimate_chest,
+        estimate_root,
+        estimate_skeleton,
+        estimate_skeleton_from_offsets,
+    )
     from .slip import SlipFit, estimate_slip, rotation_noise_variance
     from .translation import ContactOptions, TranslationResult, estimate_translation
 
@@ -56,6 +61,7 @@ __all__ = [
     "estimate_orientations",
     "estimate_root",
     "estimate_skeleton",
+    "estimate_skeleton_from_offsets",
     "estimate_slip",
     "estimate_translation",
     "fill_gaps",
@@ -80,7 +86,8 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "progress": ("Progress",),
     "recording": ("SensorRecording",),
     "results": ("JointOffset", "SkeletonResult"),
-    "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
+    "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton",
+                 "estimate_skeleton_from_offsets"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
     "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
 })

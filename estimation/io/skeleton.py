@@ -293,7 +293,7 @@ def read_skeleton_json(path: PathLike) -> SkeletonResult:
 
 def read_skeleton_offsets(path: PathLike) -> dict[str, JointOffset]:
     """The joint offsets of a calibration: a skeleton JSON document's ``offsets``, or a
-    document holding only ``{"offsets": {...}}``; for ``estimate_skeleton(offsets=...)``.
+    document holding only ``{"offsets": {...}}``; for ``estimate_skeleton_from_offsets``.
 
     Raises
     ------
