@@ -233,7 +233,7 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
     rel = quat.relative(qa.T, qb.T, axis=0)
     if valid is not None:
         rel = np.compress(np.asarray(valid, dtype=bool), rel, axis=1)  # 6x rel[:, valid]
-    dev = quat.as_rotvec(quat._relative_matrix(quat.mean(rel.T)) @ rel, axis=0)
+    dev = quat.as_rotvec(quat.relative_matrix(quat.mean(rel.T)) @ rel, axis=0)
     n_avg = 9 if dev.shape[1] >= 9 else 1
     if n_avg > 1:
         # 9-frame moving sums of the three components at once, by pairwise sums (a cumulative
