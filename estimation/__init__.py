@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from .orientations import estimate_orientations
     from .progress import Progress
     from .recording import SensorRecording
-    from .results import JointOffset, SkeletonResult
+    from .results import JointOffset, JointQuality, SkeletonResult
     from .skeleton import (
         estimate_chest,
         estimate_root,
@@ -48,6 +48,7 @@ __all__ = [
     "InputError",
     "JointFit",
     "JointOffset",
+    "JointQuality",
     "KinematicsRecording",
     "LimbFit",
     "Progress",
@@ -85,7 +86,7 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "orientations": ("estimate_orientations",),
     "progress": ("Progress",),
     "recording": ("SensorRecording",),
-    "results": ("JointOffset", "SkeletonResult"),
+    "results": ("JointOffset", "JointQuality", "SkeletonResult"),
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton",
                  "estimate_skeleton_from_offsets"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),

@@ -22,7 +22,7 @@ from .orientations import estimate_orientations
 from .params import WEIGHT_MAX, check_fps, check_integer, check_number
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
-from .results import JointOffset, SkeletonResult
+from .results import JointOffset, JointQuality, SkeletonResult
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
 
 METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
@@ -977,7 +977,7 @@ def estimate_skeleton(
         offsets={name: located.offsets[name] for name in JOINTS},
         bone_lengths=bone_lengths,
         orientations=orientations,
-        quality={name: located.quality[name] for name in JOINTS},
+        quality={name: JointQuality.of(located.quality[name]) for name in JOINTS},
         warnings=tuple(located.warnings),
         timings={"estimate_s": elapsed},
     )
@@ -1052,7 +1052,7 @@ def estimate_skeleton_from_offsets(
         offsets={name: JointOffset(seg, vec.copy()) for name, (seg, vec) in local.items()},
         bone_lengths=bone_lengths,
         orientations=orientations,
-        quality={name: {"estimator": "given offset", "sensor": seg}
+        quality={name: JointQuality("given offset", details={"sensor": seg})
                  for name, (seg, _) in local.items()},
         warnings=tuple(warnings),
         timings={"estimate_s": _time.perf_counter() - started},

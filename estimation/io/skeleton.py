@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from ..bvh import BvhMotion, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
-from ..results import JointOffset, SkeletonResult, timings_document
+from ..results import JointOffset, JointQuality, SkeletonResult, timings_document
 from .sensors import unit_scale
 
 PathLike = str | os.PathLike[str]
@@ -239,7 +239,8 @@ def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
                       if v is not None},
         orientations={str(k): _array(v, (4,), f"orientations.{k}")
                       for k, v in data["orientations"].items()},
-        quality={str(k): dict(v) for k, v in dict(data.get("quality", {})).items()},
+        quality={str(k): JointQuality.of(dict(v))
+                 for k, v in dict(data.get("quality", {})).items()},
         warnings=tuple(str(w) for w in data.get("warnings", [])),
         timings={str(k): float(v) for k, v in dict(data.get("timings", {})).items()
                  if v is not None},

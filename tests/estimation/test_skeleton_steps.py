@@ -3,10 +3,13 @@ shared slip model's role) and the body model every topology table derives from."
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from estimation.errors import EstimationError, InputError
+from estimation.io.skeleton import skeleton_from_dict, skeleton_to_dict
 from estimation.model import (
     BODY,
     BONES,
@@ -18,6 +21,7 @@ from estimation.model import (
     SEGMENTS,
 )
 from estimation.recording import SensorRecording
+from estimation.results import JointQuality
 from estimation.simulate.sensors import SimulationTruth
 from estimation.skeleton import (
     JointPlan,
@@ -138,3 +142,31 @@ def test_locate_joint_matches_the_estimate(sim15: Sim) -> None:
                                   estimate_skeleton(rec, method="llsf").joints["l_hip"])
     error = np.linalg.norm(found.fit.positions - truth.joints["l_hip"], axis=1).mean()
     assert error < 0.02
+
+
+def test_joint_quality_is_typed_and_keeps_the_json_keys(sim15: Sim) -> None:
+    rec, _ = sim15
+    result = estimate_skeleton(rec, method="llsf")
+    knee = result.quality["l_knee"]
+    assert isinstance(knee, JointQuality)
+    assert knee.estimator == "llsf"
+    assert knee.reliability == "data"
+    assert knee.hinge is True
+    assert knee.rms_residual_m == knee["rms_residual_m"] > 0
+    assert "hinge_rule" in knee  # a hinge reports its rule, null when none applied
+    figures = {"estimator": "llsf", "hinge": True, "hinge_rule": None, "axis": [1.0, 0, 0],
+               "data_sd_m": 0.01}
+    typed = JointQuality.of(figures)
+    assert typed.data_sd_m == 0.01
+    assert typed.details == {"hinge_rule": None, "axis": [1.0, 0, 0]}
+    assert dict(typed) == figures
+    assert len(typed) == len(figures)
+    assert typed.get("prior_weight") is None
+    with pytest.raises(KeyError):
+        typed["prior_weight"]
+    # through the JSON writer and reader: the same keys and values per joint
+    back = skeleton_from_dict(json.loads(json.dumps(skeleton_to_dict(result))))
+    for name, quality in result.quality.items():
+        assert isinstance(back.quality[name], JointQuality)
+        assert set(back.quality[name]) == set(quality), name
+        assert back.quality[name].estimator == quality.estimator
