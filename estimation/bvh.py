@@ -519,15 +519,18 @@ def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
         helper = np.where(np.abs(a[opposite, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
         q[opposite] = np.concatenate([np.cross(a[opposite], helper),
                                       np.zeros((int(opposite.sum()), 1))], axis=1)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    unit: NDArray[np.float64] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return unit
 
 
 def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Hamilton products p·q of scalar-last quaternions (N, 4)."""
     pv, pw = p[:, :3], p[:, 3:]
     qv, qw = q[:, :3], q[:, 3:]
-    return np.concatenate([pw * qv + qw * pv + np.cross(pv, qv),
-                           pw * qw - np.einsum("ij,ij->i", pv, qv)[:, None]], axis=1)
+    out: NDArray[np.float64] = np.concatenate(
+        [pw * qv + qw * pv + np.cross(pv, qv),
+         pw * qw - np.einsum("ij,ij->i", pv, qv)[:, None]], axis=1)
+    return out
 
 
 def bone_waypoints(start: NDArray[np.float64], end: NDArray[np.float64], *,
