@@ -403,14 +403,17 @@ def euler_order_for(rotation: Rotation) -> str:
     return next(o for o, w in zip(EULER_ORDERS, worst, strict=True) if w <= best + np.radians(0.5))
 
 
-def euler_channels(rotations: list[Rotation]) -> tuple[list[tuple[str, ...]],
-                                                       NDArray[np.float64]]:
+def euler_channels(rotations: list[Rotation], order: str | None = None
+                   ) -> tuple[list[tuple[str, ...]], NDArray[np.float64]]:
     """BVH rotation channels of several nodes' local rotations.
 
     Parameters
     ----------
     rotations : list of Rotation
         Local rotations (parent node frame ← node frame) of N nodes, each of length F.
+    order : str, optional
+        One intrinsic order for every node (e.g. ``"ZXY"``); by default each node gets
+        :func:`euler_order_for`.
 
     Returns
     -------
@@ -420,7 +423,7 @@ def euler_channels(rotations: list[Rotation]) -> tuple[list[tuple[str, ...]],
     values : ndarray, shape (F, N, 3)
         Degrees in channel order, continuous over frames (:func:`continuous_euler`).
     """
-    orders = [euler_order_for(rot) for rot in rotations]
+    orders = [euler_order_for(rot) if order is None else order for rot in rotations]
     raw = np.stack([rot.as_euler(order, degrees=True)
                     for rot, order in zip(rotations, orders, strict=True)], axis=1)
     channels = [tuple(f"{axis}rotation" for axis in order) for order in orders]

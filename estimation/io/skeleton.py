@@ -326,7 +326,8 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
     return p
 
 
-def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
+def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
+                    euler_order: str | None = None) -> BvhMotion:
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
@@ -348,6 +349,9 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
         segments, including ``spine``.
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
+    euler_order : str, optional
+        One intrinsic rotation order for every node (``"ZXY"`` was the only one before
+        per-node orders) for tools that need a single order; by default per node.
 
     Returns
     -------
@@ -394,7 +398,7 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
 
     visit("root", None)
     turning = [name for name in names if name in local]
-    rot_channels, angles = euler_channels([local[name] for name in turning])
+    rot_channels, angles = euler_channels([local[name] for name in turning], euler_order)
     by_node = dict(zip(turning, rot_channels, strict=True))
     channels = tuple(by_node.get(name, ()) for name in names)
     channels = ((*ROOT_POSITION_CHANNELS, *channels[0]), *channels[1:])
@@ -405,7 +409,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
 
 
 def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
-                       units: str = "cm", precision: int = 6) -> None:
+                       units: str = "cm", precision: int = 6,
+                       euler_order: str | None = None) -> None:
     """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
 
     Parameters
@@ -416,5 +421,8 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
         Length unit of the file (centimetres by default, as most BVH tools expect).
     precision : int
         Decimal places of offsets and channel values.
+    euler_order : str, optional
+        One rotation order for every node instead of per-node orders.
     """
-    write_bvh(skeleton_to_bvh(result, units=units), path, precision=precision)
+    write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order), path,
+              precision=precision)
