@@ -15,7 +15,7 @@ skeleton with ``method="auto"``, write its BVH, read it back and measure:
 compare. Usage::
 
     .venv/bin/python benchmarks/bvh_agreement.py [--data ../shared/data] [--only salsa]
-        [--max-frames 600] [--order ZXY]
+        [--max-frames 1500] [--order ZXY]
 """
 
 from __future__ import annotations
@@ -32,7 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from skeleton_accuracy import PROTOCOL_NOISE, clips, simulation_noise, thinned  # noqa: E402
+from skeleton_accuracy import (  # noqa: E402
+    MAX_FRAMES,
+    PROTOCOL_NOISE,
+    clips,
+    simulation_noise,
+    thinned,
+)
 
 from estimation.bvh import BvhMotion, forward_kinematics, read_bvh  # noqa: E402
 from estimation.io.skeleton import write_skeleton_bvh  # noqa: E402
@@ -75,7 +81,10 @@ def largest_jump(motion: BvhMotion) -> tuple[float, float, str]:
 def measure(result: SkeletonResult, order: str | None) -> dict[str, float | str]:
     """The agreement numbers of one result (see the module docstring)."""
     buf = io.StringIO()
-    write_skeleton_bvh(result, buf, euler_order=order)
+    if order is None:
+        write_skeleton_bvh(result, buf)
+    else:
+        write_skeleton_bvh(result, buf, euler_order=order)
     motion = read_bvh(io.StringIO(buf.getvalue()))
     truth = np.stack([result.joints[j] for j in JOINTS], axis=1)
     key = np.linalg.norm(joint_positions_m(motion) - truth, axis=-1) * 1000
@@ -92,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--only", default="", help="substring filter on clip names")
-    parser.add_argument("--max-frames", type=int, default=600)
+    parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--order", default=None,
                         help="one Euler order for every node (e.g. ZXY) instead of per node")
