@@ -412,12 +412,14 @@ def euler_channels(rotations: list[Rotation], order: str | None = None
                    ) -> tuple[list[tuple[str, ...]], NDArray[np.float64]]:
     """BVH rotation channels of several nodes' local rotations, an Euler order per node.
 
-    Each node gets the order of :data:`EULER_ORDERS` whose channels, interpolated linearly
-    between frames, stray least from the true motion (least sum of squared
-    :func:`half_frame_error`); the first listed wins within 0.1 degree² per frame. That puts
-    a knee's or elbow's flexion on an outer axis, never on the middle one, whose ±90° is
-    gimbal lock: there the outer channels swing by up to 180° while the joint turns a few
-    degrees, and players interpolating them go astray.
+    Each node gets the order of :data:`EULER_ORDERS` whose channels follow the motion best:
+    the least sum over frames of the squared :func:`half_frame_error` (channels
+    interpolated linearly, as players do, against the true halfway rotation) plus the
+    squared swing of a channel beyond the node's own turn between the frames (the first
+    listed wins ties within 0.1 %). That puts a knee's or elbow's flexion on an outer axis,
+    never on the middle one, whose ±90° is gimbal lock: there the outer channels swing by
+    up to 180° while the joint turns a few degrees, and players interpolating them go
+    astray.
 
     Parameters
     ----------
@@ -442,13 +444,22 @@ def euler_channels(rotations: list[Rotation], order: str | None = None
     angles = continuous_euler(raw)
     chosen = []
     for n, rot in enumerate(rotations):
-        cost = np.array([float(np.sum(half_frame_error(rot, angles[:, n, k], o) ** 2))
-                         for k, o in enumerate(orders)])
-        slack = 0.1 * max(len(rot) - 1, 1)
-        chosen.append(int(np.flatnonzero(cost <= cost.min() + slack)[0]))
+        cost = np.array([_order_cost(rot, angles[:, n, k], o) for k, o in enumerate(orders)])
+        chosen.append(int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0]))
     channels = [tuple(f"{axis}rotation" for axis in orders[k]) for k in chosen]
     values = np.stack([angles[:, n, k] for n, k in enumerate(chosen)], axis=1)
     return channels, values
+
+
+def _order_cost(rotation: Rotation, angles: NDArray[np.float64], order: str) -> float:
+    """Sum over frames of the squared half-frame error and the squared channel swing beyond
+    the node's own turn (degrees²): both grow near gimbal lock."""
+    if len(angles) < 2:
+        return 0.0
+    turn = np.degrees((rotation[:-1].inv() * rotation[1:]).magnitude())
+    swing = np.abs(np.diff(angles, axis=0)).max(axis=1) - turn
+    half = half_frame_error(rotation, angles, order)
+    return float(np.sum(half ** 2) + np.sum(np.maximum(swing, 0.0) ** 2))
 
 
 def euler_order_for(rotation: Rotation) -> str:
