@@ -337,10 +337,11 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     knee: shank, ankle: foot). In the rest pose every segment frame equals the world frame;
     a node's OFFSET is the frame mean of ``R_seg(t)ᵀ (child(t) − joint(t))``, in the parent
     node's segment frame. Rotation channels hold ``R_parent(t)⁻¹ R_seg(t)`` as intrinsic
-    Euler angles in degrees, in a per-node order chosen so that the middle angle stays
-    farthest from gimbal lock (``estimation.bvh.euler_order_for``: a knee or elbow flexing
-    about x gets x first or last, never in the middle), unwrapped over time; the root's
-    position channels hold the ``root`` joint and its OFFSET is zero.
+    Euler angles in degrees, in an order per node that keeps its channels off gimbal lock
+    (``estimation.bvh.euler_channels``: a knee or elbow flexing about x gets x first or
+    last, never in the middle), unwrapped over time; the root's position channels hold the
+    ``root`` joint and its OFFSET is zero, so readers that add position channels to the
+    OFFSET (three.js) and readers that replace it (Blender) agree.
 
     Parameters
     ----------
@@ -361,7 +362,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     Raises
     ------
     InputError
-        If a joint or orientation the hierarchy needs is missing or not finite.
+        If a joint or orientation the hierarchy needs is missing or not finite, or
+        ``euler_order`` is not one of ``estimation.bvh.EULER_ORDERS``.
     """
     per_m = 1.0 / unit_scale(units)
     rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}

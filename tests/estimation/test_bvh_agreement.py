@@ -24,6 +24,7 @@ from estimation.bvh import (
     read_bvh,
     write_bvh,
 )
+from estimation.errors import InputError
 from estimation.io.kinematics import read_kinematics, write_kinematics_csv, write_translation
 from estimation.io.skeleton import BVH_NODES, skeleton_to_bvh, write_skeleton_bvh
 from estimation.model import JOINTS, SEGMENTS
@@ -248,3 +249,13 @@ def test_folding_position_channels_keeps_positions_and_drops_constant_channels()
     np.testing.assert_array_equal(folded.offsets[1], 0.0)
     assert folded.channels[2] == ("Zrotation", "Xrotation", "Yrotation")
     np.testing.assert_allclose(folded.offsets[2], motion.offsets[2])
+
+
+def test_a_single_euler_order_can_be_asked_for_and_a_bad_one_is_refused() -> None:
+    result = rigid_result(n_frames=10, seed=1)
+    motion = skeleton_to_bvh(result, euler_order="XZY")
+    assert {c[3:] if j == 0 else c for j, c in enumerate(motion.channels) if c} == {
+        ("Xrotation", "Zrotation", "Yrotation")}
+    with pytest.raises(InputError, match="Euler order must be one of") as err:
+        skeleton_to_bvh(result, euler_order="XYX")
+    assert err.value.field == "euler_order"
