@@ -28,9 +28,11 @@ from estimation.errors import InputError
 from estimation.io.kinematics import read_kinematics, write_kinematics_csv, write_translation
 from estimation.io.skeleton import BVH_NODES, skeleton_to_bvh, write_skeleton_bvh
 from estimation.model import JOINTS, SEGMENTS
+from estimation.recording import SensorRecording
 from estimation.results import SkeletonResult
 from estimation.simulate.inertial import simulate_walker
-from estimation.simulate.sensors import example_motion
+from estimation.simulate.sensors import SimulationTruth, example_motion
+from estimation.skeleton import estimate_skeleton
 from estimation.translation import estimate_translation
 from tests.estimation.bvh_readers import bvhio_positions, install_three, threejs_positions
 from tests.estimation.test_io_skeleton import REST, rigid_result
@@ -259,3 +261,10 @@ def test_a_single_euler_order_can_be_asked_for_and_a_bad_one_is_refused() -> Non
     with pytest.raises(InputError, match="Euler order must be one of") as err:
         skeleton_to_bvh(result, euler_order="XYX")
     assert err.value.field == "euler_order"
+
+
+def test_half_frames_of_an_estimated_skeleton_stay_within_10_mm(
+        sim15: tuple[SensorRecording, SimulationTruth]) -> None:
+    rec, _ = sim15
+    result = estimate_skeleton(rec, method="auto")
+    assert half_frame_error_mm(result) < 10.0
