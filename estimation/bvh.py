@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import os
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
@@ -57,8 +58,10 @@ class BvhMotion:
     values: NDArray[np.float64]
     notes: tuple[str, ...] = ()
     _starts: tuple[int, ...] = field(init=False, repr=False)
+    _with_children: frozenset[int] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "_with_children", frozenset(self.parents))
         starts, total = [], 0
         for ch in self.channels:
             starts.append(total)
@@ -89,7 +92,7 @@ class BvhMotion:
     def is_end_site(self, node: int) -> bool:
         """Whether ``node`` is an End Site (``<parent>_end``: no channels, no children)."""
         parent = self.parents[node]
-        return (parent >= 0 and not self.channels[node] and node not in self.parents
+        return (parent >= 0 and not self.channels[node] and node not in self._with_children
                 and self.names[node].startswith(f"{self.names[parent]}_end"))
 
     def joints(self) -> tuple[str, ...]:
@@ -166,22 +169,21 @@ MAX_CHANNELS: Final[int] = 6
 
 
 class _Tokens:
-    """Whitespace-separated tokens of the hierarchy, read one line at a time so that a huge
-    motion section is never tokenised."""
+    """Whitespace-separated tokens of the hierarchy, read one line at a time from an
+    iterator, so that nothing beyond the point of failure is split or kept."""
 
-    def __init__(self, lines: list[str]) -> None:
+    def __init__(self, lines: Iterator[str]) -> None:
         self.lines = lines
-        self.next_line = 0          # index of the next line to split
         self.buffer: list[str] = []  # tokens left on the current line
         self.line = 0               # 1-based number of the current line
 
     def _fill(self) -> bool:
         while not self.buffer:
-            if self.next_line >= len(self.lines):
+            text = next(self.lines, None)
+            if text is None:
                 return False
-            self.buffer = self.lines[self.next_line].split()[::-1]
-            self.next_line += 1
-            self.line = self.next_line
+            self.line += 1
+            self.buffer = text.split()[::-1]
         return True
 
     def peek(self) -> str | None:
@@ -193,7 +195,7 @@ class _Tokens:
         (compared without case)."""
         if not self._fill():
             wanted = f"; expected {expected or what}" if expected or what else ""
-            raise InputError(f"unexpected end of BVH file{wanted}", line=len(self.lines))
+            raise InputError(f"unexpected end of BVH file{wanted}", line=self.line)
         tok = self.buffer.pop()
         if expected is not None and tok.upper() != expected.upper():
             raise InputError(f"expected {expected!r}, found {tok!r}", line=self.line)
@@ -251,7 +253,7 @@ def read_bvh(source: str | os.PathLike[str] | io.TextIOBase) -> BvhMotion:
         text = source.read()
     else:
         text = Path(source).read_text(encoding="utf-8", errors="replace")
-    lines = text.removeprefix("\ufeff").splitlines()
+    lines = iter(io.StringIO(text.removeprefix("\ufeff"), newline=None))
     tokens = _Tokens(lines)
     tokens.take("HIERARCHY")
     tokens.take("ROOT")
@@ -350,8 +352,8 @@ def _close_nodes(tokens: _Tokens, stack: list[int]) -> str:
 
 
 def _read_motion_header(tokens: _Tokens) -> tuple[int, float, int]:
-    """``Frames: N`` and ``Frame Time: dt``; returns N, dt and the index of the first line
-    after the header."""
+    """``Frames: N`` and ``Frame Time: dt``; returns N, dt and the number of the header's
+    last line."""
     tok, line = tokens.take(what="Frames:")
     if tok.upper() == "FRAMES:":
         count_tok, line = tokens.take(what="a frame count")
@@ -369,15 +371,16 @@ def _read_motion_header(tokens: _Tokens) -> tuple[int, float, int]:
     if tokens.rest_of_line():
         raise InputError("motion rows must start on the line after 'Frame Time:'",
                          line=tokens.line)
-    return int(count_tok), frame_time, tokens.next_line
+    return int(count_tok), frame_time, tokens.line
 
 
-def _read_motion_rows(lines: list[str], start: int, n_frames: int, n_channels: int
+def _read_motion_rows(lines: Iterator[str], start: int, n_frames: int, n_channels: int
                       ) -> tuple[NDArray[np.float64], tuple[str, ...]]:
-    """Channel values (F, C) of the non-blank lines from ``start`` on (0-based)."""
+    """Channel values (F, C) of the remaining non-blank lines, the first being line
+    ``start + 1``."""
     if n_channels == 0:
         raise InputError("the hierarchy declares no channels", line=start)
-    numbered = [(n, ln) for n, ln in enumerate(lines[start:], start + 1) if ln.strip()]
+    numbered = [(n, ln) for n, ln in enumerate(lines, start + 1) if ln.strip()]
     notes: tuple[str, ...] = ()
     if len(numbered) < n_frames:
         notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
@@ -387,7 +390,7 @@ def _read_motion_rows(lines: list[str], start: int, n_frames: int, n_channels: i
                  f"read the first {n_frames}",)
         numbered = numbered[:n_frames]
     if not numbered:
-        raise InputError("no motion rows after 'Frame Time:'", line=len(lines))
+        raise InputError("no motion rows after 'Frame Time:'", line=start)
     values = _parse_rows([ln for _, ln in numbered], n_channels)
     if values is None:
         _raise_bad_row(numbered, n_channels)

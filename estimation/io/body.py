@@ -54,6 +54,10 @@ Matching is by words, not by these exact strings: any name with a side word (``L
 word (``Toe``, ``Toes``, ``ToeBase``, ``Ball``) a toe; a namespace (``mixamorig:``) is
 ignored."""
 
+MAX_CANDIDATES: Final[int] = 16
+"""Most foot-named joints per side, or low leaves, examined (bounds the work on a
+pathological hierarchy)."""
+
 _WORDS = re.compile(r"[A-Z]+(?=[A-Z][a-z])|[A-Z]?[a-z]+|[A-Z]+|\d+")
 _FOOT_WORDS = frozenset({"foot", "ankle"})
 _TOE_WORDS = frozenset({"toe", "toes", "toebase", "ball"})
@@ -168,6 +172,8 @@ def _by_name(motion: BvhMotion) -> dict[str, int] | None:
             found[side].append(j)
     chosen = {}
     for side, nodes in found.items():
+        if len(nodes) > MAX_CANDIDATES:
+            return None
         tops = [j for j in nodes if not set(_ancestors(motion.parents, j)) & set(nodes)]
         if len(tops) != 1:
             return None
@@ -181,13 +187,16 @@ def _by_name(motion: BvhMotion) -> dict[str, int] | None:
 def _toe(motion: BvhMotion, foot: int) -> int | None:
     """The toe of ``foot``: the nearest descendant named like a toe, else the child with the
     longest offset (a toe joint or the foot's end site)."""
-    queue = [k for k, p in enumerate(motion.parents) if p == foot]
-    kids = list(queue)
+    children: dict[int, list[int]] = {}
+    for k, p in enumerate(motion.parents):
+        children.setdefault(p, []).append(k)
+    kids = children.get(foot, [])
+    queue = list(kids)
     while queue:
         node = queue.pop(0)
         if classify(motion.names[node])[1] == "toe" and not motion.is_end_site(node):
             return node
-        queue += [k for k, p in enumerate(motion.parents) if p == node]
+        queue += children.get(node, [])
     if not kids:
         return None
     return max(kids, key=lambda k: float(np.linalg.norm(motion.offsets[k])))
@@ -244,7 +253,7 @@ def _topology_in(motion: BvhMotion, pos: NDArray[np.float64]
     first = leaves[0]
     up_first = set(_ancestors(motion.parents, first))
     chains = []
-    for other in leaves[1:]:
+    for other in leaves[1:MAX_CANDIDATES]:
         up_other = _ancestors(motion.parents, other)
         split = next((a for a in up_other if a in up_first), None)
         if split is None:
