@@ -124,7 +124,7 @@ def test_missing_foot_lists_only_real_joints(corpus: Path, acc: Path) -> None:
     parents = tuple(p if p < 0 or flat.is_end_site(j) else 0 for j, p in enumerate(flat.parents))
     flat = BvhMotion(flat.names, parents, flat.offsets, flat.channels, flat.frame_time,
                      flat.values)
-    with pytest.raises(InputError, match="cannot find the feet.*pass left_foot") as info:
+    with pytest.raises(InputError, match=r"cannot find the feet.*pass left_foot") as info:
         read_kinematics(write(corpus / "flat.bvh", flat), accelerations=acc)
     assert "_end" not in info.value.detail
 
@@ -163,7 +163,7 @@ def test_an_implausible_unit_is_refused_naming_the_likely_one(
 
 def test_no_unit_fits_a_person(corpus: Path, acc: Path) -> None:
     bvh = write(corpus / "giant.bvh", body_motion(unit_m=1e-5))
-    with pytest.raises(InputError, match="cannot infer the length unit.*pass units"):
+    with pytest.raises(InputError, match=r"cannot infer the length unit.*pass units"):
         read_kinematics(bvh, accelerations=acc)
     with pytest.raises(InputError, match="unknown length unit 'furlong'"):
         read_kinematics(bvh, accelerations=acc, units="furlong")
