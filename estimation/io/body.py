@@ -61,18 +61,21 @@ pathological hierarchy)."""
 _WORDS = re.compile(r"[A-Z]+(?=[A-Z][a-z])|[A-Z]?[a-z]+|[A-Z]+|\d+")
 _FOOT_WORDS = frozenset({"foot", "ankle"})
 _TOE_WORDS = frozenset({"toe", "toes", "toebase", "ball"})
+_ROLE_WORDS = _FOOT_WORDS | _TOE_WORDS
 _SIDES = {"left": "left", "l": "left", "right": "right", "r": "right"}
 
 
 def name_words(name: str) -> list[str]:
     """Lower-case words of a joint name: ``mixamorig:LeftToeBase`` → left, toe, base;
-    ``Bip01 L Foot`` → bip, 01, l, foot; ``lFoot`` → l, foot; ``leftfoot`` → left, foot."""
+    ``Bip01 L Foot`` → bip, 01, l, foot; ``lFoot`` → l, foot; ``leftfoot`` → left, foot;
+    ``rankle`` → r, ankle."""
     base = re.split(r"[:|]", name)[-1]
     words: list[str] = []
     for word in (w.lower() for w in _WORDS.findall(base)):
-        for side in ("left", "right"):
-            if word.startswith(side) and len(word) > len(side):
-                words += [side, word[len(side):]]
+        for side in ("left", "right", "l", "r"):
+            rest = word[len(side):]
+            if word.startswith(side) and ((len(side) > 1 and rest) or rest in _ROLE_WORDS):
+                words += [side, rest]
                 break
         else:
             words.append(word)

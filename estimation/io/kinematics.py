@@ -733,19 +733,24 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
     joints: list[str] = []
     frames = 0
     fps: float | None = None
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        for line in handle:
+    with open(path, encoding="utf-8-sig", errors="replace") as handle:
+        for lineno, line in enumerate(handle, 1):
             parts = line.split()
             if not parts:
                 continue
             key = parts[0].upper()
-            if key in ("ROOT", "JOINT") and len(parts) > 1:
-                joints.append(parts[1])
-            elif key == "FRAMES:" and len(parts) > 1:
-                frames = int(parts[1])
-            elif key == "FRAME" and len(parts) > 2:
-                fps = 1.0 / float(parts[2])
-                break
+            try:
+                if key in ("ROOT", "JOINT") and len(parts) > 1:
+                    joints.append(" ".join(p for p in parts[1:] if p != "{"))
+                elif key == "FRAMES:" and len(parts) > 1:
+                    frames = int(parts[1])
+                elif key == "FRAME" and len(parts) > 2:
+                    step = float(parts[2])
+                    fps = 1.0 / step if step > 0 and math.isfinite(step) else None
+                    break
+            except ValueError:
+                raise InputError(f"bad {parts[0]} line: {line.strip()[:60]!r}",
+                                 line=lineno) from None
     return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
 
 

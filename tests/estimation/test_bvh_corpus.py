@@ -13,7 +13,7 @@ from estimation.bvh import BvhMotion
 from estimation.cli import main
 from estimation.errors import InputError
 from estimation.io.body import LENGTH_UNITS, classify, find_bvh_feet
-from estimation.io.kinematics import read_kinematics, translation_to_dict
+from estimation.io.kinematics import read_kinematics, sniff_kinematics, translation_to_dict
 from estimation.translation import estimate_translation
 from tests.estimation.bvh_corpus import (
     CONVENTIONS,
@@ -232,7 +232,9 @@ def test_json_and_cli_report_the_feet_and_unit(corpus: Path, acc: Path, tmp_path
     ("mixamorig:LeftToeBase", ("left", "toe")), ("Foot_R", ("right", "foot")),
     ("lFoot", ("left", "foot")), ("rToe", ("right", "toe")), ("Bip01 L Toe0", ("left", "toe")),
     ("leftfoot", ("left", "foot")), ("LHipJoint", ("left", None)), ("lhand", (None, None)),
-    ("Toes_L", ("left", "toe")), ("Hips", (None, None)),
+    ("Toes_L", ("left", "toe")), ("Hips", (None, None)), ("rfoot", ("right", "foot")),
+    ("foot.L", ("left", "foot")), ("DEF-toe.R", ("right", "toe")), ("reye", (None, None)),
+    ("Character1_LeftFoot", ("left", "foot")), ("ankle_l", ("left", "foot")),
 ])
 def test_name_classification(name: str, expected: tuple[str | None, str | None]) -> None:
     assert classify(name) == expected
@@ -246,3 +248,17 @@ def test_feet_search_on_a_pathological_hierarchy_is_bounded() -> None:
                        np.zeros((2, n)))
     with pytest.raises(InputError, match="cannot find the feet"):
         find_bvh_feet(motion)
+
+
+def test_sniff_reads_quirky_headers(corpus: Path) -> None:
+    bvh = write(corpus / "sniff.bvh", body_motion(CONVENTIONS["3ds-max-biped"]), bom=True,
+                newline="\r\n", frames=10**9)
+    info = sniff_kinematics(bvh)
+    assert info["format"] == "bvh"
+    assert "Bip01 L Foot" in info["joints"]
+    assert info["frames"] == 10**9
+    bvh.write_text(bvh.read_text().replace("Frame Time:", "Frame Time: 0 #"))
+    assert sniff_kinematics(bvh)["fps"] is None
+    bvh.write_text(bvh.read_text().replace(f"Frames:  {10**9}", "Frames: lots"))
+    with pytest.raises(InputError, match="bad Frames: line"):
+        sniff_kinematics(bvh)
