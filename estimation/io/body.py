@@ -142,13 +142,14 @@ def _feet_not_found(joints: Sequence[str], why: str) -> InputError:
                       field="left_foot")
 
 
-def check_feet(left: str | None, right: str | None, joints: Sequence[str], what: str
-               ) -> None:
-    """InputError naming the given foot that is not among ``joints`` (listing them)."""
+def check_feet(left: str | None, right: str | None, joints: Sequence[str], what: str,
+               hint: str = "") -> None:
+    """InputError naming the given foot that is not among ``joints`` (listing the real
+    ones, end sites left out), with ``hint`` before the list."""
     for foot, key in ((left, "left_foot"), (right, "right_foot")):
         if foot is not None and foot not in joints:
             real = [j for j in joints if not is_end_site_name(j)]
-            raise InputError(f"foot joint {foot!r} not found in the {what}; joints: "
+            raise InputError(f"foot joint {foot!r} not found in the {what}{hint}; joints: "
                              f"{', '.join(real)}", field=key)
 
 
@@ -329,7 +330,15 @@ def find_bvh_feet(motion: BvhMotion, left: str | None = None, right: str | None 
         A given foot not in the hierarchy, or no feet found (listing the real joints).
     """
     joints = motion.joints()
-    check_feet(left, right, motion.names, "BVH")
+    if any(f is not None and f not in motion.names for f in (left, right)):
+        hint = ""
+        try:
+            auto = find_bvh_feet(motion)
+            hint = (f"; the feet found without flags are {auto.left} and {auto.right} "
+                    "(omit left_foot/right_foot to use them)")
+        except InputError:
+            pass
+        check_feet(left, right, joints, "BVH", hint)
     found = _by_name(motion)
     how = "names"
     nexts: dict[str, int | None] = {}

@@ -104,6 +104,15 @@ def test_accelerometers_named_by_the_suit_not_the_joint(corpus: Path, acc: Path,
     np.testing.assert_allclose(estimate_translation(rec).root, canonical[True], atol=1e-6)
 
 
+def test_a_wrong_flag_names_the_feet_found(corpus: Path, acc: Path) -> None:
+    """The old default (LeftFoot) on an Xsens BVH says which feet it has."""
+    bvh = write(corpus / "xsens-flag.bvh", body_motion(CONVENTIONS["xsens-mvn"]))
+    with pytest.raises(InputError, match="the feet found without flags are LeftAnkle and "
+                                         "RightAnkle") as info:
+        read_kinematics(bvh, accelerations=acc, left_foot="LeftFoot", right_foot="RightFoot")
+    assert info.value.field == "left_foot"
+
+
 def test_flags_override_the_feet_found(corpus: Path, acc: Path) -> None:
     bvh = write(corpus / "override.bvh", body_motion())
     rec = read_kinematics(bvh, accelerations=acc, left_foot="LeftToeBase",
