@@ -38,6 +38,7 @@ from .body import (
     classify,
     find_bvh_feet,
     find_column_feet,
+    is_end_site_name,
     leg_length,
     match_sensor,
     parse_length_unit,
@@ -147,7 +148,7 @@ class KinematicsRecording:
         for foot in (self.left_foot, self.right_foot):
             if foot not in self.joints:
                 raise InputError(f"foot joint {foot!r} not found; joints: "
-                                 f"{', '.join(self.joints)}", field=foot)
+                                 f"{', '.join(self.real_joints())}", field=foot)
             acc = self.accelerations.get(foot)
             if acc is None or acc.shape != (pos.shape[0], 3):
                 raise InputError(f"no (F, 3) accelerations for foot {foot!r}", sensor=foot)
@@ -164,8 +165,12 @@ class KinematicsRecording:
         try:
             return self.joints.index(joint)
         except ValueError:
-            raise InputError(f"joint {joint!r} not found; joints: {', '.join(self.joints)}",
-                             field=joint) from None
+            raise InputError(f"joint {joint!r} not found; joints: "
+                             f"{', '.join(self.real_joints())}", field=joint) from None
+
+    def real_joints(self) -> tuple[str, ...]:
+        """Joint names without end sites (``<joint>_end``, ``EndSite4``), for messages."""
+        return tuple(j for j in self.joints if not is_end_site_name(j))
 
 
 # --------------------------------------------------------------------------- helpers

@@ -127,6 +127,10 @@ def test_missing_foot_lists_only_real_joints(corpus: Path, acc: Path) -> None:
         read_kinematics(bvh, accelerations=acc, left_foot="LFoot")
     assert "_end" not in info.value.detail
     assert "LeftToeBase" in info.value.detail
+    rec = read_kinematics(bvh, accelerations=acc)
+    with pytest.raises(InputError, match="joint 'LFoot' not found") as info:
+        estimate_translation(rec, left_foot="LFoot")
+    assert "_end" not in info.value.detail
     names = anonymous()
     flat = body_motion(names)
     # no names and no legs: every joint a child of the root
