@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 from numpy.typing import NDArray
 
-from ..bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+from ..bvh import MAX_NODES, BvhMotion, forward_kinematics, read_bvh, write_bvh
 from ..errors import InputError
 from .body import (
     Feet,
@@ -747,6 +747,9 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
             try:
                 if key in ("ROOT", "JOINT") and len(parts) > 1:
                     joints.append(" ".join(p for p in parts[1:] if p != "{"))
+                    if len(joints) > MAX_NODES:
+                        raise InputError(f"more than {MAX_NODES} joints in the hierarchy",
+                                         line=lineno)
                 elif key == "FRAMES:" and len(parts) > 1:
                     frames = int(parts[1])
                 elif key == "FRAME" and len(parts) > 2:

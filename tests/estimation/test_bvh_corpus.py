@@ -275,3 +275,6 @@ def test_sniff_reads_quirky_headers(corpus: Path) -> None:
     bvh.write_text(bvh.read_text().replace(f"Frames:  {10**9}", "Frames: lots"))
     with pytest.raises(InputError, match="bad Frames: line"):
         sniff_kinematics(bvh)
+    bvh.write_text("HIERARCHY\nROOT r\n{\n" + "JOINT j\n{\n" * 20_000)
+    with pytest.raises(InputError, match="more than 10000 joints"):
+        sniff_kinematics(bvh)
