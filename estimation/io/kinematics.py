@@ -747,9 +747,6 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
             try:
                 if key in ("ROOT", "JOINT") and len(parts) > 1:
                     joints.append(" ".join(p for p in parts[1:] if p != "{"))
-                    if len(joints) > MAX_NODES:
-                        raise InputError(f"more than {MAX_NODES} joints in the hierarchy",
-                                         line=lineno)
                 elif key == "FRAMES:" and len(parts) > 1:
                     frames = int(parts[1])
                 elif key == "FRAME" and len(parts) > 2:
@@ -759,6 +756,8 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
             except ValueError:
                 raise InputError(f"bad {parts[0]} line: {line.strip()[:60]!r}",
                                  line=lineno) from None
+            if len(joints) > MAX_NODES:
+                raise InputError(f"more than {MAX_NODES} joints in the hierarchy", line=lineno)
     return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
 
 
