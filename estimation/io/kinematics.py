@@ -395,16 +395,7 @@ def read_kinematics_csv(
         raise InputError("no Time column", field="Time", line=1)
     time = table[:, col[time_key]].copy()
     fps = _fps_from_time(time)
-    sensors = tuple(h[:-3] for h in header if h.endswith(".ax"))
-    raw: dict[str, NDArray[np.float64]] = {}
-    for foot in (feet.left, feet.right):
-        keys = [f"{foot}.a{a}" for a in "xyz"]
-        missing = [k for k in keys if k not in col]
-        if missing:
-            raise InputError(f"no acceleration columns {', '.join(missing)} for foot {foot!r}; "
-                             f"sensors with accelerations: {', '.join(sensors) or 'none'}",
-                             field=missing[0], sensor=foot)
-        raw[foot] = np.stack([table[:, col[k]] for k in keys], axis=-1)
+    raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
     unit, note = _resolve_acceleration_units(
         raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name)
     acc_scale, frame = ACCELERATION_UNITS[unit]
@@ -412,9 +403,43 @@ def read_kinematics_csv(
         acc_scale = scale * fps * fps
     accelerations = {f: a * acc_scale for f, a in raw.items()}
     notes = [feet.note(), unit_note, note]
+    toes, contacts = _csv_toes_and_contacts(header, table, joints, positions,
+                                            (feet.left, feet.right), notes)
+    return KinematicsRecording(
+        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
+        acceleration_frame=frame, left_foot=feet.left, right_foot=feet.right, toes=toes,
+        contacts=contacts, source_format="kinematics-csv", length_scale=scale,
+        columns=tuple(header), table=table, root=root, source_path=str(path),
+        notes=tuple(notes))
+
+
+def _csv_foot_accelerations(header: list[str], table: NDArray[np.float64],
+                            feet: tuple[str, str]) -> dict[str, NDArray[np.float64]]:
+    """Raw ``<Foot>.ax/.ay/.az`` columns (F, 3) of each foot."""
+    col = {h: i for i, h in enumerate(header)}
+    sensors = tuple(h[:-3] for h in header if h.endswith(".ax"))
+    raw: dict[str, NDArray[np.float64]] = {}
+    for foot in feet:
+        keys = [f"{foot}.a{a}" for a in "xyz"]
+        missing = [k for k in keys if k not in col]
+        if missing:
+            raise InputError(f"no acceleration columns {', '.join(missing)} for foot {foot!r}; "
+                             f"sensors with accelerations: {', '.join(sensors) or 'none'}",
+                             field=missing[0], sensor=foot)
+        raw[foot] = np.stack([table[:, col[k]] for k in keys], axis=-1)
+    return raw
+
+
+def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
+                           joints: tuple[str, ...], positions: NDArray[np.float64],
+                           feet: tuple[str, str], notes: list[str]
+                           ) -> tuple[dict[str, str], dict[str, NDArray[np.bool_]]]:
+    """Toe of each foot (by name) and contact flags from ``<Foot>.c``/``<Toe>.c`` columns;
+    appends what was found to ``notes``."""
+    col = {h: i for i, h in enumerate(header)}
     contacts: dict[str, NDArray[np.bool_]] = {}
     toes: dict[str, str] = {}
-    for foot in (feet.left, feet.right):
+    for foot in feet:
         toe = _auto_toe(foot, joints, positions)
         if toe is not None:
             toes[foot] = toe
@@ -423,12 +448,7 @@ def read_kinematics_csv(
         if flags:
             contacts[foot] = np.any(np.stack([table[:, col[k]] for k in flags]) > 0.5, axis=0)
             notes.append(f"contacts of {foot} from {', '.join(flags)}")
-    return KinematicsRecording(
-        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
-        acceleration_frame=frame, left_foot=feet.left, right_foot=feet.right, toes=toes,
-        contacts=contacts, source_format="kinematics-csv", length_scale=scale,
-        columns=tuple(header), table=table, root=root, source_path=str(path),
-        notes=tuple(notes))
+    return toes, contacts
 
 
 def _csv_length_unit(raw_pos: NDArray[np.float64], joints: tuple[str, ...], root: str,
