@@ -755,6 +755,7 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
 
 
 def _sniff_bvh(path: PathLike) -> dict[str, Any]:
+    """Joints, fps and frames (the rows present, at most the header's count) of a BVH."""
     joints: list[str] = []
     frames = 0
     fps: float | None = None
@@ -778,7 +779,8 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
                                  line=lineno) from None
             if len(joints) > MAX_NODES:
                 raise InputError(f"more than {MAX_NODES} joints in the hierarchy", line=lineno)
-    return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
+        rows = sum(1 for line in handle if not line.isspace())
+    return {"format": "bvh", "frames": min(frames, rows), "joints": joints, "fps": fps}
 
 
 # --------------------------------------------------------------------------- writers

@@ -269,7 +269,7 @@ def test_sniff_reads_quirky_headers(corpus: Path) -> None:
     info = sniff_kinematics(bvh)
     assert info["format"] == "bvh"
     assert "Bip01 L Foot" in info["joints"]
-    assert info["frames"] == 10**9
+    assert info["frames"] == 240  # the rows present, as read_bvh reads them
     bvh.write_text(bvh.read_text().replace("Frame Time:", "Frame Time: 0 #"))
     assert sniff_kinematics(bvh)["fps"] is None
     bvh.write_text(bvh.read_text().replace(f"Frames:  {10**9}", "Frames: lots"))
