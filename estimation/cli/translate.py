@@ -62,6 +62,9 @@ def register(sub: Any) -> None:
                         help="length unit of a BVH or kinematics CSV: auto (default, from the "
                              "legs' length), m, cm, mm, in, ft, cmu (CMU's 0.05644 m) or "
                              "metres per unit")
+    parser.add_argument("--subject", default=None, metavar="LABEL|N",
+                        help="MVNX subject to read, by label or 1-based number (default: "
+                             "the first, with a warning when there are several)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output in the input's format")
     parser.add_argument("--bvh", metavar="OUT.bvh", help="also write a BVH with the root path")
@@ -82,10 +85,11 @@ def run(args: argparse.Namespace) -> int:
     recording = read_kinematics(args.input, format=args.format,
                                 accelerations=args.accelerations,
                                 left_foot=args.left_foot, right_foot=args.right_foot,
-                                acceleration_units=args.acceleration_units, units=args.units)
+                                acceleration_units=args.acceleration_units, units=args.units,
+                                subject=args.subject)
     read_s = time.perf_counter() - started
     for note in recording.notes:
-        print(f"bonefit: {note}", file=sys.stderr)
+        print(note if note.startswith("warning:") else f"bonefit: {note}", file=sys.stderr)
     bar = None if args.quiet else ProgressBar(sys.stderr)
     try:
         result = estimate_translation(recording, method=args.method, progress=bar)

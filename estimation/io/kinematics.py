@@ -118,6 +118,8 @@ class KinematicsRecording:
         Path of the file read (the MVNX writer re-streams it).
     notes : tuple of str
         What the reader decided (units, toe joints, contact channels).
+    source_subject : int
+        MVNX: 0-based number of the ``<subject>`` read (the writer corrects its frames).
     """
 
     joints: tuple[str, ...]
@@ -138,6 +140,7 @@ class KinematicsRecording:
     root: str = ""
     source_path: str | None = None
     notes: tuple[str, ...] = ()
+    source_subject: int = 0
 
     def __post_init__(self) -> None:
         pos = self.positions
@@ -669,6 +672,7 @@ def read_kinematics(
     right_foot: str | None = None,
     acceleration_units: str | None = None,
     units: str | float | None = "auto",
+    subject: str | None = None,
 ) -> KinematicsRecording:
     """Read an inertial-suit recording for root-translation estimation.
 
@@ -687,6 +691,8 @@ def read_kinematics(
     units : str or float, optional
         Length unit of a BVH or kinematics CSV: ``"auto"`` (inferred from the legs), ``m``,
         ``cm``, ``mm``, ``in``, ``ft``, ``cmu`` or metres per unit. MVNX is in metres.
+    subject : str, optional
+        MVNX: label or 1-based number of the subject to read (default the first).
 
     Returns
     -------
@@ -715,7 +721,7 @@ def read_kinematics(
         raise InputError(f"MVNX positions are in metres; units {units!r} does not apply",
                          field="units")
     return read_mvnx(path, left_foot=left_foot or "LeftFoot",
-                     right_foot=right_foot or "RightFoot")
+                     right_foot=right_foot or "RightFoot", subject=subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
