@@ -19,8 +19,8 @@ if TYPE_CHECKING:
     from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
     from .errors import BonefitError, EstimationError, InputError
     from .gaps import fill_gaps
-    from .io.kinematics import KinematicsRecording
     from .joints import JointFit, estimate_joint
+    from .kinematics import KinematicsRecording
     from .limbs import LimbFit, estimate_limb, standard_lengths, torso_length
     from .model import DROPPED_IN_REDUCED, JOINTS, REDUCED_SEGMENTS, SEGMENTS
     from .orientations import estimate_orientations
@@ -72,7 +72,7 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "bvh": ("BvhMotion", "forward_kinematics", "read_bvh", "write_bvh"),
     "errors": ("BonefitError", "EstimationError", "InputError"),
     "gaps": ("fill_gaps",),
-    "io.kinematics": ("KinematicsRecording",),
+    "kinematics": ("KinematicsRecording",),
     "joints": ("JointFit", "estimate_joint"),
     "limbs": ("LimbFit", "estimate_limb", "standard_lengths", "torso_length"),
     "model": ("DROPPED_IN_REDUCED", "JOINTS", "REDUCED_SEGMENTS", "SEGMENTS"),

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
 from .errors import EstimationError, InputError
-from .io.kinematics import GRAVITY, KinematicsRecording
+from .kinematics import GRAVITY, KinematicsRecording
 from .params import (
     CONTACT_OPTION_RANGES,
     HACHAJ_EPS_RANGE,

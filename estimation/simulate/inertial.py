@@ -19,12 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
-from ..io.kinematics import (
-    GRAVITY,
-    KinematicsRecording,
-    _child,
-    _varying_root,
-)
+from ..io.kinematics import _child, _varying_root
+from ..kinematics import GRAVITY, KinematicsRecording
 
 FOOT_NAMES: Final[tuple[tuple[str, str], ...]] = (
     ("LeftFoot", "RightFoot"),
