@@ -22,7 +22,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import _rows as rows
 from . import quaternions as quat
-from .joints import _slip_basis, _white_variance
+from .joints import slip_basis, white_variance
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
@@ -238,9 +238,9 @@ def estimate_slip(
     """
     sensors = sorted({s for pair in pairs for s in pair})
     n = next(iter(positions.values())).shape[0]
-    basis = _slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
+    basis = slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
     k = basis.shape[1]
-    # at most _SLIP_BASIS_MAX cosines: on a long recording only the slowest slip is modelled,
+    # at most SLIP_BASIS_MAX cosines: on a long recording only the slowest slip is modelled,
     # and the rest (this share of it, for a flat spectrum up to slip_hz) is noise to the model
     unmodelled = 1.0 - min(1.0, k / (2.0 * n * slip_hz / fps)) if slip_hz > 0 else 1.0
     smoothed = _smoothed_rotations(np.stack([quaternions[s] for s in sensors], axis=1),
@@ -278,7 +278,7 @@ def estimate_slip(
         res = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
         use = w > 0
         total_var = float(np.mean(res[use] ** 2)) if use.any() else 1e-6
-        white_var = _white_variance(res, use)
+        white_var = white_variance(res, use)
         white_var = max(total_var if white_var is None else white_var, 1e-12)
         white.append(white_var)
         for s in (a, b):
