@@ -160,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         np.savez_compressed(args.save, **current)  # type: ignore[arg-type]
         print(f"saved {len(current)} arrays to {args.save}")
         return 0
-    with np.load(args.compare) as ref:
+    with np.load(args.compare, allow_pickle=True) as ref:  # a file this script wrote
         reference = {k: ref[k] for k in ref.files}
     return compare(reference, current)
 
