@@ -7,6 +7,46 @@ the equations of all its joints (the chest sensor's, for instance, those of the 
 both shoulders), so the joints that share a sensor pin its slip down together, as in the
 Cramér–Rao bound of ``benchmarks/skeleton_bound.py``. The estimated slip is then removed from
 the sensor positions and the joints are located as usual.
+
+Model
+-----
+Joint j between sensors a and b: ``R_a (c_a − s_a(t)) + p_a = R_b (c_b − s_b(t)) + p_b``
+with ``s(t) = Σ_k φ_k(t) β_k`` over the cosines of ``joints.estimate_joint``'s slip
+model (every period down to ``1 / slip_hz``, at most 16, no constant). Unknowns: every
+joint's centre in both frames (a negligible ridge) and every sensor's coefficients, each
+with a Gaussian prior of variance ``λ_s = v_s / (2K)`` per axis (``v_s`` the mean slow
+residual variance of the plain fits of the sensor's joints: total minus white, the white
+part from second differences). The rows of joint j are weighted by the inverse of the
+residual variance the model leaves: the white part, plus the share of the slow part above
+the basis's highest frequency where 16 cosines do not reach ``slip_hz`` (recordings over
+``16 / (2 slip_hz)`` seconds; a flat slip spectrum assumed). Weighting by the white part
+alone let the data outweigh the slip prior wherever the white noise is small (a precise
+tracker): the slips then drift along the directions the equations barely see, the whole
+body moving as one (a 63 s dance simulated with 5 mm of slip and no white noise: 20 mm
+RMS of common slip and every joint 70 mm off, 3–4 mm with this weighting). The maximum a
+posteriori slip is the solution of one sparse-ish linear system ((6J + 3KS) unknowns),
+whose blocks are sums of ``φ_k φ_l M_t`` terms (``M_t = R_aᵀR_b``) as in
+``joints._slip_system``. The rotations used as regressors are low-passed
+(``ROTATION_SMOOTH_S``, on the measured samples: a filled gap carries no weight); the
+measured ones serve to remove the slip.
+
+Errors in variables (``rotation_noise``): a rotation with white noise of variance ``v``
+per axis has ``E[R] = (1 − v) R̄``, so the sums ``Σ R_aᵀR_b`` of a joint come out
+``(1 − v)²`` times their noise-free value and the ``Σ R_aᵀ d`` sums ``(1 − v)`` times:
+the weakest eigenvalues of a joint that rotates a few degrees gain about ``2v`` and its
+centre is pulled toward the sensors (attenuation bias). With ``v`` scaled by the
+smoothing filter's noise gain, the M-dependent blocks of joint j are divided by
+``(1 − v)²`` and its right-hand side by ``(1 − v)`` in a second system (same
+assembly, one more factorisation), where this leaves ``EIV_SIGNAL_SHARE`` of the joint's
+weakest eigenvalue; its centre and covariance replace the uncorrected ones when the two
+centres differ by more than ``EIV_CHI2`` in Mahalanobis distance. The slips stay those of
+the uncorrected system. Corrected least squares for measurement error: Fuller,
+*Measurement Error Models*, Wiley 1987, §2.2.
+
+Soft-tissue artefact of skin-mounted sensors: Leardini, Chiari, Della Croce & Cappozzo,
+"Human movement analysis using stereophotogrammetry. Part 3: Soft tissue artifact
+assessment and compensation", Gait & Posture 21(2):212–225, 2005. Savitzky & Golay,
+Anal. Chem. 36(8):1627–1639, 1964.
 """
 
 from __future__ import annotations
@@ -198,43 +238,8 @@ def estimate_slip(
 
     Notes
     -----
-    Joint j between sensors a and b: ``R_a (c_a − s_a(t)) + p_a = R_b (c_b − s_b(t)) + p_b``
-    with ``s(t) = Σ_k φ_k(t) β_k`` over the cosines of ``joints.estimate_joint``'s slip
-    model (every period down to ``1 / slip_hz``, at most 16, no constant). Unknowns: every
-    joint's centre in both frames (a negligible ridge) and every sensor's coefficients, each
-    with a Gaussian prior of variance ``λ_s = v_s / (2K)`` per axis (``v_s`` the mean slow
-    residual variance of the plain fits of the sensor's joints: total minus white, the white
-    part from second differences). The rows of joint j are weighted by the inverse of the
-    residual variance the model leaves: the white part, plus the share of the slow part above
-    the basis's highest frequency where 16 cosines do not reach ``slip_hz`` (recordings over
-    ``16 / (2 slip_hz)`` seconds; a flat slip spectrum assumed). Weighting by the white part
-    alone let the data outweigh the slip prior wherever the white noise is small (a precise
-    tracker): the slips then drift along the directions the equations barely see, the whole
-    body moving as one (a 63 s dance simulated with 5 mm of slip and no white noise: 20 mm
-    RMS of common slip and every joint 70 mm off, 3–4 mm with this weighting). The maximum a
-    posteriori slip is the solution of one sparse-ish linear system ((6J + 3KS) unknowns),
-    whose blocks are sums of ``φ_k φ_l M_t`` terms (``M_t = R_aᵀR_b``) as in
-    ``joints._slip_system``. The rotations used as regressors are low-passed
-    (``ROTATION_SMOOTH_S``, on the measured samples: a filled gap carries no weight); the
-    measured ones serve to remove the slip.
-
-    Errors in variables (``rotation_noise``): a rotation with white noise of variance ``v``
-    per axis has ``E[R] = (1 − v) R̄``, so the sums ``Σ R_aᵀR_b`` of a joint come out
-    ``(1 − v)²`` times their noise-free value and the ``Σ R_aᵀ d`` sums ``(1 − v)`` times:
-    the weakest eigenvalues of a joint that rotates a few degrees gain about ``2v`` and its
-    centre is pulled toward the sensors (attenuation bias). With ``v`` scaled by the
-    smoothing filter's noise gain, the M-dependent blocks of joint j are divided by
-    ``(1 − v)²`` and its right-hand side by ``(1 − v)`` in a second system (same
-    assembly, one more factorisation), where this leaves ``EIV_SIGNAL_SHARE`` of the joint's
-    weakest eigenvalue; its centre and covariance replace the uncorrected ones when the two
-    centres differ by more than ``EIV_CHI2`` in Mahalanobis distance. The slips stay those of
-    the uncorrected system. Corrected least squares for measurement error: Fuller,
-    *Measurement Error Models*, Wiley 1987, §2.2.
-
-    Soft-tissue artefact of skin-mounted sensors: Leardini, Chiari, Della Croce & Cappozzo,
-    "Human movement analysis using stereophotogrammetry. Part 3: Soft tissue artifact
-    assessment and compensation", Gait & Posture 21(2):212–225, 2005. Savitzky & Golay,
-    Anal. Chem. 36(8):1627–1639, 1964.
+    The model, its weighting and the errors-in-variables correction are described in the
+    module docstring.
     """
     sensors = sorted({s for pair in pairs for s in pair})
     n = next(iter(positions.values())).shape[0]
