@@ -316,38 +316,14 @@ def simulate_sensors(
     position exactly (before noise). Sensors sit at 30–70 % along the bone, 3–7 cm off it in a
     random perpendicular direction, with a uniformly random orientation.
     """
-    if segments is None:
-        if n_sensors == 15:
-            segments = SEGMENTS
-        elif n_sensors == 11:
-            segments = REDUCED_SEGMENTS
-        else:
-            raise InputError(f"n_sensors must be 15 or 11, got {n_sensors}", field="n_sensors")
-    segments = tuple(segments)
-    unknown = [s for s in segments if s not in SEGMENTS]
-    if unknown:
-        raise InputError(f"unknown segment(s) {', '.join(unknown)}", field="segments")
+    segments = _sensor_segments(n_sensors, segments)
     rng = np.random.default_rng(seed)
     origins, rotations, joints, bones = rigid_body_model(motion, units_m=units_m,
                                                          mapping=mapping)
     rate = float(fps) if fps is not None else motion.fps
     n_frames = motion.n_frames
     time = np.arange(n_frames) / rate
-
-    # placement is drawn for all 15 segments so the 11-sensor suit shares the 15's sensors
-    local: dict[str, NDArray[np.float64]] = {}
-    offsets_rot: dict[str, Rotation] = {}
-    for seg in SEGMENTS:
-        start, end = bones[seg]
-        axis = end - start
-        length = float(np.linalg.norm(axis))
-        axis = axis / length if length > 0 else np.array([0.0, 1.0, 0.0])
-        perp = rng.normal(size=3)
-        perp -= perp.dot(axis) * axis
-        perp /= np.linalg.norm(perp)
-        u = rng.uniform(0.3, 0.7)
-        local[seg] = start + u * (end - start) + rng.uniform(*offset_range_m) * perp
-        offsets_rot[seg] = Rotation.random(rng=rng)
+    local, offsets_rot = _place_sensors(bones, rng, offset_range_m)
     slip = _smooth_slip(rng, time, slip_m, len(segments))
     dropped = _drop_mask(rng, n_frames, len(segments), drop_fraction)
     positions = np.empty((n_frames, len(segments), 3))
@@ -368,19 +344,59 @@ def simulate_sensors(
     recording = SensorRecording(segments, positions, quats, rate, time)
     all_joints = dict(joints)
     all_joints.update(derived_joints(joints))
-    bone_lengths = {
-        seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
-        for seg in ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
-                    "l_thigh", "l_shank", "r_thigh", "r_shank")
-    }
     truth = SimulationTruth(
         joints={j: all_joints[j] for j in JOINTS},
         segment_rotations=rotations,
         sensor_local=local,
-        bone_lengths=bone_lengths,
+        bone_lengths={seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
+                      for seg in _TRUE_BONES},
         dataset=detect_skeleton(motion) if mapping is None else "custom",
     )
     return recording, truth
+
+
+_TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
+                      "l_thigh", "l_shank", "r_thigh", "r_shank")
+"""Segments whose length ``SimulationTruth.bone_lengths`` gives."""
+
+
+def _sensor_segments(n_sensors: int, segments: Sequence[str] | None) -> tuple[str, ...]:
+    """The segments carrying a sensor: ``segments``, else the 15- or 11-sensor suit."""
+    if segments is None:
+        if n_sensors == 15:
+            segments = SEGMENTS
+        elif n_sensors == 11:
+            segments = REDUCED_SEGMENTS
+        else:
+            raise InputError(f"n_sensors must be 15 or 11, got {n_sensors}", field="n_sensors")
+    segments = tuple(segments)
+    unknown = [s for s in segments if s not in SEGMENTS]
+    if unknown:
+        raise InputError(f"unknown segment(s) {', '.join(unknown)}", field="segments")
+    return segments
+
+
+def _place_sensors(bones: Mapping[str, tuple[NDArray[np.float64], NDArray[np.float64]]],
+                   rng: np.random.Generator, offset_range_m: tuple[float, float]
+                   ) -> tuple[dict[str, NDArray[np.float64]], dict[str, Rotation]]:
+    """Each segment's sensor origin in the segment frame (30–70 % along the bone, offset in
+    a random perpendicular direction) and its random mounting rotation.
+
+    Drawn for all 15 segments, so the 11-sensor suit shares the 15's sensors."""
+    local: dict[str, NDArray[np.float64]] = {}
+    offsets_rot: dict[str, Rotation] = {}
+    for seg in SEGMENTS:
+        start, end = bones[seg]
+        axis = end - start
+        length = float(np.linalg.norm(axis))
+        axis = axis / length if length > 0 else np.array([0.0, 1.0, 0.0])
+        perp = rng.normal(size=3)
+        perp -= perp.dot(axis) * axis
+        perp /= np.linalg.norm(perp)
+        u = rng.uniform(0.3, 0.7)
+        local[seg] = start + u * (end - start) + rng.uniform(*offset_range_m) * perp
+        offsets_rot[seg] = Rotation.random(rng=rng)
+    return local, offsets_rot
 
 
 _EXAMPLE_HIERARCHY: Final = (
