@@ -5,6 +5,12 @@ clip (the rotations of any joints between two model segments are folded into the
 so the true centres are exact), virtual sensors are attached 3–7 cm off each bone with random
 orientations, and the recording is corrupted by white noise, slow soft-tissue slip and dropped
 samples.
+
+Each segment's orientation is the global rotation of its most distal BVH node inside the
+segment, and every joint is a fixed point of the rest pose in its parent segment's frame, so
+the two sensors adjoining a joint agree on its position exactly (before noise). Sensors sit at
+30–70 % along the bone, 3–7 cm off it in a random perpendicular direction, with a uniformly
+random orientation.
 """
 
 from __future__ import annotations
@@ -310,11 +316,7 @@ def simulate_sensors(
 
     Notes
     -----
-    Evaluation protocol of design.md. Each segment's orientation is the global rotation of
-    its most distal BVH node inside the segment, and every joint is a fixed point of the rest
-    pose in its parent segment's frame, so the two sensors adjoining a joint agree on its
-    position exactly (before noise). Sensors sit at 30–70 % along the bone, 3–7 cm off it in a
-    random perpendicular direction, with a uniformly random orientation.
+    The body and the sensors' placement are described in the module docstring.
     """
     segments = _sensor_segments(n_sensors, segments)
     rng = np.random.default_rng(seed)
@@ -326,6 +328,41 @@ def simulate_sensors(
     local, offsets_rot = _place_sensors(bones, rng, offset_range_m)
     slip = _smooth_slip(rng, time, slip_m, len(segments))
     dropped = _drop_mask(rng, n_frames, len(segments), drop_fraction)
+    positions, quats = _sensor_poses(segments, (origins, rotations), (local, offsets_rot),
+                                     slip, rng, orientation_noise_deg)
+    if position_noise_m > 0:
+        positions += rng.normal(scale=position_noise_m, size=positions.shape)
+    positions[dropped] = np.nan
+    quats[dropped] = np.nan
+    recording = SensorRecording(segments, positions, quats, rate, time)
+    all_joints = dict(joints)
+    all_joints.update(derived_joints(joints))
+    return recording, SimulationTruth(
+        joints={j: all_joints[j] for j in JOINTS}, segment_rotations=rotations,
+        sensor_local=local,
+        bone_lengths={seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
+                      for seg in _TRUE_BONES},
+        dataset=detect_skeleton(motion) if mapping is None else "custom")
+
+
+_TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
+                      "l_thigh", "l_shank", "r_thigh", "r_shank")
+"""Segments whose length ``SimulationTruth.bone_lengths`` gives."""
+
+
+def _sensor_poses(segments: Sequence[str],
+                  body: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
+                  placement: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
+                  slip: NDArray[np.float64], rng: np.random.Generator,
+                  orientation_noise_deg: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Positions (F, S, 3, metres) and scalar-first quaternions (F, S, 4) of the sensors on
+    ``segments``: the segments' ``body`` pose (origins, rotations) carrying each sensor's
+    ``placement`` (local origin, mounting rotation) displaced by ``slip`` (F, S, 3), with
+    white orientation noise (degrees per rotation-vector axis)."""
+    origins, rotations = body
+    local, offsets_rot = placement
+    n_frames = slip.shape[0]
     positions = np.empty((n_frames, len(segments), 3))
     quats = np.empty((n_frames, len(segments), 4))
     for k, seg in enumerate(segments):
@@ -337,27 +374,7 @@ def simulate_sensors(
                 rng.normal(scale=np.deg2rad(orientation_noise_deg), size=(n_frames, 3)))
             sensor_rot = sensor_rot * noise
         quats[:, k] = sensor_rot.as_quat(scalar_first=True)
-    if position_noise_m > 0:
-        positions += rng.normal(scale=position_noise_m, size=positions.shape)
-    positions[dropped] = np.nan
-    quats[dropped] = np.nan
-    recording = SensorRecording(segments, positions, quats, rate, time)
-    all_joints = dict(joints)
-    all_joints.update(derived_joints(joints))
-    truth = SimulationTruth(
-        joints={j: all_joints[j] for j in JOINTS},
-        segment_rotations=rotations,
-        sensor_local=local,
-        bone_lengths={seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
-                      for seg in _TRUE_BONES},
-        dataset=detect_skeleton(motion) if mapping is None else "custom",
-    )
-    return recording, truth
-
-
-_TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
-                      "l_thigh", "l_shank", "r_thigh", "r_shank")
-"""Segments whose length ``SimulationTruth.bone_lengths`` gives."""
+    return positions, quats
 
 
 def _sensor_segments(n_sensors: int, segments: Sequence[str] | None) -> tuple[str, ...]:
