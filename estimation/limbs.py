@@ -322,82 +322,119 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
     minimum, so Gauss–Newton alone converges only linearly (5–9 full-size iterations
     measured on the RT1-size benchmark), Newton quadratically.
     """
-    m = limb.n
-    l_up, l_low = lengths
-    last: dict[str, Any] = {}
+    terms = _PaperTerms(limb, lengths, w_s, w_l, exact)
+    return _PaperObjective(terms.cost, terms.normal, terms.segment_lengths)
 
-    def geometry(theta: Float) -> tuple[Float, Float, Float, Float, float]:
-        # normal() is asked for at the point cost() has just accepted
-        if last.get("theta") is not None and np.array_equal(last["theta"], theta):
-            return last["value"]  # type: ignore[no-any-return]
+
+class _Geometry(NamedTuple):
+    """Per-frame geometry of a limb at θ: middle → distal vectors ``d`` (M, 3) and their
+    lengths ``ll``, proximal → middle vectors ``e`` and their lengths ``lu``; and E."""
+
+    d: Float
+    ll: Float
+    e: Float
+    lu: Float
+    value: float
+
+
+class _PaperTerms:
+    """The paper's E of one limb and its normal equations (see ``_paper_normal``), sharing
+    one pass over the frames at the last point asked for."""
+
+    def __init__(self, limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
+                 exact: bool) -> None:
+        self.limb, self.lengths, self.w_s, self.w_l, self.exact = limb, lengths, w_s, w_l, exact
+        self._last: tuple[Float, _Geometry] | None = None
+
+    def geometry(self, theta: Float) -> _Geometry:
+        """The geometry at ``theta`` (cached: ``normal`` is asked for at the point ``cost``
+        has just accepted)."""
+        if self._last is not None and np.array_equal(self._last[0], theta):
+            return self._last[1]
+        m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
         k, a = theta[:3], theta[3:]
-        d = limb.distal(a) - k
+        d = self.limb.distal(a) - k
         ll = rows.norms(d)
-        e = k - limb.h
+        e = k - self.limb.h
         lu = rows.norms(e)
         dev = ll - np.einsum("f->", ll) / m
         value = float((np.einsum("f,f->", dev, dev)
                        + w_l * (np.einsum("f,f->", lu - l_up, lu - l_up)
                                 + np.einsum("f,f->", ll - l_low, ll - l_low))) / m
-                      + w_s * np.einsum("i,i->", theta, theta))
-        last["theta"], last["value"] = theta.copy(), (d, ll, e, lu, value)
-        return d, ll, e, lu, value
+                      + self.w_s * np.einsum("i,i->", theta, theta))
+        geometry = _Geometry(d, ll, e, lu, value)
+        self._last = (theta.copy(), geometry)
+        return geometry
 
-    def cost(theta: Float) -> float:
-        return geometry(theta)[4]
+    def cost(self, theta: Float) -> float:
+        """E at ``theta``."""
+        return self.geometry(theta).value
 
-    def segment_lengths(theta: Float) -> tuple[Float, Float]:
-        _, ll, _, lu, _ = geometry(theta)
-        return ll, lu
+    def segment_lengths(self, theta: Float) -> tuple[Float, Float]:
+        """``(l_{j,j+1}(t), l_{j−1,j}(t))`` at ``theta``."""
+        g = self.geometry(theta)
+        return g.ll, g.lu
 
-    def normal(theta: Float) -> Normal:
-        d, ll, e, lu, value = geometry(theta)
-        inv_l = 1.0 / ll
-        inv_lu = 1.0 / lu
-        # rows of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then ê) and
-        # ones, then c, c_u, c/l, c_u/l_u and the first nine rows weighted by c/l and
-        # c_u/l_u: every sum below is an entry of a product of rows of z. z is frame-major
-        # so that numpy's loops run over frames, not over 3 components.
-        z = np.empty((23, m))
-        np.multiply(d.T, inv_l, out=z[:3])
-        for j in range(3):
-            # uᵀQ row by row: strided reads of Q, a third faster than einsum
-            np.multiply(z[0], limb.q[:, 0, j], out=z[3 + j])
-            z[3 + j] += z[1] * limb.q[:, 1, j]
-            z[3 + j] += z[2] * limb.q[:, 2, j]
-        np.multiply(e.T, inv_lu, out=z[6:9])
-        z[9] = 1.0
-        c, cu, cl, cul = z[10], z[11], z[12], z[13]
-        np.multiply(ll, (1.0 + w_l) / m, out=c)
-        c -= (np.einsum("f->", ll) / m + w_l * l_low) / m
-        np.subtract(lu, l_up, out=cu)
-        cu *= w_l / m
-        np.multiply(c, inv_l, out=cl)
-        np.multiply(cu, inv_lu, out=cul)
+    def normal(self, theta: Float) -> Normal:
+        """``(E, Jᵀr, JᵀJ[, K])`` at ``theta``."""
+        geo = self.geometry(theta)
+        z = self._rows(geo)
+        m, w_l = self.limb.n, self.w_l
         # Σ x yᵀ of the plain rows, then the two weighted blocks: three small products take
         # 80 µs for 6,283 frames where the one (10, 23) product took 210 (OpenBLAS's kernels)
         gram = z[:10] @ z[:14].T
-        g = _SIGN * gram[:6, 10] + w_s * theta
+        g = _SIGN * gram[:6, 10] + self.w_s * theta
         g[:3] += gram[6:9, 11]
         j_bar = _SIGN * gram[:6, 9] / m
         h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar) \
-            + w_s * np.eye(6)
+            + self.w_s * np.eye(6)
         h[:3, :3] += w_l / m * gram[6:9, 6:9]
-        if not exact:
-            return value, g, h
+        if not self.exact:
+            return geo.value, g, h
+        return geo.value, g, h, h + self._second_order(z, gram)
+
+    def _rows(self, geo: _Geometry) -> Float:
+        """Rows (23, M) of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then
+        ê) and ones, then c, c_u, c/l, c_u/l_u; rows 14–22 are left for ``_second_order``.
+
+        Every sum of the normal equations is an entry of a product of rows of z. z is
+        frame-major so that numpy's loops run over frames, not over 3 components."""
+        m, (l_up, l_low), w_l, q = self.limb.n, self.lengths, self.w_l, self.limb.q
+        inv_l = 1.0 / geo.ll
+        inv_lu = 1.0 / geo.lu
+        z = np.empty((23, m))
+        np.multiply(geo.d.T, inv_l, out=z[:3])
+        for j in range(3):
+            # uᵀQ row by row: strided reads of Q, a third faster than einsum
+            np.multiply(z[0], q[:, 0, j], out=z[3 + j])
+            z[3 + j] += z[1] * q[:, 1, j]
+            z[3 + j] += z[2] * q[:, 2, j]
+        np.multiply(geo.e.T, inv_lu, out=z[6:9])
+        z[9] = 1.0
+        c, cu, cl, cul = z[10], z[11], z[12], z[13]
+        np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
+        c -= (np.einsum("f->", geo.ll) / m + w_l * l_low) / m
+        np.subtract(geo.lu, l_up, out=cu)
+        cu *= w_l / m
+        np.multiply(c, inv_l, out=cl)
+        np.multiply(cu, inv_lu, out=cul)
+        return z
+
+    def _second_order(self, z: Float, gram: Float) -> Float:
+        """``Σ r ∇²r`` (6, 6), from the rows ``z`` (completed here) and their ``gram``."""
+        m = self.limb.n
+        cl, cul = z[12], z[13]
         np.multiply(z[:6], cl, out=z[14:20])
         np.multiply(z[6:9], cul, out=z[20:])
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         second = gram[9, 12] * np.eye(6) - _SIGN_OUTER * (z[:6] @ z[14:20].T)
-        cross = (cl @ limb.q.reshape(m, 9)).reshape(3, 3)
+        cross = (cl @ self.limb.q.reshape(m, 9)).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
         second[:3, :3] += gram[9, 13] * np.eye(3) - z[6:9] @ z[20:].T
-        return value, g, h, h + second
-
-    return _PaperObjective(cost, normal, segment_lengths)
+        return np.asarray(second)
 
 
 def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,
@@ -736,82 +773,120 @@ def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_
     about its own axis leaves it in place, so in the thigh (upper-arm) frame its path follows
     the flexion arc; points beside it also swing with the ankle (wrist) and the twist.
     """
-    m = limb.n
-    h_bar = limb.h.mean(axis=0)
-    b_bar = limb.b.mean(axis=0)
-    q_bar = limb.q.mean(axis=0)
-    c_h = np.sqrt(m * w_hinge)
-    c_s = np.sqrt(m * w_line)
-    c_l = np.sqrt(m * w_length)
-    c_d = np.sqrt(m * w_distal)
-    c_b = np.sqrt(m * _W_BOUND)
-    l_up, l_low = lengths
-    tol_up, tol_low = _BOUND * l_up, _BOUND * l_low
+    problem = _ImprovedProblem(limb, lengths, axis, _PriorWeights(
+        w_hinge, w_line, w_length, w_distal, w_plane), robust_scale)
+    return problem.residuals, problem.jacobian
 
-    def outside(value: float, target: float, tol: float) -> tuple[float, float]:
-        # flat-bottomed penalty: zero within ±tol of the standard length, linear beyond
-        dev = value - target
-        excess = abs(dev) - tol
-        return (float(np.sign(dev) * excess), float(np.sign(dev))) if excess > 0 else (0.0, 0.0)
 
-    ratio = l_up / (l_up + l_low)
-    c_p = np.sqrt(w_plane)
-    q_dev = np.einsum("i,fij->fj", axis, limb.q - q_bar) if w_plane > 0 else None
-    b_dev = (limb.b - b_bar) @ axis if w_plane > 0 else None
+class _PriorWeights(NamedTuple):
+    """Per-frame weights of the improved method's prior rows (see ``_improved_problem``)."""
 
-    def fun(theta: Float) -> Float:
+    hinge: float
+    line: float
+    length: float
+    distal: float
+    plane: float
+
+
+def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
+    """Flat-bottomed penalty and its derivative: zero within ±tol of ``target``, linear
+    beyond."""
+    dev = value - target
+    excess = abs(dev) - tol
+    return (float(np.sign(dev) * excess), float(np.sign(dev))) if excess > 0 else (0.0, 0.0)
+
+
+class _ImprovedProblem:
+    """Residuals and Jacobian of the improved objective of one limb (``_improved_problem``);
+    θ = (k, a, L)."""
+
+    def __init__(self, limb: _Limb, lengths: tuple[float, float], axis: Float,
+                 weights: _PriorWeights, robust_scale: float | None) -> None:
+        m = limb.n
+        self.limb, self.lengths, self.axis, self.robust_scale = limb, lengths, axis, robust_scale
+        self.h_bar = limb.h.mean(axis=0)
+        self.b_bar = limb.b.mean(axis=0)
+        self.q_bar = limb.q.mean(axis=0)
+        self.c_h = np.sqrt(m * weights.hinge)
+        self.c_s = np.sqrt(m * weights.line)
+        self.c_l = np.sqrt(m * weights.length)
+        self.c_d = np.sqrt(m * weights.distal)
+        self.c_b = np.sqrt(m * _W_BOUND)
+        l_up, l_low = lengths
+        self.tol_up, self.tol_low = _BOUND * l_up, _BOUND * l_low
+        self.ratio = l_up / (l_up + l_low)
+        self.c_p = np.sqrt(weights.plane)
+        self.q_dev = np.einsum("i,fij->fj", axis, limb.q - self.q_bar) \
+            if weights.plane > 0 else None
+        self.b_dev = (limb.b - self.b_bar) @ axis if weights.plane > 0 else None
+
+    def residuals(self, theta: Float) -> Float:
+        """The data rows, the 13 prior rows, then the flexion-plane rows when weighted."""
         k, a, length = theta[:3], theta[3:6], theta[6]
-        ll = rows.norms(limb.distal(a) - k)
+        ll = rows.norms(self.limb.distal(a) - k)
         r = ll - length
-        if robust_scale is not None:
-            r, _ = _soft_l1(r, robust_scale)
-        x_bar = b_bar + q_bar @ a
-        lu = np.linalg.norm(k - h_bar)
-        tail = np.concatenate([
-            [c_h * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
-            c_s * (k - h_bar - ratio * (x_bar - h_bar)),
-            [c_l * (lu - l_up), c_l * (length - l_low)],
-            c_d * a,
-            [c_b * outside(float(lu), l_up, tol_up)[0],
-             c_b * outside(float(length), l_low, tol_low)[0],
-             c_b * outside(float(np.linalg.norm(a)), 0.0, _DISTAL_REACH)[0]],
-        ])
-        if q_dev is not None and b_dev is not None:
-            return np.concatenate([r, tail, c_p * (b_dev + q_dev @ a)])
+        if self.robust_scale is not None:
+            r, _ = _soft_l1(r, self.robust_scale)
+        tail = self._prior_rows(k, a, length)
+        if self.q_dev is not None and self.b_dev is not None:
+            return np.concatenate([r, tail, self.c_p * (self.b_dev + self.q_dev @ a)])
         return np.concatenate([r, tail])
 
-    def jac(theta: Float) -> Float:
+    def _prior_rows(self, k: Float, a: Float, length: float) -> Float:
+        """Hinge (2), straight-limb (3), length (2), distal-offset (3) and plausibility (3)
+        rows."""
+        h_bar, axis, c_h, c_b = self.h_bar, self.axis, self.c_h, self.c_b
+        l_up, l_low = self.lengths
+        x_bar = self.b_bar + self.q_bar @ a
+        lu = np.linalg.norm(k - h_bar)
+        return np.concatenate([
+            [c_h * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
+            self.c_s * (k - h_bar - self.ratio * (x_bar - h_bar)),
+            [self.c_l * (lu - l_up), self.c_l * (length - l_low)],
+            self.c_d * a,
+            [c_b * _outside(float(lu), l_up, self.tol_up)[0],
+             c_b * _outside(float(length), l_low, self.tol_low)[0],
+             c_b * _outside(float(np.linalg.norm(a)), 0.0, _DISTAL_REACH)[0]],
+        ])
+
+    def jacobian(self, theta: Float) -> Float:
+        """Jacobian of :meth:`residuals`, (rows, 7)."""
+        m, q_dev = self.limb.n, self.q_dev
         k, a, length = theta[:3], theta[3:6], theta[6]
-        d = limb.distal(a) - k
+        d = self.limb.distal(a) - k
         ll = rows.norms(d)
         u = d / ll[:, None]
         j = np.zeros((m + 13 + (m if q_dev is not None else 0), 7))
         if q_dev is not None:
-            j[m + 13:, 3:6] = c_p * q_dev
+            j[m + 13:, 3:6] = self.c_p * q_dev
         j[:m, :3] = -u
-        j[:m, 3:6] = np.einsum("fi,fij->fj", u, limb.q)
+        j[:m, 3:6] = np.einsum("fi,fij->fj", u, self.limb.q)
         j[:m, 6] = -1.0
-        if robust_scale is not None:
-            _, dr = _soft_l1(ll - length, robust_scale)
+        if self.robust_scale is not None:
+            _, dr = _soft_l1(ll - length, self.robust_scale)
             j[:m] *= dr[:, None]
-        j[m, :3] = c_h * axis
-        j[m + 1, :3] = -c_h * axis
-        j[m + 1, 3:6] = c_h * axis @ q_bar
-        j[m + 2:m + 5, :3] = c_s * np.eye(3)
-        j[m + 2:m + 5, 3:6] = -c_s * ratio * q_bar
-        e = k - h_bar
-        j[m + 5, :3] = c_l * e / np.linalg.norm(e)
-        j[m + 6, 6] = c_l
-        j[m + 7:m + 10, 3:6] = c_d * np.eye(3)
-        j[m + 10, :3] = c_b * outside(float(np.linalg.norm(e)), l_up, tol_up)[1] * e \
-            / np.linalg.norm(e)
-        j[m + 11, 6] = c_b * outside(float(length), l_low, tol_low)[1]
-        reach = float(np.linalg.norm(a))
-        if reach > 0:
-            j[m + 12, 3:6] = c_b * outside(reach, 0.0, _DISTAL_REACH)[1] * a / reach
+        self._prior_jacobian(j[m:m + 13], k, a, length)
         return j
 
-    return fun, jac
+    def _prior_jacobian(self, j: Float, k: Float, a: Float, length: float) -> None:
+        """Rows (13, 7) of the prior rows' Jacobian, written into ``j``."""
+        axis, c_h, c_s, c_b, q_bar = self.axis, self.c_h, self.c_s, self.c_b, self.q_bar
+        l_up, l_low = self.lengths
+        j[0, :3] = c_h * axis
+        j[1, :3] = -c_h * axis
+        j[1, 3:6] = c_h * axis @ q_bar
+        j[2:5, :3] = c_s * np.eye(3)
+        j[2:5, 3:6] = -c_s * self.ratio * q_bar
+        e = k - self.h_bar
+        j[5, :3] = self.c_l * e / np.linalg.norm(e)
+        j[6, 6] = self.c_l
+        j[7:10, 3:6] = self.c_d * np.eye(3)
+        j[10, :3] = c_b * _outside(float(np.linalg.norm(e)), l_up, self.tol_up)[1] * e \
+            / np.linalg.norm(e)
+        j[11, 6] = c_b * _outside(float(length), l_low, self.tol_low)[1]
+        reach = float(np.linalg.norm(a))
+        if reach > 0:
+            j[12, 3:6] = c_b * _outside(reach, 0.0, _DISTAL_REACH)[1] * a / reach
 
 
 # Weights of the improved method's priors, per frame (the data rows have unit weight and
