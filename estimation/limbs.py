@@ -20,6 +20,51 @@ Two estimators:
     frame, and the knee and the ankle are put in the plane through the hip perpendicular to
     that axis), weak priors instead of the paper's pull towards the sensor origins, and
     plausibility bounds; the priors grow when the limb hardly moves.
+
+Details
+-------
+``E`` is a sum of squares because ``Var_t(l) = Σ_t ((l(t) − l̄)/√M)²``; with
+``u = (ankle − knee)/l`` the Jacobian rows are ``∂l/∂s_j = −uᵀP_k`` and
+``∂l/∂s_{j+1} = uᵀP_{k+1}`` (computed in the upper sensor frame, where
+``P_kᵀP_{k+1}`` is precomputed once), so one evaluation costs O(F).
+
+The Nelder–Mead path uses scipy's implementation with an initial simplex of 5 cm steps
+around the start, ``xatol=1e-6`` m and ``fatol`` 1e-9·E, and restarts from its own
+result with a shrinking simplex until a restart lowers E by less than 1e-9 (relative):
+it then converges as far as the least-squares path (within ~1e-10 of the same minimum).
+
+``"improved"`` replaces ``Var_t(l)`` by ``Σ_t ρ(l(t) − L)`` with a free length ``L`` and
+the soft-L1 loss ``ρ``, drops the ``|s|²`` term (it pulls the joints towards the sensor
+origins, a bias of centimetres), and adds the hinge rule: with ``n`` the flexion axis in
+the upper frame (least-scatter direction of the distal joint's path there), the middle
+joint is the point of the axis nearest the proximal joint (``nᵀ(s_j − h) = 0``) and the
+distal joint lies in the same plane (``nᵀ(x̄ − s_j) = 0``); both directions are
+unobservable from a hinge's motion. The distal joint's path across that plane,
+``nᵀ(x(t) − x̄)``, is penalised in every frame (weight 0.2 relative to the data rows): the
+ankle (wrist) centre is the one point of the foot (hand) that a twist of the shank
+(forearm) about its own axis leaves on the flexion arc, which singles it out where the
+length of the shank (forearm) alone hardly varies (-1.5 to -2 mm on the 11-sensor limb
+median, every seed of the accuracy benchmark). The rule is switched off when that path is not a
+clean arc wider than 1 cm. Weak priors (per frame, relative to the data rows: 1e-4 on the
+two standard lengths, 3e-4 on the middle joint lying on the proximal–distal line at the
+standard length ratio and on the distal joint lying near its sensor) keep a motionless
+limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the relative
+rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment lengths
+beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
+the paper's least-squares solution, the geometric point and a straight limb through the
+distal sensor; the alternation between axis and joints runs on a 400-frame subsample
+from each start and the best is polished on every frame. Weights were chosen on
+simulated clips (see ``docs/skeleton-limbs.md``).
+
+Least-squares fits first converge on a subsample of about 400 frames and are then
+polished on all frames, stopping when E changes by less than 1e-10 (relative). The
+full-frame fits solve the 6 × 6 (7 × 7) normal equations directly instead of running
+MINPACK's QR on the (2F + 7)-row Jacobian: for the paper's E the normal equations and the
+exact Hessian come from per-frame sums (``_paper_normal``), so the full-size polish is
+two Newton steps, each one pass over the frames; the improved objective's Jacobian is
+formed and multiplied out. The improved method's alternations from rough starts keep
+MINPACK (``scipy.optimize.least_squares``) on the subsample: its objective has several
+local minima and the optimizer's steps decide which one a start falls into.
 """
 
 from __future__ import annotations
@@ -583,45 +628,66 @@ def _levenberg_marquardt(cost: Callable[[Float], float], normal: Callable[[Float
     newton_stop = np.sqrt(rtol / _NEWTON_CONSTANT) if newton_rtol is None else newton_rtol
     e, g, h, curv = _unpack(normal(x))
     n_eval = 1
-    mu, nu = damping, 2.0
+    damp = _Damping(damping, 2.0)
     for _ in range(max_iter):
-        diag = np.diag(h)
-        diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
-        done = False
-        while True:
-            step, model = _damped_step(curv, h, mu * diag, g)
-            # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
-            # M + μD is positive definite
-            predicted = float(-2.0 * (g @ step) - step @ model @ step)
-            if not np.isfinite(predicted):
-                return x, n_eval, False
-            if predicted <= rtol * e:
-                # nothing left to gain: x is the minimum up to rounding
-                return x, n_eval, True
-            x_new = x + step
-            e_new = cost(x_new)
-            n_eval += 1
-            if e_new < e:
-                rho = (e - e_new) / predicted
-                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu = 2.0
-                done = e - e_new <= rtol * e and predicted <= rtol * e
-                if model is curv and abs(rho - 1.0) < 0.1 \
-                        and e - e_new <= newton_stop * e:
-                    # Newton converges quadratically once its model holds (ρ ≈ 1): after a
-                    # decrease of δ·E the next one is about C·δ²·E ≤ rtol·E
-                    done = True
-                x = x_new
-                break
-            mu *= nu
-            nu *= 2.0
-            if mu > 1e16:
-                return x, n_eval, True
-        if done:
-            return x, n_eval, True
+        x, used, damp, verdict = _lm_iteration(cost, x, (e, g, h, curv), damp, rtol,
+                                               newton_stop)
+        n_eval += used
+        if verdict is not None:
+            return x, n_eval, verdict
         e, g, h, curv = _unpack(normal(x))
         n_eval += 1
     return x, n_eval, False
+
+
+class _Damping(NamedTuple):
+    """Levenberg–Marquardt damping ``μ`` (relative to the diagonal) and its growth ``ν``."""
+
+    mu: float
+    nu: float
+
+
+def _lm_iteration(cost: Callable[[Float], float], x: Float,
+                  at_x: tuple[float, Float, Float, Float | None], damp: _Damping,
+                  rtol: float, newton_stop: float
+                  ) -> tuple[Float, int, _Damping, bool | None]:
+    """One Levenberg–Marquardt iteration from ``x`` (``at_x``: E, g, H, K there): damped
+    steps, the damping raised after each rejected one, until one lowers E.
+
+    Returns the new point, the evaluations of ``cost`` used, the damping, and the verdict:
+    None to go on, True to stop converged (see ``_levenberg_marquardt``'s ``rtol``), False to
+    stop without (the model broke down)."""
+    e, g, h, curv = at_x
+    mu, nu = damp
+    diag = np.diag(h)
+    diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
+    n_eval = 0
+    while True:
+        step, model = _damped_step(curv, h, mu * diag, g)
+        # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
+        # M + μD is positive definite
+        predicted = float(-2.0 * (g @ step) - step @ model @ step)
+        if not np.isfinite(predicted):
+            return x, n_eval, _Damping(mu, nu), False
+        if predicted <= rtol * e:
+            # nothing left to gain: x is the minimum up to rounding
+            return x, n_eval, _Damping(mu, nu), True
+        x_new = x + step
+        e_new = cost(x_new)
+        n_eval += 1
+        if e_new < e:
+            rho = (e - e_new) / predicted
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            done = e - e_new <= rtol * e and predicted <= rtol * e
+            if model is curv and abs(rho - 1.0) < 0.1 and e - e_new <= newton_stop * e:
+                # Newton converges quadratically once its model holds (ρ ≈ 1): after a
+                # decrease of δ·E the next one is about C·δ²·E ≤ rtol·E
+                done = True
+            return x_new, n_eval, _Damping(mu, 2.0), True if done else None
+        mu *= nu
+        nu *= 2.0
+        if mu > 1e16:
+            return x, n_eval, _Damping(mu, nu), True
 
 
 def _unpack(n: Normal) -> tuple[float, Float, Float, Float | None]:
@@ -937,6 +1003,30 @@ def _measured(limb: _Limb, valid: ArrayLike | None) -> _Limb:
     return _Limb(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
 
 
+def _check_limb_options(method: str, optimizer: str,
+                        standard_lengths: tuple[float, float]) -> tuple[float, float]:
+    """The standard lengths as floats, the method and optimizer checked."""
+    if method not in ("paper", "improved"):
+        raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
+                         field="method")
+    if optimizer not in ("least-squares", "nelder-mead"):
+        raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
+                         "'nelder-mead'", field="optimizer")
+    lengths = (float(standard_lengths[0]), float(standard_lengths[1]))
+    if not all(np.isfinite(v) and v > 0 for v in lengths):
+        raise InputError("standard lengths must be positive", field="standard_lengths")
+    return lengths
+
+
+def _straight_start(limb: _Limb, lengths: tuple[float, float]) -> Float:
+    """A straight limb: the middle joint one upper length from the proximal joint towards
+    the distal sensor, the distal joint at its sensor's origin."""
+    h_bar = limb.h.mean(axis=0)
+    toward = limb.b.mean(axis=0) - h_bar
+    return np.concatenate([
+        h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9), np.zeros(3)])
+
+
 def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float],
                   robust_scale: float | None) -> tuple[Float, int, bool, dict[str, Any]]:
     n_eval, ok = 0, False
@@ -985,6 +1075,19 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
         x, more, ok = _levenberg_marquardt(*_normal_from_residuals(fun, jac), x)
         n_eval += more
     r = fun(x)
+    return x[:6], n_eval, ok, {
+        "objective": float(r @ r),
+        "hinge_axis_local": axis.tolist(),
+        "hinge_doubt": doubt,
+        "relative_motion_deg": motion_deg,
+        "prior_gain": gain,
+        "flexion_range_deg": _flexion_range_deg(limb, x, axis) if doubt < 1.0 else None,
+    }
+
+
+def _flexion_range_deg(limb: _Limb, x: Float, axis: Float) -> float:
+    """Range (2.5–97.5 percentiles, degrees) of the middle → distal direction's angle about
+    the flexion ``axis`` in the upper frame, at ``x`` = (middle, distal, ...)."""
     v = limb.distal(x[3:6]) - x[:3]
     v -= np.outer(v @ axis, axis)
     v /= np.maximum(rows.norms(v), 1e-12)[:, None]
@@ -992,15 +1095,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
     angles = np.degrees(np.arccos(np.clip(v @ (mean_dir / np.linalg.norm(mean_dir)), -1, 1)))
     side = np.sign(np.cross(v, mean_dir) @ axis)
     signed = angles * np.where(side == 0, 1.0, side)
-    return x[:6], n_eval, ok, {
-        "objective": float(r @ r),
-        "hinge_axis_local": axis.tolist(),
-        "hinge_doubt": doubt,
-        "relative_motion_deg": motion_deg,
-        "prior_gain": gain,
-        "flexion_range_deg": (float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
-                              if doubt < 1.0 else None),
-    }
+    return float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
 
 
 def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
@@ -1064,86 +1159,27 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707, 2015, eqs. 2–5.
     Nelder & Mead, Comput. J. 7:308–313, 1965.
 
-    ``E`` is a sum of squares because ``Var_t(l) = Σ_t ((l(t) − l̄)/√M)²``; with
-    ``u = (ankle − knee)/l`` the Jacobian rows are ``∂l/∂s_j = −uᵀP_k`` and
-    ``∂l/∂s_{j+1} = uᵀP_{k+1}`` (computed in the upper sensor frame, where
-    ``P_kᵀP_{k+1}`` is precomputed once), so one evaluation costs O(F).
-
-    The Nelder–Mead path uses scipy's implementation with an initial simplex of 5 cm steps
-    around the start, ``xatol=1e-6`` m and ``fatol`` 1e-9·E, and restarts from its own
-    result with a shrinking simplex until a restart lowers E by less than 1e-9 (relative):
-    it then converges as far as the least-squares path (within ~1e-10 of the same minimum).
-
-    ``"improved"`` replaces ``Var_t(l)`` by ``Σ_t ρ(l(t) − L)`` with a free length ``L`` and
-    the soft-L1 loss ``ρ``, drops the ``|s|²`` term (it pulls the joints towards the sensor
-    origins, a bias of centimetres), and adds the hinge rule: with ``n`` the flexion axis in
-    the upper frame (least-scatter direction of the distal joint's path there), the middle
-    joint is the point of the axis nearest the proximal joint (``nᵀ(s_j − h) = 0``) and the
-    distal joint lies in the same plane (``nᵀ(x̄ − s_j) = 0``); both directions are
-    unobservable from a hinge's motion. The distal joint's path across that plane,
-    ``nᵀ(x(t) − x̄)``, is penalised in every frame (weight 0.2 relative to the data rows): the
-    ankle (wrist) centre is the one point of the foot (hand) that a twist of the shank
-    (forearm) about its own axis leaves on the flexion arc, which singles it out where the
-    length of the shank (forearm) alone hardly varies (-1.5 to -2 mm on the 11-sensor limb
-    median, every seed of the accuracy benchmark). The rule is switched off when that path is not a
-    clean arc wider than 1 cm. Weak priors (per frame, relative to the data rows: 1e-4 on the
-    two standard lengths, 3e-4 on the middle joint lying on the proximal–distal line at the
-    standard length ratio and on the distal joint lying near its sensor) keep a motionless
-    limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the relative
-    rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment lengths
-    beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
-    the paper's least-squares solution, the geometric point and a straight limb through the
-    distal sensor; the alternation between axis and joints runs on a 400-frame subsample
-    from each start and the best is polished on every frame. Weights were chosen on
-    simulated clips (see ``docs/skeleton-limbs.md``).
-
-    Least-squares fits first converge on a subsample of about 400 frames and are then
-    polished on all frames, stopping when E changes by less than 1e-10 (relative). The
-    full-frame fits solve the 6 × 6 (7 × 7) normal equations directly instead of running
-    MINPACK's QR on the (2F + 7)-row Jacobian: for the paper's E the normal equations and the
-    exact Hessian come from per-frame sums (``_paper_normal``), so the full-size polish is
-    two Newton steps, each one pass over the frames; the improved objective's Jacobian is
-    formed and multiplied out. The improved method's alternations from rough starts keep
-    MINPACK (``scipy.optimize.least_squares``) on the subsample: its objective has several
-    local minima and the optimizer's steps decide which one a start falls into.
+    The cost's derivatives, the optimizers and the improved objective are described in the
+    module docstring.
     """
     report = progress or no_progress
-    if method not in ("paper", "improved"):
-        raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
-                         field="method")
-    if optimizer not in ("least-squares", "nelder-mead"):
-        raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
-                         "'nelder-mead'", field="optimizer")
-    lengths = (float(standard_lengths[0]), float(standard_lengths[1]))
-    if not all(np.isfinite(v) and v > 0 for v in lengths):
-        raise InputError("standard lengths must be positive", field="standard_lengths")
+    lengths = _check_limb_options(method, optimizer, standard_lengths)
     report(0.0, "limbs")
     world = _world(proximal, upper_positions, upper_rotations, distal_positions,
                    distal_rotations)
     limb = _in_upper_frame(world)
-    # a start needs only means over the frames: the subsample's are as good
-    x0 = _initial_point(_coarse(limb) or limb, lengths)
-    measured = _measured(limb, valid)
-    quality: dict[str, Any] = {"method": method}
     objective = _paper_normal(limb, lengths, w_s, w_l)
-    if method == "paper" and optimizer == "nelder-mead":
-        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
-        quality["optimizer"] = "nelder-mead"
-    else:
-        theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l, objective)
-        quality["optimizer"] = "least-squares"
-        if method == "improved":
-            report(0.3, "limbs")
-            h_bar = measured.h.mean(axis=0)
-            toward = measured.b.mean(axis=0) - h_bar
-            straight = np.concatenate([
-                h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9),
-                np.zeros(3)])
-            theta, more, ok, extra = _fit_improved(measured, [theta, x0, straight], lengths,
-                                                   robust_scale)
-            n_eval += more
-            quality.update(extra)
-            quality["fitted_frames"] = measured.n
+    theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective,
+                                           _LimbSettings(method, optimizer, lengths, w_s, w_l,
+                                                         robust_scale), report)
+    fit = _limb_fit(world, objective, theta, n_eval, ok, quality)
+    report(1.0, "limbs")
+    return fit
+
+
+def _limb_fit(world: _World, objective: _PaperObjective, theta: Float, n_eval: int, ok: bool,
+              quality: dict[str, Any]) -> LimbFit:
+    """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
     cost = objective.cost(theta)
     ll, lu = objective.lengths(theta)
@@ -1155,8 +1191,44 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
         "converged": ok,
         "n_evaluations": n_eval,
     })
-    report(1.0, "limbs")
     middle = rows.transform(world.ru, k, world.pu)
     distal = rows.transform(world.rd, a, world.pd)
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
                    cost=cost, n_evaluations=n_eval, quality=quality)
+
+
+class _LimbSettings(NamedTuple):
+    """``estimate_limb``'s method, optimizer, standard lengths, weights and loss scale."""
+
+    method: str
+    optimizer: str
+    lengths: tuple[float, float]
+    w_s: float
+    w_l: float
+    robust_scale: float | None
+
+
+def _fit_limb(limb: _Limb, measured: _Limb, objective: _PaperObjective,
+              settings: _LimbSettings, report: Progress
+              ) -> tuple[Float, int, bool, dict[str, Any]]:
+    """θ of the method and optimizer asked for, the evaluations used, whether it converged
+    and the method's quality figures; ``measured`` the frames the improved method fits."""
+    method, lengths, w_s, w_l = settings.method, settings.lengths, settings.w_s, settings.w_l
+    # a start needs only means over the frames: the subsample's are as good
+    x0 = _initial_point(_coarse(limb) or limb, lengths)
+    quality: dict[str, Any] = {"method": method}
+    if method == "paper" and settings.optimizer == "nelder-mead":
+        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
+        quality["optimizer"] = "nelder-mead"
+        return theta, n_eval, ok, quality
+    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l, objective)
+    quality["optimizer"] = "least-squares"
+    if method == "improved":
+        report(0.3, "limbs")
+        theta, more, ok, extra = _fit_improved(
+            measured, [theta, x0, _straight_start(measured, lengths)], lengths,
+            settings.robust_scale)
+        n_eval += more
+        quality.update(extra)
+        quality["fitted_frames"] = measured.n
+    return theta, n_eval, ok, quality
