@@ -60,7 +60,7 @@ Least-squares fits first converge on a subsample of about 400 frames and are the
 polished on all frames, stopping when E changes by less than 1e-10 (relative). The
 full-frame fits solve the 6 × 6 (7 × 7) normal equations directly instead of running
 MINPACK's QR on the (2F + 7)-row Jacobian: for the paper's E the normal equations and the
-exact Hessian come from per-frame sums (``_paper_normal``), so the full-size polish is
+exact Hessian come from per-frame sums (``paper_normal``), so the full-size polish is
 two Newton steps, each one pass over the frames; the improved objective's Jacobian is
 formed and multiplied out. The improved method's alternations from rough starts keep
 MINPACK (``scipy.optimize.least_squares``) on the subsample: its objective has several
@@ -75,13 +75,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import lapack
 from scipy.optimize import least_squares, minimize
 from scipy.spatial.transform import Rotation
 
 from . import _rows as rows
 from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
+from .least_squares import Normal, levenberg_marquardt, normal_from_residuals
 from .params import check_number
 from .progress import Progress, no_progress
 
@@ -202,12 +202,23 @@ def standard_lengths(torso_length: float,
 
 
 @dataclass(frozen=True)
-class _Limb:
-    """The data expressed in the upper sensor frame, where the costs are cheapest."""
+class LimbInUpperFrame:
+    """A limb's data expressed in the upper sensor frame, where the costs are cheapest
+    (:func:`limb_in_upper_frame`).
 
-    b: Float  # (F,3) distal sensor origin in the upper frame
-    q: Float  # (F,3,3) distal → upper rotation matrices
-    h: Float  # (F,3) proximal joint in the upper frame
+    Attributes
+    ----------
+    b : ndarray, shape (F, 3)
+        Distal sensor origin, metres.
+    q : ndarray, shape (F, 3, 3)
+        Distal → upper sensor rotation matrices.
+    h : ndarray, shape (F, 3)
+        Proximal joint, metres.
+    """
+
+    b: Float
+    q: Float
+    h: Float
 
     @property
     def n(self) -> int:
@@ -255,7 +266,7 @@ def _world(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rot
     return _World(hip, pu, upper_rotations.as_matrix(), pd, distal_rotations.as_matrix())
 
 
-def _in_upper_frame(world: _World) -> _Limb:
+def _in_upper_frame(world: _World) -> LimbInUpperFrame:
     ru = world.ru
     ru_t = ru.transpose(0, 2, 1)
     b = rows.apply_each(ru_t, world.pd - world.pu)
@@ -263,17 +274,28 @@ def _in_upper_frame(world: _World) -> _Limb:
     q = rows.relative_matrices(ru, world.rd)
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
-    return _Limb(b=b, q=q, h=h)
+    return LimbInUpperFrame(b=b, q=q, h=h)
 
 
-def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
-             distal_positions: ArrayLike, distal_rotations: Rotation) -> _Limb:
+def limb_in_upper_frame(proximal: ArrayLike, upper_positions: ArrayLike,
+                        upper_rotations: Rotation, distal_positions: ArrayLike,
+                        distal_rotations: Rotation) -> LimbInUpperFrame:
+    """A limb's inputs (as for :func:`estimate_limb`), checked and expressed in the upper
+    sensor's frame: the first step of every limb fit.
+
+    Raises
+    ------
+    InputError
+        Bad shapes, different numbers of frames, NaN or inf.
+    EstimationError
+        Fewer than 3 frames.
+    """
     return _in_upper_frame(_world(proximal, upper_positions, upper_rotations, distal_positions,
                                   distal_rotations))
 
 
-def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
-                     ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
+def paper_residuals(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float,
+                    w_l: float) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """``E`` as a sum of squares: residuals r(θ) with Σ r² = E, and their Jacobian.
 
     θ = (s_j, s_{j+1}). Per frame the variance and lower-length terms share l, and
@@ -334,12 +356,7 @@ def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l:
 _SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 _SIGN_OUTER = np.outer(_SIGN, _SIGN)
 
-Normal = tuple[float, Float, Float] | tuple[float, Float, Float, Float]
-"""``(E, g, H[, K])`` at a point: the cost, ``g = Jᵀr`` (half its gradient), ``H = JᵀJ`` and
-optionally ``K = JᵀJ + Σ r ∇²r`` (half the exact Hessian)."""
-
-
-class _PaperObjective(NamedTuple):
+class PaperObjective(NamedTuple):
     """The paper's E at θ, its normal equations, and the two segment lengths per frame; the
     three share one pass over the frames at the last point asked for."""
 
@@ -348,12 +365,12 @@ class _PaperObjective(NamedTuple):
     lengths: Callable[[Float], tuple[Float, Float]]
 
 
-def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
-                  exact: bool = True) -> _PaperObjective:
+def paper_normal(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float,
+                 w_l: float, exact: bool = True) -> PaperObjective:
     """``E`` and its Gauss–Newton normal equations, without the (2M + 7)-row Jacobian.
 
     Returns ``cost(θ) → E``, ``normal(θ) → (E, Jᵀr, JᵀJ)`` with ``r``, ``J`` those of
-    :func:`_paper_residuals`, and ``lengths(θ) → (l_{j,j+1}(t), l_{j−1,j}(t))``. With
+    :func:`paper_residuals`, and ``lengths(θ) → (l_{j,j+1}(t), l_{j−1,j}(t))``. With
     ``j_t = ∂l_t/∂θ = (−u_t, u_tᵀQ_t)`` (rows of an (M, 6) array), ``ê_t`` the unit
     hip → knee direction and ``c_t = (1 + w)l_t − l̄ − wL``::
 
@@ -368,7 +385,7 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
     measured on the RT1-size benchmark), Newton quadratically.
     """
     terms = _PaperTerms(limb, lengths, w_s, w_l, exact)
-    return _PaperObjective(terms.cost, terms.normal, terms.segment_lengths)
+    return PaperObjective(terms.cost, terms.normal, terms.segment_lengths)
 
 
 class _Geometry(NamedTuple):
@@ -383,10 +400,10 @@ class _Geometry(NamedTuple):
 
 
 class _PaperTerms:
-    """The paper's E of one limb and its normal equations (see ``_paper_normal``), sharing
+    """The paper's E of one limb and its normal equations (see ``paper_normal``), sharing
     one pass over the frames at the last point asked for."""
 
-    def __init__(self, limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
+    def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float, w_l: float,
                  exact: bool) -> None:
         self.limb, self.lengths, self.w_s, self.w_l, self.exact = limb, lengths, w_s, w_l, exact
         self._last: tuple[Float, _Geometry] | None = None
@@ -512,14 +529,14 @@ def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike
     -----
     Miura et al. 2015, eqs. 2–5.
     """
-    limb = _prepare(proximal, upper_positions, upper_rotations, distal_positions,
+    limb = limb_in_upper_frame(proximal, upper_positions, upper_rotations, distal_positions,
                     distal_rotations)
-    fun, _ = _paper_residuals(limb, standard_lengths, w_s, w_l)
+    fun, _ = paper_residuals(limb, standard_lengths, w_s, w_l)
     r = fun(np.asarray(theta, dtype=float).reshape(6))
     return float(np.einsum("i,i->", r, r))
 
 
-def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
+def _initial_point(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Float:
     """Start from geometry: the knee one thigh length from the hip, through the thigh sensor
     (which sits on the bone); the ankle one shank length from that knee towards the foot
     sensor (which sits next to the ankle)."""
@@ -536,16 +553,6 @@ def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
     return np.concatenate([k0, a0])
 
 
-_RTOL = 1e-10
-"""Relative change of E (and of its linear model) at which least-squares fits stop: E then
-lies within ~1e-12 (relative) of its minimum, far inside the 1e-6 agreement with Nelder–Mead
-that the tests and benchmarks check."""
-
-_NEWTON_CONSTANT = 1e4
-"""Bound on C in "the next Newton decrease is about C·δ² after a decrease δ" (relative to E),
-used to stop without a last pass over the frames; C up to ~200 was seen on the simulated
-clips."""
-
 _ROUGH_START = 1e-3
 """Initial Levenberg–Marquardt damping for starts from geometry (Nielsen's suggestion)."""
 
@@ -558,7 +565,7 @@ full-size iterations instead of ~15."""
 _COARSE_RTOL = 1e-6
 """Relative change of E at which the subsample fit stops: its minimum is itself ~1e-3 (relative
 E) away from the full-frame one, so polishing it further only costs iterations; the full-frame
-fit that follows still stops at ``_RTOL``."""
+fit that follows still stops at ``least_squares.RTOL``."""
 
 
 _COARSE_NEWTON_GAIN = 2e-3
@@ -568,185 +575,26 @@ than the subsample's minimum differs from the full one (measured: the full-frame
 the same point, 3 of 17 subsample normal-equation passes fewer on the RT1-size benchmark)."""
 
 
-def _coarse(limb: _Limb) -> _Limb | None:
+def _coarse(limb: LimbInUpperFrame) -> LimbInUpperFrame | None:
     step = limb.n // _COARSE_FRAMES
     if step < 2:
         return None
-    return _Limb(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
+    return LimbInUpperFrame(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
 
 
-def _levenberg_marquardt(cost: Callable[[Float], float], normal: Callable[[Float], Normal],
-                         x0: Float, *, rtol: float = _RTOL, max_iter: int = 200,
-                         damping: float = 1e-6, newton_rtol: float | None = None,
-                         ) -> tuple[Float, int, bool]:
-    """Minimise a sum of squares ``E(θ) = Σ r(θ)²`` by Levenberg–Marquardt.
-
-    Parameters
-    ----------
-    cost : callable
-        ``θ (P,) → E``.
-    normal : callable
-        ``θ (P,) → (E, Jᵀr (P,), JᵀJ (P, P)[, K (P, P)])``: the Gauss–Newton normal
-        equations and optionally half the exact Hessian ``K``, used (Newton–LM) wherever
-        ``K + μD`` is positive definite.
-    x0 : ndarray, shape (P,)
-        Start.
-    rtol : float
-        Stop when an accepted step lowered E by at most ``rtol·E`` and the model predicted
-        no more (MINPACK's ``ftol`` test); when the model predicts a decrease of at most
-        ``rtol·E`` (no step can lower E by more); or when a Newton step (exact curvature)
-        that the model predicted within 10 % lowered E by at most ``√(rtol/C)·E`` with
-        ``C = 1e4`` (quadratic convergence: the next step would gain at most ``rtol·E``).
-    max_iter : int
-        Maximum number of normal-equation evaluations.
-    damping : float
-        Initial ``μ`` (relative to ``D``): small for starts near the minimum (a converged
-        subsample fit), larger for rough geometric starts.
-    newton_rtol : float, optional
-        Relative decrease of a confirmed Newton step below which to stop; default
-        ``√(rtol/C)`` (see ``rtol``).
-
-    Returns
-    -------
-    x : ndarray, shape (P,)
-    n_evaluations : int
-        Evaluations of ``cost`` plus of ``normal``.
-    converged : bool
-
-    Notes
-    -----
-    With P ≤ 7 the ``P × P`` system ``(JᵀJ + μD) s = −Jᵀr`` (``D`` the diagonal of ``JᵀJ``:
-    Marquardt's scaling, as ``x_scale="jac"`` in scipy) is solved directly. MINPACK's QR of
-    the N × P Jacobian, which ``scipy.optimize.least_squares(method="lm")`` runs at every
-    iteration, cost more than the residuals themselves at N ≈ 12,600 (6,283 frames). The
-    damping ``μ`` follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for non-linear
-    least squares problems", 2nd ed., 2004, §3.2); it starts small because every start here
-    comes from a converged fit on a subsample or from geometry, so the first steps are
-    Gauss–Newton steps.
-    """
-    x = np.array(x0, dtype=float)
-    newton_stop = np.sqrt(rtol / _NEWTON_CONSTANT) if newton_rtol is None else newton_rtol
-    e, g, h, curv = _unpack(normal(x))
-    n_eval = 1
-    damp = _Damping(damping, 2.0)
-    for _ in range(max_iter):
-        x, used, damp, verdict = _lm_iteration(cost, x, (e, g, h, curv), damp, rtol,
-                                               newton_stop)
-        n_eval += used
-        if verdict is not None:
-            return x, n_eval, verdict
-        e, g, h, curv = _unpack(normal(x))
-        n_eval += 1
-    return x, n_eval, False
-
-
-class _Damping(NamedTuple):
-    """Levenberg–Marquardt damping ``μ`` (relative to the diagonal) and its growth ``ν``."""
-
-    mu: float
-    nu: float
-
-
-def _lm_iteration(cost: Callable[[Float], float], x: Float,
-                  at_x: tuple[float, Float, Float, Float | None], damp: _Damping,
-                  rtol: float, newton_stop: float
-                  ) -> tuple[Float, int, _Damping, bool | None]:
-    """One Levenberg–Marquardt iteration from ``x`` (``at_x``: E, g, H, K there): damped
-    steps, the damping raised after each rejected one, until one lowers E.
-
-    Returns the new point, the evaluations of ``cost`` used, the damping, and the verdict:
-    None to go on, True to stop converged (see ``_levenberg_marquardt``'s ``rtol``), False to
-    stop without (the model broke down)."""
-    e, g, h, curv = at_x
-    mu, nu = damp
-    diag = np.diag(h)
-    diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
-    n_eval = 0
-    while True:
-        step, model = _damped_step(curv, h, mu * diag, g)
-        # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
-        # M + μD is positive definite
-        predicted = float(-2.0 * (g @ step) - step @ model @ step)
-        if not np.isfinite(predicted):
-            return x, n_eval, _Damping(mu, nu), False
-        if predicted <= rtol * e:
-            # nothing left to gain: x is the minimum up to rounding
-            return x, n_eval, _Damping(mu, nu), True
-        x_new = x + step
-        e_new = cost(x_new)
-        n_eval += 1
-        if e_new < e:
-            rho = (e - e_new) / predicted
-            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            done = e - e_new <= rtol * e and predicted <= rtol * e
-            if model is curv and abs(rho - 1.0) < 0.1 and e - e_new <= newton_stop * e:
-                # Newton converges quadratically once its model holds (ρ ≈ 1): after a
-                # decrease of δ·E the next one is about C·δ²·E ≤ rtol·E
-                done = True
-            return x_new, n_eval, _Damping(mu, 2.0), True if done else None
-        mu *= nu
-        nu *= 2.0
-        if mu > 1e16:
-            return x, n_eval, _Damping(mu, nu), True
-
-
-def _unpack(n: Normal) -> tuple[float, Float, Float, Float | None]:
-    return (n[0], n[1], n[2], n[3]) if len(n) == 4 else (n[0], n[1], n[2], None)
-
-
-def _damped_step(curv: Float | None, h: Float, damping: Float, g: Float,
-                 ) -> tuple[Float, Float]:
-    """Solve ``(M + diag(damping)) s = −g`` with ``M`` the exact curvature when given and
-    the damped system is positive definite there, else ``M = JᵀJ``; returns ``s`` and ``M``."""
-    for model in (curv, h):
-        if model is None:
-            continue
-        a = model.copy()
-        a.flat[::a.shape[0] + 1] += damping
-        # LAPACK's dposv: a Cholesky factorisation, which fails (info > 0) unless the matrix
-        # is positive definite, and the solve, in one call (7 µs against 21 for numpy's two)
-        _, step, info = lapack.dposv(a, -g, overwrite_a=True)
-        if info == 0 and np.all(np.isfinite(step)):
-            return np.asarray(step, dtype=np.float64), model
-    return np.full(g.shape, np.nan), h
-
-
-def _normal_from_residuals(fun: Callable[[Float], Float], jac: Callable[[Float], Float],
-                           ) -> tuple[Callable[[Float], float], Callable[[Float], Normal]]:
-    """``cost`` and ``normal`` for :func:`_levenberg_marquardt` from residuals and their
-    Jacobian (the Jacobian is small enough here to form)."""
-    last: dict[str, Any] = {}
-
-    def residuals(theta: Float) -> Float:
-        if last.get("theta") is None or not np.array_equal(last["theta"], theta):
-            last["theta"], last["r"] = theta.copy(), fun(theta)
-        return last["r"]  # type: ignore[no-any-return]
-
-    def cost(theta: Float) -> float:
-        r = residuals(theta)
-        return float(r @ r)
-
-    def normal(theta: Float) -> Normal:
-        r = residuals(theta)
-        j = jac(theta)
-        return float(r @ r), j.T @ r, j.T @ j
-
-    return cost, normal
-
-
-def _fit_paper_ls(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
-                  w_l: float, objective: _PaperObjective) -> tuple[Float, int, bool]:
+def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,
+                  w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
     """Least squares on E: on a subsample first, then on every frame (``objective``)."""
     n_eval = 0
     coarse = _coarse(limb)
     if coarse is not None:
-        sub = _paper_normal(coarse, lengths, w_s, w_l)
-        x0, n_coarse, _ = _levenberg_marquardt(sub.cost, sub.normal, x0, rtol=_COARSE_RTOL,
-                                               damping=_ROUGH_START,
-                                               newton_rtol=_COARSE_NEWTON_GAIN)
+        sub = paper_normal(coarse, lengths, w_s, w_l)
+        x0, n_coarse, _ = levenberg_marquardt(sub.cost, sub.normal, x0, rtol=_COARSE_RTOL,
+                                              damping=_ROUGH_START,
+                                              newton_rtol=_COARSE_NEWTON_GAIN)
         n_eval += n_coarse
-    x, n_full, ok = _levenberg_marquardt(objective.cost, objective.normal, x0,
-                                         damping=_ROUGH_START if coarse is None else 1e-6)
+    x, n_full, ok = levenberg_marquardt(objective.cost, objective.normal, x0,
+                                        damping=_ROUGH_START if coarse is None else 1e-6)
     return x, n_eval + n_full, ok
 
 
@@ -763,7 +611,7 @@ runs it ends at most 1e-10 (relative) above the least-squares E, which itself li
 1e-13) cost 1.7× the evaluations for agreement the comparison cannot use."""
 
 
-def _fit_paper_nm(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
+def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,
                   w_l: float, progress: Progress) -> tuple[Float, int, bool]:
     l_up, l_low = lengths
 
@@ -808,7 +656,7 @@ def _soft_l1(r: Float, scale: float) -> tuple[Float, Float]:
     return r * np.sqrt(2.0 / (s + 1.0)), np.sqrt(0.5 * (s + 1.0)) / s
 
 
-def _hinge_axis(limb: _Limb, a: Float) -> tuple[Float, float]:
+def _hinge_axis(limb: LimbInUpperFrame, a: Float) -> tuple[Float, float]:
     """Flexion axis in the upper frame: the distal joint circles around it, so it is the
     direction of least scatter of the distal joint's path. Second value: how far that path
     is from a clean circle arc, 0 (planar and wide) to 1 (no usable axis): the planarity
@@ -823,10 +671,10 @@ def _hinge_axis(limb: _Limb, a: Float) -> tuple[Float, float]:
     return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
 
 
-def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_hinge: float,
-                      w_line: float, w_length: float, w_distal: float,
-                      robust_scale: float | None, w_plane: float,
-                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
+def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
+                     w_hinge: float, w_line: float, w_length: float, w_distal: float,
+                     robust_scale: float | None, w_plane: float,
+                     ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """θ = (k, a, L): middle joint (upper frame), distal joint (distal frame), lower length.
 
     Rows: M data rows ρ(l(t) − L); 2 hinge rows; 3 straight-limb rows (middle joint at the
@@ -845,7 +693,7 @@ def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_
 
 
 class _PriorWeights(NamedTuple):
-    """Per-frame weights of the improved method's prior rows (see ``_improved_problem``)."""
+    """Per-frame weights of the improved method's prior rows (see ``improved_problem``)."""
 
     hinge: float
     line: float
@@ -863,10 +711,10 @@ def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
 
 
 class _ImprovedProblem:
-    """Residuals and Jacobian of the improved objective of one limb (``_improved_problem``);
+    """Residuals and Jacobian of the improved objective of one limb (``improved_problem``);
     θ = (k, a, L)."""
 
-    def __init__(self, limb: _Limb, lengths: tuple[float, float], axis: Float,
+    def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
                  weights: _PriorWeights, robust_scale: float | None) -> None:
         m = limb.n
         self.limb, self.lengths, self.axis, self.robust_scale = limb, lengths, axis, robust_scale
@@ -962,7 +810,7 @@ _W_HINGE = 0.03     # hinge rule, fully on for planar distal paths
 _W_LINE = 3e-4      # middle joint on the proximal–distal line at the standard length ratio
 _W_LENGTH = 1e-4    # standard lengths (anthropometric tables are ±20 % off real subjects)
 _W_DISTAL = 3e-4    # distal joint near its sensor (as the paper's w_S, weaker, distal only)
-_W_PLANE = 0.2      # distal joint's path in the flexion plane, per frame (see _improved_problem)
+_W_PLANE = 0.2      # distal joint's path in the flexion plane, per frame (see improved_problem)
 _W_BOUND = 1.0      # lengths beyond ±_BOUND of the standard ones (implausible): strong
 _BOUND = 0.3
 _DISTAL_REACH = 0.2  # m: the ankle (wrist) lies within this distance of the foot (hand) sensor
@@ -974,7 +822,7 @@ _ALTERNATE = 2      # axis ↔ joints alternations
 _MOTION_REF_DEG = 20.0  # relative rotation (90th percentile) below which priors are raised
 
 
-def _relative_motion_deg(limb: _Limb) -> float:
+def _relative_motion_deg(limb: LimbInUpperFrame) -> float:
     """90th percentile of the angle between the distal–upper relative rotation and its mean
     (chordal mean), degrees: how much the limb moves."""
     u, _, vt = np.linalg.svd(limb.q.mean(axis=0))
@@ -990,7 +838,7 @@ def _hinge_weight(doubt: float) -> float:
 _MIN_MEASURED = 10
 
 
-def _measured(limb: _Limb, valid: ArrayLike | None) -> _Limb:
+def _measured(limb: LimbInUpperFrame, valid: ArrayLike | None) -> LimbInUpperFrame:
     """The frames of ``limb`` flagged in ``valid`` (all of them without a mask, or with fewer
     than ``_MIN_MEASURED`` flagged)."""
     if valid is None:
@@ -1000,7 +848,7 @@ def _measured(limb: _Limb, valid: ArrayLike | None) -> _Limb:
         raise InputError(f"valid must have shape ({limb.n},), got {keep.shape}", field="valid")
     if keep.all() or keep.sum() < _MIN_MEASURED:
         return limb
-    return _Limb(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
+    return LimbInUpperFrame(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
 
 
 def _check_limb_options(method: str, optimizer: str,
@@ -1018,7 +866,7 @@ def _check_limb_options(method: str, optimizer: str,
     return lengths
 
 
-def _straight_start(limb: _Limb, lengths: tuple[float, float]) -> Float:
+def _straight_start(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Float:
     """A straight limb: the middle joint one upper length from the proximal joint towards
     the distal sensor, the distal joint at its sensor's origin."""
     h_bar = limb.h.mean(axis=0)
@@ -1027,7 +875,7 @@ def _straight_start(limb: _Limb, lengths: tuple[float, float]) -> Float:
         h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9), np.zeros(3)])
 
 
-def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float],
+def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[float, float],
                   robust_scale: float | None) -> tuple[Float, int, bool, dict[str, Any]]:
     n_eval, ok = 0, False
     coarse = _coarse(limb) or limb
@@ -1045,7 +893,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
-            fun, jac = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
+            fun, jac = improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
                                          w_line, w_length, w_distal, robust_scale,
                                          _W_PLANE)
             # MINPACK's trust region from these rough starts: the objective has several
@@ -1061,7 +909,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
             axis = new_axis
             if moved < 1e-4:
                 break
-        fun, _ = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
+        fun, _ = improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
                                    w_length, w_distal, robust_scale, _W_PLANE)
         r = fun(x)
         value = float(r @ r)
@@ -1069,10 +917,10 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
             best = (value, x, axis, doubt)
     assert best is not None
     _, x, axis, doubt = best
-    fun, jac = _improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
+    fun, jac = improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
                                  w_length, w_distal, robust_scale, _W_PLANE)
     if coarse is not limb:
-        x, more, ok = _levenberg_marquardt(*_normal_from_residuals(fun, jac), x)
+        x, more, ok = levenberg_marquardt(*normal_from_residuals(fun, jac), x)
         n_eval += more
     r = fun(x)
     return x[:6], n_eval, ok, {
@@ -1085,7 +933,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
     }
 
 
-def _flexion_range_deg(limb: _Limb, x: Float, axis: Float) -> float:
+def _flexion_range_deg(limb: LimbInUpperFrame, x: Float, axis: Float) -> float:
     """Range (2.5–97.5 percentiles, degrees) of the middle → distal direction's angle about
     the flexion ``axis`` in the upper frame, at ``x`` = (middle, distal, ...)."""
     v = limb.distal(x[3:6]) - x[:3]
@@ -1168,7 +1016,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     world = _world(proximal, upper_positions, upper_rotations, distal_positions,
                    distal_rotations)
     limb = _in_upper_frame(world)
-    objective = _paper_normal(limb, lengths, w_s, w_l)
+    objective = paper_normal(limb, lengths, w_s, w_l)
     theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective,
                                            _LimbSettings(method, optimizer, lengths, w_s, w_l,
                                                          robust_scale), report)
@@ -1177,7 +1025,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     return fit
 
 
-def _limb_fit(world: _World, objective: _PaperObjective, theta: Float, n_eval: int, ok: bool,
+def _limb_fit(world: _World, objective: PaperObjective, theta: Float, n_eval: int, ok: bool,
               quality: dict[str, Any]) -> LimbFit:
     """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
@@ -1208,7 +1056,7 @@ class _LimbSettings(NamedTuple):
     robust_scale: float | None
 
 
-def _fit_limb(limb: _Limb, measured: _Limb, objective: _PaperObjective,
+def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: PaperObjective,
               settings: _LimbSettings, report: Progress
               ) -> tuple[Float, int, bool, dict[str, Any]]:
     """θ of the method and optimizer asked for, the evaluations used, whether it converged

@@ -77,7 +77,7 @@ def _frame_from_yz(y: Float, z: Float) -> Axes:
     return _cross(y, z), y, z
 
 
-def _quat_from_xy(x: Float, y: Float, out: Float) -> Float:
+def quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
     z = x × y, as quaternions written into ``out`` (F, 4), ``w ≥ 0``.
 
@@ -229,8 +229,8 @@ def _trunk(pos: Mapping[str, Float], slots: Iterator[Float], i0: int,
     # x = y × z is orthogonal to y whatever z's y component, so z is used as it comes
     pelvis_x = _cross(pelvis_y, _cross(rh, lh))
     chest_x = _cross(chest_y, _cross(ls, rs))
-    quats = {"pelvis": _quat_from_xy(pelvis_x, pelvis_y, next(slots)),
-             "chest": _quat_from_xy(chest_x, chest_y, next(slots))}
+    quats = {"pelvis": quat_from_xy(pelvis_x, pelvis_y, next(slots)),
+             "chest": quat_from_xy(chest_x, chest_y, next(slots))}
     chest_x = _normalise(chest_x)
     chest = (chest_x, chest_y, _cross(chest_x, chest_y))
     for seg, top, bottom in (("spine", "chest", "waist"), ("cervical", "neck", "chest")):
@@ -385,12 +385,12 @@ def _limb_segments(quats: dict[str, Float], pos: Mapping[str, Float],
         sensor = sensor_rotations.get(upper)
         x = _flexion_axis(upper_bone, lower_bone, None if sensor is None else sensor.as_matrix(),
                           parent_x["pelvis" if upper.endswith("thigh") else "chest"], sign)
-        quats[upper] = _quat_from_xy(x, upper_bone, next(slots))
+        quats[upper] = quat_from_xy(x, upper_bone, next(slots))
         if distal not in quats:
-            quats[lower] = _quat_from_xy(x, lower_bone, next(slots))
+            quats[lower] = quat_from_xy(x, lower_bone, next(slots))
             quats[distal] = quats[lower]
         elif sign < 0:
             hand = quats[distal]
             quats[lower] = _align_y(hand, _local(hand, lower_bone), next(slots))
         else:
-            quats[lower] = _quat_from_xy(x, lower_bone, next(slots))
+            quats[lower] = quat_from_xy(x, lower_bone, next(slots))
