@@ -29,7 +29,12 @@ if TYPE_CHECKING:
     from .results import JointOffset, SkeletonResult
     from .skeleton import estimate_chest, estimate_root, estimate_skeleton
     from .slip import SlipFit, estimate_slip, rotation_noise_variance
-    from .translation import ContactOptions, TranslationResult, estimate_translation
+    from .translation import (
+        ContactOptions,
+        HachajOptions,
+        TranslationResult,
+        estimate_translation,
+    )
 
 __all__ = [
     "DROPPED_IN_REDUCED",
@@ -40,6 +45,7 @@ __all__ = [
     "BvhMotion",
     "ContactOptions",
     "EstimationError",
+    "HachajOptions",
     "InputError",
     "JointFit",
     "JointOffset",
@@ -82,5 +88,6 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "results": ("JointOffset", "SkeletonResult"),
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
-    "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
+    "translation": ("ContactOptions", "HachajOptions", "TranslationResult",
+                    "estimate_translation"),
 })
