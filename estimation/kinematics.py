@@ -6,6 +6,7 @@ The input of :func:`estimation.translation.estimate_translation`; the readers of
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Final
@@ -15,6 +16,12 @@ from numpy.typing import NDArray
 
 from .bvh import BvhMotion
 from .errors import InputError
+
+
+def is_end_site_name(name: str) -> bool:
+    """Whether a column joint name is an anonymous end site (``EndSite4``, ``Foot_end``)."""
+    return bool(re.fullmatch(r"(?i)end\s*site\d*|.*_end_*", name))
+
 
 GRAVITY: Final[float] = 9.80665
 """Standard gravity, m/s²."""
@@ -99,7 +106,7 @@ class KinematicsRecording:
         for foot in (self.left_foot, self.right_foot):
             if foot not in self.joints:
                 raise InputError(f"foot joint {foot!r} not found; joints: "
-                                 f"{', '.join(self.joints)}", field=foot)
+                                 f"{', '.join(self.real_joints())}", field=foot)
             acc = self.accelerations.get(foot)
             if acc is None or acc.shape != (pos.shape[0], 3):
                 raise InputError(f"no (F, 3) accelerations for foot {foot!r}", sensor=foot)
@@ -116,5 +123,9 @@ class KinematicsRecording:
         try:
             return self.joints.index(joint)
         except ValueError:
-            raise InputError(f"joint {joint!r} not found; joints: {', '.join(self.joints)}",
-                             field=joint) from None
+            raise InputError(f"joint {joint!r} not found; joints: "
+                             f"{', '.join(self.real_joints())}", field=joint) from None
+
+    def real_joints(self) -> tuple[str, ...]:
+        """Joint names without end sites (``<joint>_end``, ``EndSite4``), for messages."""
+        return tuple(j for j in self.joints if not is_end_site_name(j))
