@@ -87,8 +87,8 @@ SKELETON_MAPS: Final[dict[str, dict[str, str]]] = {
         "r_hip": "UpperLeg_R", "r_knee": "LowerLeg_R", "r_ankle": "Foot_R", "r_toe": "Toes_R",
     },
 }
-"""BVH node names of each model role, per data set (see /work/shared/data/README.md).
-``example_motion`` uses the ``cmu_bvh11`` names."""
+"""BVH node names of each model role, per data set of the accuracy benchmarks (CMU, Bandai
+Namco). ``example_motion`` uses the ``cmu_bvh11`` names."""
 
 # segment -> (orientation role, origin joint role, bone start role, bone end role)
 _SEGMENT_DEF: Final[dict[str, tuple[str, str, str, str]]] = {
