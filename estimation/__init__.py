@@ -19,8 +19,8 @@ if TYPE_CHECKING:
     from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
     from .errors import BonefitError, EstimationError, InputError
     from .gaps import fill_gaps
-    from .io.kinematics import KinematicsRecording
     from .joints import JointFit, estimate_joint
+    from .kinematics import KinematicsRecording
     from .limbs import LimbFit, estimate_limb, standard_lengths, torso_length
     from .model import DROPPED_IN_REDUCED, JOINTS, REDUCED_SEGMENTS, SEGMENTS
     from .orientations import estimate_orientations
@@ -34,7 +34,12 @@ if TYPE_CHECKING:
         estimate_skeleton_from_offsets,
     )
     from .slip import SlipFit, estimate_slip, rotation_noise_variance
-    from .translation import ContactOptions, TranslationResult, estimate_translation
+    from .translation import (
+        ContactOptions,
+        HachajOptions,
+        TranslationResult,
+        estimate_translation,
+    )
 
 __all__ = [
     "DROPPED_IN_REDUCED",
@@ -45,6 +50,7 @@ __all__ = [
     "BvhMotion",
     "ContactOptions",
     "EstimationError",
+    "HachajOptions",
     "InputError",
     "JointFit",
     "JointOffset",
@@ -79,7 +85,7 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "bvh": ("BvhMotion", "forward_kinematics", "read_bvh", "write_bvh"),
     "errors": ("BonefitError", "EstimationError", "InputError"),
     "gaps": ("fill_gaps",),
-    "io.kinematics": ("KinematicsRecording",),
+    "kinematics": ("KinematicsRecording",),
     "joints": ("JointFit", "estimate_joint"),
     "limbs": ("LimbFit", "estimate_limb", "standard_lengths", "torso_length"),
     "model": ("DROPPED_IN_REDUCED", "JOINTS", "REDUCED_SEGMENTS", "SEGMENTS"),
@@ -90,5 +96,6 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton",
                  "estimate_skeleton_from_offsets"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
-    "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
+    "translation": ("ContactOptions", "HachajOptions", "TranslationResult",
+                    "estimate_translation"),
 })

@@ -102,7 +102,9 @@ def _llsf_system(ra: NDArray[np.float64], rb: NDArray[np.float64],
     return normal, rhs
 
 
-_SLIP_BASIS_MAX: Final[int] = 16
+SLIP_BASIS_MAX: Final[int] = 16
+"""Most cosines of the slip model (``slip_basis``): on a long recording only the slowest slip
+is modelled."""
 
 RULE_GATE_SIGMA: Final[float] = 3.0
 """The foot-of-perpendicular rule is dropped when its shift along the hinge axis exceeds this
@@ -111,9 +113,22 @@ the rule's hypothesis that the bone is perpendicular to the axis; see ``estimate
 
 
 def slip_basis(n: int, period: float) -> NDArray[np.float64]:
-    """Cosines (F, K) of every period down to ``period`` frames, unit RMS, no constant (a
-    constant slip is part of the centre)."""
-    k = min(int(np.ceil(2.0 * n / period)), _SLIP_BASIS_MAX)
+    """Cosines of the slow soft-tissue slip model (shared with ``slip.estimate_slip``).
+
+    Parameters
+    ----------
+    n : int
+        Number of frames F.
+    period : float
+        Shortest period modelled, frames.
+
+    Returns
+    -------
+    ndarray, shape (F, K)
+        Cosines of every period down to ``period`` frames (at most ``SLIP_BASIS_MAX``), unit
+        RMS, no constant (a constant slip is part of the centre).
+    """
+    k = min(int(np.ceil(2.0 * n / period)), SLIP_BASIS_MAX)
     t = (np.arange(n) + 0.5) / n
     return np.asarray(np.sqrt(2.0) * np.cos(np.pi * np.outer(t, np.arange(1, k + 1))))
 
@@ -182,9 +197,22 @@ def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np
 
 
 def white_variance(r: NDArray[np.float64], use: NDArray[np.bool_]) -> float | None:
-    """Variance per axis of the white part of a series (second differences, where smooth
-    motion contributes little; the median against outliers, 0.4549 the median of χ²₁), or
-    None with 10 or fewer usable triples of frames."""
+    """Variance per axis of the white part of a series (shared with ``slip.estimate_slip``).
+
+    Parameters
+    ----------
+    r : ndarray, shape (F, 3)
+        A residual series, metres.
+    use : ndarray of bool, shape (F,)
+        Frames that count.
+
+    Returns
+    -------
+    float or None
+        m², from second differences (where smooth motion contributes little; the median
+        against outliers, 0.4549 the median of χ²₁); None with 10 or fewer usable triples of
+        frames.
+    """
     dd = r[2:] - 2.0 * r[1:-1] + r[:-2]
     ok = use[2:] & use[1:-1] & use[:-2]
     if ok.sum() <= 10:
