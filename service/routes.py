@@ -34,7 +34,7 @@ from .schemas import (
     Status,
     UploadFormat,
 )
-from .uploads import UploadSink, receive_multipart, receive_raw, sniff, too_large
+from .uploads import UploadSink, cap_summary, receive_multipart, receive_raw, sniff, too_large
 
 Tenant = Annotated[str, Depends(tenant)]
 Limit = Annotated[int, Query(ge=1, le=1000, description="Page size.")]
@@ -147,7 +147,7 @@ async def upload_recording(
         rec = Recording(id=rec_id, tenant=who, key=key,
                         filename=filename, content_type=content_type, format=fmt,
                         size=sink.size, sha256=sink.sha256.hexdigest(), created_at=time.time(),
-                        summary=_plain(summary))
+                        summary=cap_summary(_plain(summary)))
         await run_in_threadpool(runtime.artifacts.put_file, rec.key, path)
         try:
             await run_in_threadpool(runtime.store.add_recording, rec)
