@@ -22,7 +22,9 @@ import io
 import math
 import os
 import struct
+import tokenize
 import zipfile
+import zlib
 from collections.abc import Iterator
 from typing import IO, Any, Final
 
@@ -72,6 +74,13 @@ decompressing, so a deflate bomb (1000:1) is refused unread."""
 NPY_HEADER_BYTES: Final[int] = 64 * 1024
 """Longest NPY header read (numpy writes 64 to 128 bytes; numpy itself refuses beyond 10 KB
 unless told otherwise)."""
+
+# what zipfile, zlib and numpy raise on a corrupt member (encrypted: RuntimeError; an
+# unknown compression method: NotImplementedError; a bad header literal: SyntaxError or
+# tokenize.TokenError)
+_UNREADABLE: Final = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error,
+                      NotImplementedError, SyntaxError, RuntimeError, struct.error,
+                      tokenize.TokenError)
 
 _EOCD: Final = struct.Struct("<4s4H2LH")
 _ZIP64_LOCATOR: Final = struct.Struct("<4sLQL")
@@ -236,7 +245,7 @@ def open_npz(path: str | os.PathLike[str]) -> zipfile.ZipFile:
                 name="MAX_NPZ_MEMBERS", field="input")
     try:
         return zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError) as exc:
+    except (*_UNREADABLE, zipfile.LargeZipFile) as exc:
         raise InputError(f"not an NPZ archive: {exc}", field="input") from None
 
 
@@ -267,8 +276,7 @@ def npy_header(archive: zipfile.ZipFile, key: str) -> tuple[tuple[int, ...], np.
                     member, max_header_size=NPY_HEADER_BYTES)
             else:
                 raise ValueError(f"unknown NPY version {version}")
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, NotImplementedError,
-            SyntaxError, RuntimeError) as exc:
+    except _UNREADABLE as exc:
         raise InputError(f"array {key!r} is not a readable NPY array: {exc}",
                          field=key) from None
     if dtype.hasobject:
@@ -331,5 +339,5 @@ def load_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf",
         with archive.open(f"{key}.npy") as member:
             return np.asarray(np.lib.format.read_array(member, allow_pickle=False,
                                                        max_header_size=NPY_HEADER_BYTES))
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+    except _UNREADABLE as exc:
         raise InputError(f"array {key!r} cannot be read: {exc}", field=key) from None
