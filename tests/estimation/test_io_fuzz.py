@@ -7,6 +7,7 @@ seconds on a loaded machine; ``derandomize`` keeps CI reproducible.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import tempfile
 import zipfile
@@ -125,10 +126,8 @@ def only_bonefit_errors(read: Callable[[Path], Any], data: bytes, suffix: str) -
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"fuzz{suffix}"
         path.write_bytes(data)
-        try:
+        with contextlib.suppress(BonefitError):
             read(path)
-        except BonefitError:
-            pass
 
 
 READERS: dict[str, tuple[Callable[[Path], Any], Callable[[], bytes], str]] = {
@@ -174,7 +173,34 @@ def test_the_seeds_are_what_they_claim() -> None:
         assert read_kinematics_csv(path).n_frames == 30
         path.write_bytes(acceleration_csv())
         time, feet, unit = read_acceleration_csv(path)
-        assert time.shape == (30,) and set(feet) == {"LeftFoot", "RightFoot"} and unit == "g"
+        assert time.shape == (30,)
+        assert set(feet) == {"LeftFoot", "RightFoot"}
+        assert unit == "g"
         path = Path(tmp) / "w.npz"
         path.write_bytes(sensor_npz_stored())
         assert np.isfinite(read_sensor_npz(path).fps)
+
+
+@pytest.mark.parametrize("change", [
+    {"joints": []}, {"fps": "60"}, {"fps": None}, {"quality": {"hip": 1}},
+    {"warnings": 3}, {"timings": {"total": [1]}}, {"bone_lengths": {"femur_l": "long"}}])
+def test_skeleton_json_fields_of_the_wrong_type_are_named(change: dict[str, Any]) -> None:
+    import json
+
+    doc = {**json.loads(skeleton_json()), **change}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "s.json"
+        path.write_text(json.dumps(doc))
+        with pytest.raises(BonefitError) as caught:
+            read_skeleton_json(path)
+    key = next(iter(change))
+    assert caught.value.field is not None
+    assert caught.value.field.startswith(key)
+
+
+def test_skeleton_json_that_is_not_utf8() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "s.json"
+        path.write_bytes(b'{"kind": "skeleton\xff"}')
+        with pytest.raises(BonefitError, match="not a UTF-8 JSON document"):
+            read_skeleton_json(path)
