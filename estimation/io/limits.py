@@ -145,10 +145,11 @@ def check_value(value: float, *, line: int | None = None, column: int | None = N
         return
     where = ", ".join(p for p in (f"line {line}" if line is not None else "",
                                   f"column {column}" if column is not None else "",
-                                  f"({field})" if field else "",
                                   f"sensor {sensor!r}" if sensor else "") if p)
-    raise InputError(f"{what} at {where or 'an unknown place'}", line=line, column=column,
-                     field=field, sensor=sensor)
+    if field:
+        where = f"{where} ({field})" if where else field
+    raise InputError(f"{what} at {where}", line=line, column=column, field=field,
+                     sensor=sensor)
 
 
 def first_bad_value(table: NDArray[np.float64], *, nan_ok: bool = True) -> tuple[int, ...] | None:
