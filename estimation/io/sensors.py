@@ -17,7 +17,7 @@ import math
 import mmap
 import os
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, Final
 
@@ -867,7 +867,11 @@ def sniff_recording(path: PathLike, format: str = "auto", *,
     if fmt == "csv":
         return _sniff_csv(path, meta, counted_rows)
     with _open_text(path) as handle:
-        return _sniff_tracker(handle, meta)
+        summary = _sniff_tracker(limits.bounded_lines(handle), meta)
+    limits.check_count("frames", summary["frames"], limits.MAX_FRAMES)
+    limits.check_count("stations", len(summary["sensors"]), limits.MAX_SENSORS,
+                       name="MAX_SENSORS", field="stations")
+    return summary
 
 
 def _sniff_csv(path: PathLike, meta: dict[str, str],
@@ -1017,7 +1021,7 @@ def _sniff_line_lead(line: bytes) -> bytes:
     return lead[0].encode() if lead else decoder.getstate()[0]
 
 
-def _sniff_tracker(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
+def _sniff_tracker(handle: Iterable[str], meta: dict[str, str]) -> dict[str, Any]:
     cycle = _StationCycle()
     order: list[int] = []
     frames = 0

@@ -309,3 +309,11 @@ def test_bounded_lines_keeps_line_ends_and_refuses_only_past_the_limit() -> None
     with pytest.raises(LimitError) as caught:
         list(limits.bounded_lines(io.StringIO("a\n" + "y" * 10), limit=9))
     assert caught.value.line == 2
+
+
+def test_tracker_sniff_reads_bounded_lines(tmp_path: Path) -> None:
+    path = tmp_path / "polhemus.txt"
+    path.write_text("1 0 0 0 0 0 0\n" + "2" + " 0" * limits.MAX_LINE_CHARS + "\n")
+    with pytest.raises(LimitError) as caught:
+        sniff_recording(path, "tracker")
+    assert (caught.value.limit, caught.value.line) == ("MAX_LINE_CHARS", 2)

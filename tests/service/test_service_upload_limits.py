@@ -6,12 +6,17 @@ from __future__ import annotations
 import io
 import json
 import time
+import tracemalloc
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from estimation.errors import InputError, LimitError
 from service.jobs import Recording
+from service.kinds import Input, SkeletonParams, run_skeleton
+from service.problems import from_bonefit_error
 from service.runtime import Runtime
 from service.uploads import SUMMARY_BYTES, SUMMARY_ITEMS, cap_summary
 from tests.service.helpers import TestClient, sensor_csv, upload
@@ -113,3 +118,32 @@ def test_a_huge_stored_summary_is_not_re_served(client: TestClient, runtime: Run
     assert listing_bytes(client) < 3 * SUMMARY_BYTES
     one = client.get("/v1/recordings/0legacy").json()
     assert one["summary"]["sensors_total"] == 2_000_000
+
+
+def test_the_worker_refuses_a_positions_bomb_before_inflating_it(tmp_path: Path) -> None:
+    """The real skeleton kind reads with the same guards: a named LimitError (a 422 job
+    error), with under 2 MB allocated, for a positions.npy that inflates to 64 MB and
+    declares 50 M frames."""
+    path = tmp_path / "bomb.npz"
+    with (zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf,
+          zf.open("positions.npy", "w", force_zip64=True) as member):
+        member.write(npy_header("<f8", (50_000_000, 15, 3)))
+        for _ in range(64):
+            member.write(bytes(MB))
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(InputError):  # imports what the kind needs outside the measurement
+        run_skeleton({"recording": Input(junk, "npz")}, SkeletonParams(),
+                     lambda fraction, stage: None, tmp_path / "out")
+    tracemalloc.start()
+    try:
+        with pytest.raises(LimitError) as caught:
+            run_skeleton({"recording": Input(path, "npz")}, SkeletonParams(),
+                         lambda fraction, stage: None, tmp_path / "out")
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert caught.value.limit == "MAX_VALUES"
+    assert caught.value.field == "positions"
+    assert peak < 2 * MB
+    assert from_bonefit_error(caught.value).status == 422
