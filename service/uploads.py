@@ -312,7 +312,7 @@ def _sniff_accelerations(path: Path) -> dict[str, Any]:
             frames += 1
     if header is None:
         raise InputError("empty file: no header line", line=1, field="header")
-    limits.check_count("frames", frames, limits.MAX_FRAMES)
+    limits.check_count("frames", frames, "MAX_FRAMES")
     names, _ = acceleration_header(header)
     if not any(n.lower() in ("time", "t") for n in names):
         raise InputError("not an accelerations CSV: the header has no time column",
@@ -327,11 +327,11 @@ def _sniff_accelerations(path: Path) -> dict[str, Any]:
 
 def _acceleration_columns(line_text: str, line: int) -> list[str]:
     header = [c.strip() for c in line_text.split(",")]
-    limits.check_count("columns", len(header), limits.MAX_COLUMNS, line=line, field="header")
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
     if len(header) < 2 or not any(c[:1].isalpha() for c in header):
         raise InputError("expected a header line of column names", line=line, field="header")
     for name in header:
-        limits.check_count("characters in a column name", len(name), limits.MAX_NAME_CHARS,
+        limits.check_count("characters in a column name", len(name), "MAX_NAME_CHARS",
                            line=line, field="header")
     return header
 

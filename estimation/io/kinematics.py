@@ -275,9 +275,9 @@ def _open_csv(path: PathLike) -> io.TextIOWrapper:
 
 def _table_header(first: str) -> list[str]:
     header = [h.strip() for h in next(csv.reader([first]), [])] if first.strip() else []
-    limits.check_count("columns", len(header), limits.MAX_COLUMNS, line=1, field="header")
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=1, field="header")
     for h in header:
-        limits.check_count("characters in a column name", len(h), limits.MAX_NAME_CHARS,
+        limits.check_count("characters in a column name", len(h), "MAX_NAME_CHARS",
                            line=1, field="header")
     return header
 
@@ -299,7 +299,7 @@ def _read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
         except (ValueError, UserWarning):
             body = None
     if body is not None and body.shape[0] and body.shape[1] == len(header):
-        limits.check_count("frames", body.shape[0], limits.MAX_FRAMES)
+        limits.check_count("frames", body.shape[0], "MAX_FRAMES")
         _check_table(body, header)
         return header, body
     return _read_table_slowly(path)
@@ -319,7 +319,7 @@ def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
             if not row or all(not c.strip() for c in row):
                 continue
             if len(rows) == limits.MAX_FRAMES:
-                limits.check_count("frames", len(rows) + 1, limits.MAX_FRAMES, line=lineno)
+                limits.check_count("frames", len(rows) + 1, "MAX_FRAMES", line=lineno)
             if len(row) != len(header):
                 raise InputError(f"row has {len(row)} values, the header has {len(header)}",
                                  line=lineno)
@@ -755,7 +755,7 @@ def _sniff_kinematics_csv(path: PathLike) -> dict[str, Any]:
         if not joints:
             raise InputError("not a kinematics CSV: the header has no <Joint>.Dx/.Dy/.Dz "
                              "position columns", field="header", line=1)
-        limits.check_count("joints", len(joints), limits.MAX_JOINTS, line=1, field="header")
+        limits.check_count("joints", len(joints), "MAX_JOINTS", line=1, field="header")
         tcol = next((i for i, h in enumerate(header) if h.lower() == "time"), None)
         reader = csv.reader(lines)
         frames, t0, t1 = 0, math.nan, math.nan
@@ -769,7 +769,7 @@ def _sniff_kinematics_csv(path: PathLike) -> dict[str, Any]:
                 except (ValueError, IndexError):
                     raise InputError("bad Time value", line=reader.line_num + 1,
                                      column=tcol + 1, field=header[tcol]) from None
-    limits.check_count("frames", frames, limits.MAX_FRAMES)
+    limits.check_count("frames", frames, "MAX_FRAMES")
     fps = 1.0 / (t1 - t0) if frames >= 2 and t1 > t0 else None
     return {"format": "kinematics-csv", "frames": frames, "joints": list(joints),
             "fps": fps if fps is not None and math.isfinite(fps) else None,
@@ -796,12 +796,12 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
                 seen_hierarchy = True
             elif key in ("ROOT", "JOINT") and len(parts) > 1:
                 joints.append(parts[1][:limits.MAX_NAME_CHARS])
-                limits.check_count("joints", len(joints), limits.MAX_JOINTS, line=line)
+                limits.check_count("joints", len(joints), "MAX_JOINTS", line=line)
             elif key == "MOTION":
                 seen_motion = True
             elif key == "FRAMES:" and seen_motion:
                 frames = _bvh_number(parts, 1, line, "Frames", int)
-                limits.check_count("frames", frames, limits.MAX_FRAMES, line=line)
+                limits.check_count("frames", frames, "MAX_FRAMES", line=line)
             elif key == "FRAME" and seen_motion:
                 step = _bvh_number(parts, 2, line, "Frame Time", float)
                 if not (math.isfinite(step) and step > 0):

@@ -9,8 +9,8 @@ limit. The limits are far above any real studio capture (documented in
 Examples
 --------
 >>> from estimation.io import limits
->>> limits.check_count("frames", 120, limits.MAX_FRAMES)
->>> limits.check_count("columns", 5000, limits.MAX_COLUMNS, line=1)
+>>> limits.check_count("frames", 120, "MAX_FRAMES")
+>>> limits.check_count("columns", 5000, "MAX_COLUMNS", line=1)
 Traceback (most recent call last):
 ...
 estimation.errors.LimitError: the file has 5000 columns; the limit is 4096 (MAX_COLUMNS)
@@ -63,6 +63,10 @@ accelerations, in whatever units): no capture comes near (time stamps in epoch s
 MAX_NPZ_MEMBERS: Final[int] = 64
 """Arrays of one NPZ archive (a recording has 4 to 6)."""
 
+MAX_ZIP_DIRECTORY_BYTES: Final[int] = 64 * 1024
+"""Size of an NPZ archive's ZIP directory (46 bytes and a name per array: a few hundred
+bytes for a recording)."""
+
 MAX_NPZ_SMALL_BYTES: Final[int] = 64 * 1024
 """Uncompressed size of an NPZ member that holds names or a scalar (``sensors``, ``fps``,
 ``units``)."""
@@ -87,18 +91,18 @@ _ZIP64_LOCATOR: Final = struct.Struct("<4sLQL")
 _ZIP64_EOCD: Final = struct.Struct("<4sQ2H2L4Q")
 
 
-def check_count(what: str, count: int, limit: int, *, name: str | None = None,
-                field: str | None = None, line: int | None = None) -> None:
-    """Refuse ``count`` items of ``what`` beyond ``limit``.
+def check_count(what: str, count: int, name: str, *, field: str | None = None,
+                line: int | None = None) -> None:
+    """Refuse ``count`` items of ``what`` beyond the limit called ``name``.
 
     Parameters
     ----------
     what : str
         Plural noun for the message (``"frames"``, ``"columns"``).
-    count, limit : int
-    name : str, optional
-        Name of the limit for the message and the error's ``limit`` (default found from the
-        value among this module's constants).
+    count : int
+    name : str
+        Name of one of this module's limits (``"MAX_FRAMES"``); its value is read when
+        called, and the error's ``limit`` is this name.
     field : str, optional
         Field of the file at fault (default ``what``).
     line : int, optional
@@ -108,19 +112,10 @@ def check_count(what: str, count: int, limit: int, *, name: str | None = None,
     ------
     LimitError
     """
+    limit = int(globals()[name])
     if count > limit:
-        label = name or _limit_name(limit)
-        raise LimitError(f"the file has {count} {what}; the limit is {limit} ({label})",
-                         limit=label, field=field or what, line=line)
-
-
-def _limit_name(value: int) -> str:
-    names = {MAX_FRAMES: "MAX_FRAMES", MAX_VALUES: "MAX_VALUES", MAX_SENSORS: "MAX_SENSORS",
-             MAX_JOINTS: "MAX_JOINTS", MAX_COLUMNS: "MAX_COLUMNS",
-             MAX_LINE_CHARS: "MAX_LINE_CHARS", MAX_NAME_CHARS: "MAX_NAME_CHARS",
-             MAX_NPZ_MEMBERS: "MAX_NPZ_MEMBERS", MAX_NPZ_SMALL_BYTES: "MAX_NPZ_SMALL_BYTES",
-             MAX_NPY_BYTES: "MAX_NPY_BYTES"}
-    return names.get(value, "limit")
+        raise LimitError(f"the file has {count} {what}; the limit is {limit} ({name})",
+                         limit=name, field=field or what, line=line)
 
 
 def check_value(value: float, *, line: int | None = None, column: int | None = None,
@@ -240,10 +235,8 @@ def open_npz(path: str | os.PathLike[str]) -> zipfile.ZipFile:
     """
     with open(path, "rb") as handle:
         count, cd_bytes = zip_entry_count(handle)
-    check_count("arrays", count, MAX_NPZ_MEMBERS, field="input")
-    # a directory entry is 46 bytes plus a name: a few KB for a real archive
-    check_count("bytes of ZIP directory", cd_bytes, MAX_NPZ_MEMBERS * 1024,
-                name="MAX_NPZ_MEMBERS", field="input")
+    check_count("arrays", count, "MAX_NPZ_MEMBERS", field="input")
+    check_count("bytes of ZIP directory", cd_bytes, "MAX_ZIP_DIRECTORY_BYTES", field="input")
     try:
         return zipfile.ZipFile(path)
     except (*_UNREADABLE, zipfile.LargeZipFile) as exc:
@@ -289,8 +282,7 @@ def npy_header(archive: zipfile.ZipFile, key: str) -> tuple[tuple[int, ...], np.
     return tuple(int(n) for n in shape), dtype, info
 
 
-def check_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf",
-              max_values: int = MAX_VALUES, max_bytes: int = MAX_NPY_BYTES
+def check_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf", small: bool = False
               ) -> tuple[tuple[int, ...], np.dtype[np.generic]]:
     """Shape and dtype of ``<key>.npy`` once its declared size is within limits.
 
@@ -301,8 +293,9 @@ def check_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf",
         Array name (member ``<key>.npy``).
     kinds : str
         Accepted dtype kinds (``"biuf"`` numbers, ``"US"`` strings).
-    max_values, max_bytes : int
-        Limits on the element count and the uncompressed member size.
+    small : bool
+        Whether the member holds names or a scalar (``MAX_NPZ_SMALL_BYTES``) rather than
+        data (``MAX_VALUES`` values, ``MAX_NPY_BYTES``).
 
     The member's uncompressed size (from the ZIP directory, which ``zipfile`` enforces while
     decompressing) must match what the header declares, so that loading it allocates no more
@@ -320,12 +313,13 @@ def check_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf",
         raise InputError(f"array {key!r} has dtype {dtype}; expected {' or '.join(names)}",
                          field=key)
     count = math.prod(shape)
-    check_count(f"values in array {key!r}", count, max_values, field=key,
-                name="MAX_VALUES" if max_values == MAX_VALUES else None)
+    check_count(f"values in array {key!r}", count, "MAX_VALUES", field=key)
     payload = count * dtype.itemsize
+    name = "MAX_NPZ_SMALL_BYTES" if small else "MAX_NPY_BYTES"
+    max_bytes = int(globals()[name])
     if info.file_size > max_bytes:
         raise LimitError(f"array {key!r} is {info.file_size} bytes; the limit is {max_bytes} "
-                         f"({_limit_name(max_bytes)})", limit=_limit_name(max_bytes), field=key)
+                         f"({name})", limit=name, field=key)
     if not payload <= info.file_size <= payload + NPY_HEADER_BYTES + 16:
         raise InputError(f"array {key!r} declares shape {shape} of {dtype} ({payload} bytes) "
                          f"but its member holds {info.file_size} bytes", field=key)
@@ -333,9 +327,9 @@ def check_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf",
 
 
 def load_npy(archive: zipfile.ZipFile, key: str, *, kinds: str = "biuf",
-             max_values: int = MAX_VALUES, max_bytes: int = MAX_NPY_BYTES) -> NDArray[Any]:
+             small: bool = False) -> NDArray[Any]:
     """``<key>.npy`` checked with :func:`check_npy`, then loaded (``allow_pickle=False``)."""
-    check_npy(archive, key, kinds=kinds, max_values=max_values, max_bytes=max_bytes)
+    check_npy(archive, key, kinds=kinds, small=small)
     try:
         with archive.open(f"{key}.npy") as member:
             return np.asarray(np.lib.format.read_array(member, allow_pickle=False,

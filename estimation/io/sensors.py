@@ -253,7 +253,7 @@ def _fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
 def _parse_csv_header(header: list[str], line: int) -> tuple[int | None, list[str],
                                                               NDArray[np.int64]]:
     """Time column, sensor names and (S, 7) column indices of a sensor-CSV header."""
-    limits.check_count("columns", len(header), limits.MAX_COLUMNS, line=line, field="header")
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
     time_col: int | None = None
     seen: dict[str, int] = {}
     columns: dict[str, dict[str, int]] = {}
@@ -374,7 +374,7 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
             if row[0].lstrip().startswith("#"):
                 continue
             if len(data) == limits.MAX_FRAMES:
-                limits.check_count("frames", len(data) + 1, limits.MAX_FRAMES, line=line)
+                limits.check_count("frames", len(data) + 1, "MAX_FRAMES", line=line)
             if len(row) != n_cols:
                 raise InputError(f"line {line} has {len(row)} cells, the header has {n_cols}",
                                  line=line, column=min(len(row), n_cols) + 1)
@@ -868,9 +868,8 @@ def sniff_recording(path: PathLike, format: str = "auto", *,
         return _sniff_csv(path, meta, counted_rows)
     with _open_text(path) as handle:
         summary = _sniff_tracker(limits.bounded_lines(handle), meta)
-    limits.check_count("frames", summary["frames"], limits.MAX_FRAMES)
-    limits.check_count("stations", len(summary["sensors"]), limits.MAX_SENSORS,
-                       name="MAX_SENSORS", field="stations")
+    limits.check_count("frames", summary["frames"], "MAX_FRAMES")
+    limits.check_count("stations", len(summary["sensors"]), "MAX_SENSORS", field="stations")
     return summary
 
 
@@ -897,7 +896,7 @@ def _sniff_csv(path: PathLike, meta: dict[str, str],
                 frames = counted if counted is not None else frames + sum(
                     _sniff_is_row(rest) for rest in lines)
                 break
-    limits.check_count("frames", frames, limits.MAX_FRAMES)
+    limits.check_count("frames", frames, "MAX_FRAMES")
     fps: float | None = None
     if "fps" in meta:
         fps = _parse_fps(meta["fps"])
@@ -1069,24 +1068,24 @@ def _sniff_npz(path: PathLike) -> dict[str, Any]:
 
 def _npz_small(archive: zipfile.ZipFile, key: str, kinds: str) -> NDArray[Any]:
     """A member holding names or a scalar, within ``MAX_NPZ_SMALL_BYTES``."""
-    return limits.load_npy(archive, key, kinds=kinds, max_bytes=limits.MAX_NPZ_SMALL_BYTES)
+    return limits.load_npy(archive, key, kinds=kinds, small=True)
 
 
 def _npz_frames(archive: zipfile.ZipFile) -> int:
     """Frames that ``positions`` declares, within ``MAX_FRAMES`` (its header only)."""
     shape, _ = limits.check_npy(archive, "positions")
     frames = shape[0] if shape else 0
-    limits.check_count("frames", frames, limits.MAX_FRAMES, field="positions")
+    limits.check_count("frames", frames, "MAX_FRAMES", field="positions")
     return frames
 
 
 def _npz_sensor_names(names: NDArray[Any]) -> list[str]:
     """The ``sensors`` array as names, within ``MAX_SENSORS`` and ``MAX_NAME_CHARS``."""
     flat = names.reshape(-1)
-    limits.check_count("sensors", flat.size, limits.MAX_SENSORS, field="sensors")
+    limits.check_count("sensors", flat.size, "MAX_SENSORS", field="sensors")
     out = [str(s) for s in flat]
     for name in out:
-        limits.check_count("characters in a sensor name", len(name), limits.MAX_NAME_CHARS,
+        limits.check_count("characters in a sensor name", len(name), "MAX_NAME_CHARS",
                            field="sensors")
     return out
 
@@ -1105,5 +1104,5 @@ def _npz_units(value: NDArray[Any]) -> str:
         raise InputError(f"units must be one string, got an array of shape {value.shape}",
                          field="units")
     text = str(value.reshape(-1)[0])
-    limits.check_count("characters in units", len(text), limits.MAX_NAME_CHARS, field="units")
+    limits.check_count("characters in units", len(text), "MAX_NAME_CHARS", field="units")
     return text

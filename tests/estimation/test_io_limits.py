@@ -317,3 +317,15 @@ def test_tracker_sniff_reads_bounded_lines(tmp_path: Path) -> None:
     with pytest.raises(LimitError) as caught:
         sniff_recording(path, "tracker")
     assert (caught.value.limit, caught.value.line) == ("MAX_LINE_CHARS", 2)
+
+
+def test_npz_with_too_many_sensors_names_max_sensors(tmp_path: Path) -> None:
+    """MAX_SENSORS and MAX_NAME_CHARS are both 256: the error names the one exceeded."""
+    path = tmp_path / "many.npz"
+    n = limits.MAX_SENSORS + 1
+    np.savez(path, positions=np.zeros((2, n, 3)), quaternions=np.ones((2, n, 4)) / 2,
+             sensors=np.array(["pelvis"] * n), fps=np.float64(60))
+    for read in (read_sensor_npz, lambda p: sniff_recording(p, "npz")):
+        with pytest.raises(LimitError) as caught:
+            read(path)
+        assert caught.value.limit == "MAX_SENSORS"
