@@ -12,7 +12,9 @@ Bombs (issue 16 §1):
 * ``npz-positions``: a ~250 KB NPZ whose ``positions.npy`` declares 50 M × 15 × 3 float64s of
   which only 4 MB of zeros are stored (a truncated, lying member);
 * ``csv-line``: a 50 MB accelerations CSV that is a single header line of 12.5 M columns;
-* ``bvh-random``: 1 MB of random bytes declared ``format=bvh``.
+* ``bvh-random``: 1 MB of random bytes declared ``format=bvh``;
+* ``csv-wide``: a valid 800 KB accelerations-CSV header (1,300 sensors, 3,900 columns of 200
+  characters), accepted: its stored summary is what the listing re-serves.
 
     python benchmarks/upload_bombs.py [--timeout 30]
 
@@ -86,6 +88,17 @@ def csv_line(path: Path) -> tuple[Path, str]:
     return out, "accelerations-csv"
 
 
+def csv_wide(path: Path) -> tuple[Path, str]:
+    """A valid accelerations CSV within the limits whose header is 800 KB: 1,300 sensors of
+    three 200-character columns (accepted; its summary must stay small)."""
+    out = path / "wide.csv"
+    names = [f"{'s' * 190}{i:05d}" for i in range(1300)]
+    header = ["time", *(f"{n}.a{a}" for n in names for a in "xyz")]
+    row = ",".join(["0"] + ["1"] * (len(header) - 1))
+    out.write_text(",".join(header) + "\n" + row + "\n")
+    return out, "accelerations-csv"
+
+
 def bvh_random(path: Path) -> tuple[Path, str]:
     """1 MB of random bytes declared as a BVH."""
     out = path / "random.bvh"
@@ -95,7 +108,7 @@ def bvh_random(path: Path) -> tuple[Path, str]:
 
 BOMBS: dict[str, Callable[[Path], tuple[Path, str]]] = {
     "npz-sensors": npz_sensors, "npz-positions": npz_positions, "csv-line": csv_line,
-    "bvh-random": bvh_random}
+    "bvh-random": bvh_random, "csv-wide": csv_wide}
 
 
 def measure(base_url: str, pid: int, path: Path, fmt: str, timeout: float) -> dict[str, object]:

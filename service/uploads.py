@@ -354,25 +354,27 @@ def sniff(path: Path, fmt: str, filename: str | None,
 
 
 def cap_summary(summary: dict[str, Any], limit: int = SUMMARY_BYTES) -> dict[str, Any]:
-    """``summary`` cut to at most ``limit`` bytes of JSON: lists keep their first
-    ``SUMMARY_ITEMS`` items (``<key>_total`` says how many there were) and strings their
-    first ``SUMMARY_STRING`` characters, so that a listing never re-serves bulk data
-    whatever a file declares."""
+    """``summary`` cut to at most ``limit`` bytes of JSON, so that a listing never re-serves
+    bulk data whatever a file declares: strings keep their first ``SUMMARY_STRING``
+    characters and lists their first ``SUMMARY_ITEMS`` items, then fewer until it fits; a cut
+    list's ``<key>_total`` member gives its length."""
     if _json_size(summary) <= limit:
         return summary
-    out: dict[str, Any] = {}
-    for key, value in summary.items():
-        if isinstance(value, list):
-            out[key] = [_cap_scalar(v) for v in value[:SUMMARY_ITEMS]]
-            if len(value) > SUMMARY_ITEMS:
-                out[f"{key}_total"] = len(value)
-        else:
-            out[key] = _cap_scalar(value)
-    if _json_size(out) <= limit:
-        return out
-    kept = {k: v for k, v in out.items() if not isinstance(v, list | dict)}
-    kept["truncated"] = True
-    return kept if _json_size(kept) <= limit else {"truncated": True}
+    items = SUMMARY_ITEMS
+    while True:
+        out: dict[str, Any] = {}
+        for key, value in summary.items():
+            if isinstance(value, list):
+                out[key] = [_cap_scalar(v) for v in value[:items]]
+                if len(value) > items:
+                    out[f"{key}_total"] = len(value)
+            else:
+                out[key] = _cap_scalar(value)
+        if _json_size(out) <= limit:
+            return out
+        if items == 0:
+            return {"truncated": True}
+        items //= 4
 
 
 def _cap_scalar(value: Any) -> Any:

@@ -147,3 +147,14 @@ def test_the_worker_refuses_a_positions_bomb_before_inflating_it(tmp_path: Path)
     assert caught.value.field == "positions"
     assert peak < 2 * MB
     assert from_bonefit_error(caught.value).status == 422
+
+
+def test_long_names_cut_lists_further_but_keep_what_fits() -> None:
+    names = ["x" * 250 + f"{i:04d}" for i in range(3900)]
+    capped = cap_summary({"format": "accelerations-csv", "frames": 1, "columns": names})
+    assert len(json.dumps(capped)) <= SUMMARY_BYTES
+    assert 0 < len(capped["columns"]) < SUMMARY_ITEMS
+    assert capped["columns"] == [n[:256] + "…" if len(n) > 256 else n
+                                 for n in names[:len(capped["columns"])]]
+    assert capped["columns_total"] == 3900
+    assert capped["frames"] == 1
