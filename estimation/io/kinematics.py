@@ -170,7 +170,7 @@ def _fps_from_time(time: NDArray[np.float64]) -> float:
     if not step > 0 or not np.all(steps > 0):
         bad = int(np.argmax(steps <= 0)) + 2
         raise InputError("time must increase from frame to frame", field="Time", line=bad + 1)
-    fps = 1.0 / step
+    fps = limits.check_fps(1.0 / step, field="Time")
     return round(fps, 6) if abs(fps - round(fps, 6)) < 1e-6 * fps else fps
 
 
@@ -807,7 +807,7 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
                 if not (math.isfinite(step) and step > 0):
                     raise InputError(f"Frame Time must be positive, got {parts[2][:40]!r}",
                                      line=line, field="Frame Time")
-                fps = 1.0 / step
+                fps = limits.check_fps(1.0 / step, field="Frame Time", line=line)
                 break
     if not joints or frames is None or fps is None:
         missing = ("a ROOT joint" if not joints else "a Frames: line" if frames is None

@@ -60,6 +60,10 @@ MAX_ABS_VALUE: Final[float] = 1e10
 accelerations, in whatever units): no capture comes near (time stamps in epoch seconds are
 2e9); beyond it squares and sums lose all precision or overflow."""
 
+MAX_FPS: Final[float] = 100_000.0
+"""Frame rate in Hz (trackers sample at up to 1 kHz): a faster one is a wrong time column or
+a wrong ``fps``, and its tiny time steps overflow derivatives."""
+
 MAX_NPZ_MEMBERS: Final[int] = 64
 """Arrays of one NPZ archive (a recording has 4 to 6)."""
 
@@ -164,6 +168,14 @@ def first_bad_value(table: NDArray[np.float64], *, nan_ok: bool = True) -> tuple
     if not bad.any():
         return None
     return tuple(int(i) for i in np.unravel_index(int(np.argmax(bad)), table.shape))
+
+
+def check_fps(fps: float, *, field: str = "fps", line: int | None = None) -> float:
+    """``fps`` if it is at most ``MAX_FPS``; LimitError naming ``field`` otherwise."""
+    if fps > MAX_FPS:
+        raise LimitError(f"{field} gives {fps:.6g} frames per second; the limit is "
+                         f"{MAX_FPS:.0f} (MAX_FPS)", limit="MAX_FPS", field=field, line=line)
+    return fps
 
 
 def bounded_lines(handle: IO[str], *, start: int = 1,

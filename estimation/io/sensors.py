@@ -181,7 +181,7 @@ def _parse_fps(value: Any, field: str = "fps") -> float:
         raise InputError(f"fps must be a number, got {value!r}", field=field) from None
     if not (math.isfinite(fps) and fps > 0):
         raise InputError(f"fps must be positive, got {value!r}", field=field)
-    return fps
+    return limits.check_fps(fps, field=field)
 
 
 def _normalise_quaternions(quats: NDArray[np.float64], sensors: tuple[str, ...],
@@ -243,8 +243,9 @@ def _fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
         # regular sampling: the overall span is immune to the rounding of single stamps
         rate = float((time.size - 1) / (time[-1] - time[0]))
         # stamps printed to a few decimals: snap to the whole rate they were made from
-        return float(round(rate)) if abs(rate - round(rate)) < 1e-4 * rate else rate
-    return 1.0 / step
+        rate = float(round(rate)) if abs(rate - round(rate)) < 1e-4 * rate else rate
+        return limits.check_fps(rate, field="time", line=line)
+    return limits.check_fps(1.0 / step, field="time", line=line)
 
 
 # --------------------------------------------------------------------------- CSV

@@ -329,3 +329,26 @@ def test_npz_with_too_many_sensors_names_max_sensors(tmp_path: Path) -> None:
         with pytest.raises(LimitError) as caught:
             read(path)
         assert caught.value.limit == "MAX_SENSORS"
+
+
+def test_absurd_frame_rates_name_max_fps(tmp_path: Path) -> None:
+    lines = example_path().read_text().splitlines()[:30]
+    header_at = next(i for i, t in enumerate(lines) if not t.startswith("#"))
+    path = tmp_path / "fast.csv"
+    path.write_text("# fps: 1e308\n" + "\n".join(lines) + "\n")
+    with pytest.raises(LimitError) as caught:
+        read_sensor_csv(path)
+    assert (caught.value.limit, caught.value.field) == ("MAX_FPS", "fps")
+    stamps = lines[:header_at + 1] + [
+        ",".join([f"{i * 1e-9:.12f}", *t.split(",")[1:]])
+        for i, t in enumerate(lines[header_at + 1:])]
+    path.write_text("\n".join(stamps) + "\n")
+    with pytest.raises(LimitError) as caught:
+        read_sensor_csv(path)
+    assert (caught.value.limit, caught.value.field) == ("MAX_FPS", "time")
+    bvh = tmp_path / "fast.bvh"
+    bvh.write_text("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition "
+                   "Zposition\n}\nMOTION\nFrames: 1\nFrame Time: 1e-300\n0 0 0\n")
+    with pytest.raises(LimitError) as caught:
+        sniff_kinematics(bvh, "bvh")
+    assert (caught.value.limit, caught.value.line) == ("MAX_FPS", 9)
