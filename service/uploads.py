@@ -312,7 +312,7 @@ def _sniff_accelerations(path: Path) -> dict[str, Any]:
             frames += 1
     if header is None:
         raise InputError("empty file: no header line", line=1, field="header")
-    limits.check_count("frames", frames, "MAX_FRAMES")
+    limits.check_rows(frames, len(header))
     names, _ = acceleration_header(header)
     if not any(n.lower() in ("time", "t") for n in names):
         raise InputError("not an accelerations CSV: the header has no time column",

@@ -295,11 +295,11 @@ def _read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
             with warnings.catch_warnings():
                 warnings.simplefilter("error")
                 body = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2,
-                                  max_rows=limits.MAX_FRAMES + 1)
+                                  max_rows=limits.max_rows(len(header)) + 1)
         except (ValueError, UserWarning):
             body = None
     if body is not None and body.shape[0] and body.shape[1] == len(header):
-        limits.check_count("frames", body.shape[0], "MAX_FRAMES")
+        limits.check_rows(body.shape[0], len(header))
         _check_table(body, header)
         return header, body
     return _read_table_slowly(path)
@@ -318,8 +318,8 @@ def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
             lineno = reader.line_num + 1
             if not row or all(not c.strip() for c in row):
                 continue
-            if len(rows) == limits.MAX_FRAMES:
-                limits.check_count("frames", len(rows) + 1, "MAX_FRAMES", line=lineno)
+            if len(rows) == limits.max_rows(len(header)):
+                limits.check_rows(len(rows) + 1, len(header), line=lineno)
             if len(row) != len(header):
                 raise InputError(f"row has {len(row)} values, the header has {len(header)}",
                                  line=lineno)
@@ -769,7 +769,7 @@ def _sniff_kinematics_csv(path: PathLike) -> dict[str, Any]:
                 except (ValueError, IndexError):
                     raise InputError("bad Time value", line=reader.line_num + 1,
                                      column=tcol + 1, field=header[tcol]) from None
-    limits.check_count("frames", frames, "MAX_FRAMES")
+    limits.check_rows(frames, len(header))
     fps = 1.0 / (t1 - t0) if frames >= 2 and t1 > t0 else None
     return {"format": "kinematics-csv", "frames": frames, "joints": list(joints),
             "fps": fps if fps is not None and math.isfinite(fps) else None,

@@ -122,6 +122,19 @@ def check_count(what: str, count: int, name: str, *, field: str | None = None,
                          limit=name, field=field or what, line=line)
 
 
+def max_rows(columns: int) -> int:
+    """Most data rows a table of ``columns`` columns may have (``MAX_FRAMES`` rows and
+    ``MAX_VALUES`` cells)."""
+    return min(MAX_FRAMES, MAX_VALUES // max(columns, 1))
+
+
+def check_rows(rows: int, columns: int, *, line: int | None = None) -> None:
+    """LimitError past ``MAX_FRAMES`` rows or ``MAX_VALUES`` cells."""
+    check_count("frames", rows, "MAX_FRAMES", line=line)
+    check_count("values (rows × columns)", rows * columns, "MAX_VALUES", line=line,
+                field="frames")
+
+
 def check_value(value: float, *, line: int | None = None, column: int | None = None,
                 field: str | None = None, sensor: str | None = None,
                 nan_ok: bool = True) -> None:

@@ -369,13 +369,14 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         header, header_line = _csv_header(rows, meta)
         time_col, sensors, index = _parse_csv_header(header, header_line)
         n_cols = len(header)
+        max_rows = limits.max_rows(n_cols)
         data: list[list[float]] = []
         lines: list[int] = []
         for line, row in rows:
             if row[0].lstrip().startswith("#"):
                 continue
-            if len(data) == limits.MAX_FRAMES:
-                limits.check_count("frames", len(data) + 1, "MAX_FRAMES", line=line)
+            if len(data) == max_rows:
+                limits.check_rows(len(data) + 1, n_cols, line=line)
             if len(row) != n_cols:
                 raise InputError(f"line {line} has {len(row)} cells, the header has {n_cols}",
                                  line=line, column=min(len(row), n_cols) + 1)
@@ -897,7 +898,7 @@ def _sniff_csv(path: PathLike, meta: dict[str, str],
                 frames = counted if counted is not None else frames + sum(
                     _sniff_is_row(rest) for rest in lines)
                 break
-    limits.check_count("frames", frames, "MAX_FRAMES")
+    limits.check_rows(frames, len(header))
     fps: float | None = None
     if "fps" in meta:
         fps = _parse_fps(meta["fps"])

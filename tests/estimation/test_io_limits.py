@@ -352,3 +352,32 @@ def test_absurd_frame_rates_name_max_fps(tmp_path: Path) -> None:
     with pytest.raises(LimitError) as caught:
         sniff_kinematics(bvh, "bvh")
     assert (caught.value.limit, caught.value.line) == ("MAX_FPS", 9)
+
+
+def test_sensor_csv_cells_beyond_max_values(tmp_path: Path,
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    lines = example_path().read_text().splitlines()[:40]
+    path = tmp_path / "walk.csv"
+    path.write_text("\n".join(lines) + "\n")
+    header = next(t for t in lines if not t.startswith("#"))
+    monkeypatch.setattr(limits, "MAX_VALUES", 10 * len(header.split(",")))
+    for read in (read_sensor_csv, lambda p: sniff_recording(p, "csv")):
+        with pytest.raises(LimitError) as caught:
+            read(path)
+        assert caught.value.limit == "MAX_VALUES"
+
+
+def test_kinematics_and_acceleration_tables_beyond_max_values(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "k.csv"
+    for make, read in ((kinematics_csv, read_kinematics_csv),
+                       (kinematics_csv, lambda p: sniff_kinematics(p, "kinematics-csv")),
+                       (acceleration_csv, read_acceleration_csv)):
+        data = make()
+        path.write_bytes(data)
+        columns = data.split(b"\n", 1)[0].count(b",") + 1
+        monkeypatch.setattr(limits, "MAX_VALUES", 10 * columns)
+        with pytest.raises(LimitError) as caught:
+            read(path)
+        assert caught.value.limit == "MAX_VALUES"
+        monkeypatch.undo()
