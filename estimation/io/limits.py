@@ -256,10 +256,17 @@ def open_npz(path: str | os.PathLike[str]) -> zipfile.ZipFile:
     Raises
     ------
     InputError
-        Not a ZIP archive; LimitError beyond ``MAX_NPZ_MEMBERS`` entries.
+        Not a ZIP archive, a directory, no permission; LimitError beyond
+        ``MAX_NPZ_MEMBERS`` entries.
+    FileNotFoundError
+        If ``path`` does not exist.
     """
-    with open(path, "rb") as handle:
-        count, cd_bytes = zip_entry_count(handle)
+    try:
+        with open(path, "rb") as handle:
+            count, cd_bytes = zip_entry_count(handle)
+    except (IsADirectoryError, PermissionError) as exc:
+        raise InputError(f"cannot read {os.fspath(path)}: {exc.strerror}",
+                         field="input") from None
     check_count("arrays", count, "MAX_NPZ_MEMBERS", field="input")
     check_count("bytes of ZIP directory", cd_bytes, "MAX_ZIP_DIRECTORY_BYTES", field="input")
     try:

@@ -381,3 +381,10 @@ def test_kinematics_and_acceleration_tables_beyond_max_values(
             read(path)
         assert caught.value.limit == "MAX_VALUES"
         monkeypatch.undo()
+
+
+def test_npz_path_that_is_a_directory_or_missing(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="cannot read"):
+        read_sensor_npz(tmp_path)
+    with pytest.raises(FileNotFoundError):
+        read_sensor_npz(tmp_path / "absent.npz")
