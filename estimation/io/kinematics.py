@@ -269,8 +269,12 @@ def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]
 
 
 def _open_csv(path: PathLike) -> io.TextIOWrapper:
-    # undecodable bytes become U+FFFD and then fail as a named column or number
-    return open(path, encoding="utf-8-sig", errors="replace", newline="")
+    try:
+        # undecodable bytes become U+FFFD and then fail as a named column or number
+        return open(path, encoding="utf-8-sig", errors="replace", newline="")
+    except (IsADirectoryError, PermissionError) as exc:
+        raise InputError(f"cannot read {os.fspath(path)}: {exc.strerror}",
+                         field="input") from None
 
 
 def _table_header(first: str) -> list[str]:
