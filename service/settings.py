@@ -31,6 +31,9 @@ class Settings(BaseSettings):
     max_attempts: int = Field(3, ge=1)
     job_timeout_seconds: float = Field(
         3600.0, ge=0, description="Run time after which a job is stopped and failed (0: none).")
+    job_memory_mb: int = Field(
+        4096, ge=0, description="Memory a job may add to its worker process, MiB; a job "
+                                "needing more fails with a 507 problem (0: no limit).")
     workers: int = Field(2, ge=0, description="Embedded worker processes of `bonefit serve`.")
     retention_seconds: float = Field(0.0, ge=0, description="TTL of recordings/results/jobs.")
     progress_interval_seconds: float = Field(0.5, ge=0)

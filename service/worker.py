@@ -13,6 +13,7 @@ import sys
 import tempfile
 import threading
 import time
+import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import FrameType
@@ -25,6 +26,7 @@ from estimation.errors import BonefitError
 from .artifacts import tenant_prefix
 from .jobs import Job
 from .kinds import Input, Kind, default_kinds, preload
+from .limits import MemoryLimitExceeded, memory_limit
 from .problems import PROBLEM_TYPE, from_bonefit_error
 from .runtime import Runtime, open_runtime
 from .settings import Settings
@@ -56,6 +58,34 @@ def problem(title: str, detail: str, status: int, slug: str, **extensions: Any) 
     """A problem document for a job's ``error``."""
     return {"type": PROBLEM_TYPE + slug, "title": title, "status": status, "detail": detail,
             **extensions}
+
+
+class InputFault(Exception):
+    """The estimation failed on the job's input with a numerical error (ValueError,
+    ArithmeticError) that no reader or check caught: the input's fault, not retried."""
+
+
+def log_error(job_id: str, exc: BaseException, what: str) -> str:
+    """Log ``exc`` with its traceback under a new error id; the id (32 hex digits)."""
+    error_id = uuid.uuid4().hex
+    log.error("job %s %s [error id %s]", job_id, what, error_id, exc_info=exc)
+    return error_id
+
+
+def input_fault_problem(job_id: str, exc: InputFault, error_id: str) -> dict[str, Any]:
+    """422 for a numerical error on the job's input, with the logged error id."""
+    return problem("Cannot estimate from this input",
+                   f"the estimation failed on this recording or these params ({exc}); check "
+                   f"them for extreme or degenerate values. Logged with error id {error_id}",
+                   422, "estimation-error", instance=f"/v1/jobs/{job_id}", error_id=error_id)
+
+
+def memory_problem(job_id: str, limit_mb: int) -> dict[str, Any]:
+    """507 for a job that needed more memory than ``job_memory_mb``."""
+    return problem("Job exceeded its memory limit",
+                   f"the job needed more than the service's limit of {limit_mb} MiB per job "
+                   f"(job_memory_mb) and was stopped; use a shorter recording", 507,
+                   "memory-limit", instance=f"/v1/jobs/{job_id}", limit_mb=limit_mb)
 
 
 def reap(runtime: Runtime, now: float | None = None) -> list[str]:
@@ -210,9 +240,16 @@ class Worker:
                 exc.field = f"params.{exc.field}"  # name it as the client sent it
             error = from_bonefit_error(exc).body(f"/v1/jobs/{job_id}")
             self._finish(claimed, {"status": "failed", "stage": "failed", "error": error})
+        except MemoryLimitExceeded as exc:
+            log.warning("job %s: over its memory limit of %d MiB", job_id, exc.limit_mb)
+            self._finish(claimed, {"status": "failed", "stage": "failed",
+                                   "error": memory_problem(job_id, exc.limit_mb)})
+        except InputFault as exc:
+            error_id = log_error(job_id, exc.__cause__ or exc, "could not process its input")
+            self._finish(claimed, {"status": "failed", "stage": "failed",
+                                   "error": input_fault_problem(job_id, exc, error_id)})
         except Exception as exc:
-            log.exception("job %s crashed", job_id)
-            self._crashed(claimed, exc)
+            self._crashed(claimed, exc, log_error(job_id, exc, "crashed"))
         finally:
             lease.stop()
 
@@ -224,8 +261,9 @@ class Worker:
         try:
             params = kind.params.model_validate(job.params)
         except ValidationError as exc:
-            raise BonefitError(f"invalid params: {exc.errors()[0]['msg']}",
-                               field="params") from None
+            first = exc.errors()[0]
+            field = ".".join(["params", *(str(p) for p in first["loc"])])
+            raise BonefitError(f"{field}: {first['msg']}", field=field) from None
         names = {"recording": job.recording_id, **job.inputs}
         with tempfile.TemporaryDirectory(prefix="bonefit-job-") as tmp, \
                 contextlib.ExitStack() as stack:
@@ -241,7 +279,7 @@ class Worker:
                     raise BonefitError(f"the bytes of recording {rec_id!r} are gone",
                                        field=name) from None
                 inputs[name] = Input(path, rec.format)
-            outputs = kind.run(inputs, params, lease.progress, Path(tmp))
+            outputs = self._run(kind, inputs, params, lease, Path(tmp))
             lease.check(timeout=False)  # finished: over the limit or not, keep the results
             results = {}
             for fmt, path in outputs.items():
@@ -249,6 +287,19 @@ class Worker:
                 artifacts.put_file(key, path)
                 results[fmt] = key
         return {"status": "succeeded", "stage": "done", "fraction": 1.0, "results": results}
+
+    def _run(self, kind: Kind, inputs: Mapping[str, Input], params: Any, lease: _Lease,
+             outdir: Path) -> dict[str, Path]:
+        """``kind.run`` under the job's memory limit; a numerical error is the input's."""
+        try:
+            with memory_limit(self.runtime.settings.job_memory_mb):
+                return kind.run(inputs, params, lease.progress, outdir)
+        except BonefitError:
+            raise
+        except (ValueError, ArithmeticError) as exc:
+            # numpy and scipy raise these on data they cannot process (non-finite values,
+            # singular systems, overflow); the same input fails the same way on every attempt
+            raise InputFault(type(exc).__name__) from exc
 
     def _finish(self, job: Job, changes: dict[str, Any]) -> None:
         done = self.runtime.store.update_job(
@@ -259,18 +310,22 @@ class Worker:
         else:
             log.info("job %s: %s", job.id, done.status)
 
-    def _crashed(self, job: Job, exc: Exception) -> None:
+    def _crashed(self, job: Job, exc: Exception, error_id: str) -> None:
+        """An unexpected error: re-queue (a machine fault may pass) up to ``max_attempts``,
+        then fail with a 500 naming the logged ``error_id``."""
         if job.attempts < self.runtime.settings.max_attempts:
             back = self.runtime.store.update_job(job.id, {
                 "status": "queued", "worker": None, "lease_until": None, "stage": "queued",
-                "message": f"re-queued after an internal error ({type(exc).__name__})"},
+                "message": f"re-queued after an internal error ({type(exc).__name__}, "
+                           f"error id {error_id})"},
                 expect={"status": "running", "worker": self.id})
             if back:
                 self.runtime.queue.enqueue(job.id)
             return
         error = problem("Job failed", f"an internal error stopped the job "
-                        f"({type(exc).__name__}) after {job.attempts} attempts", 500,
-                        "internal", instance=f"/v1/jobs/{job.id}")
+                        f"({type(exc).__name__}) after {job.attempts} attempts; it is logged "
+                        f"with error id {error_id}", 500, "internal",
+                        instance=f"/v1/jobs/{job.id}", error_id=error_id)
         self._finish(job, {"status": "failed", "stage": "failed", "error": error})
 
 

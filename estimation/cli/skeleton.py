@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,13 +11,9 @@ from typing import Any
 
 from ..errors import InputError
 from ..io.sensors import FORMATS, UNITS, example_path, parse_stations, read_recording
-from ..io.skeleton import (
-    read_skeleton_offsets,
-    skeleton_to_dict,
-    write_skeleton_bvh,
-    write_skeleton_csv,
-)
+from ..io.skeleton import read_skeleton_offsets, write_skeleton_files
 from ..model import JOINTS
+from ..params import check_fps
 from ..recording import SensorRecording
 from ..results import SkeletonResult
 from .progress import ProgressBar
@@ -134,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--up must be one of {', '.join(UP_AXES)}, got {args.up!r}",
                          field="--up")
     fps = _number(args.fps, "--fps", float)
+    if fps is not None:
+        check_fps(fps, "--fps")
     i0 = _number(args.i0, "--i0", int)
     stations = parse_stations(args.stations) if args.stations is not None else None
     offsets = read_skeleton_offsets(args.offsets) if args.offsets is not None else None
@@ -173,23 +170,13 @@ def run(args: argparse.Namespace) -> int:
     timings.setdefault("estimate_s", estimate_s)
     result = dataclasses.replace(result, timings=timings)
 
-    start = time.perf_counter()
     try:
-        if args.bvh is not None:
-            write_skeleton_bvh(result, args.bvh)
-        if args.csv is not None:
-            write_skeleton_csv(result, args.csv)
-        if args.output is not None:
-            document = skeleton_to_dict(result)
-            # write_s covers BVH, CSV and the JSON conversion; the final dump is not timed
-            document["timings"]["write_s"] = time.perf_counter() - start
-            Path(args.output).write_text(json.dumps(document, allow_nan=False) + "\n",
-                                         encoding="utf-8")
+        # write_s covers BVH, CSV and the JSON conversion; the final dump is not timed
+        result = write_skeleton_files(result, json_path=args.output, bvh_path=args.bvh,
+                                      csv_path=args.csv)
     except OSError as exc:
         raise InputError(f"cannot write {exc.filename}: {exc.strerror}",
                          field="output") from None
-    write_s = time.perf_counter() - start
-    result = dataclasses.replace(result, timings={**result.timings, "write_s": write_s})
     if args.output is None:
         print(summary(result, recording))
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -63,7 +64,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``bonefit translate``; returns the exit code."""
-    from ..io.kinematics import read_kinematics, write_translation
+    from ..io.kinematics import read_kinematics, write_translation_files
     from ..translation import estimate_translation
 
     if not Path(args.input).is_file():
@@ -80,13 +81,13 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    fmt = "kinematics-csv" if recording.source_format == "kinematics-csv" else \
-        recording.source_format
-    write_translation(result, recording, args.output, format=fmt)
+    result = dataclasses.replace(result, timings={**result.timings, "read_s": read_s})
+    outputs = [(recording.source_format, args.output)]
     if args.bvh:
-        write_translation(result, recording, args.bvh, format="bvh")
+        outputs.append(("bvh", args.bvh))
     if args.json:
-        write_translation(result, recording, args.json, format="json")
+        outputs.append(("json", args.json))
+    result = write_translation_files(result, recording, outputs)
     q = result.quality
     print(f"{args.method}: {result.n_frames} frames, path {q['path_length_m']:.2f} m, "
           f"closure {q['closure_cm']:.1f} cm, foot skate {q['foot_skate_cm_s']:.1f} cm/s, "
