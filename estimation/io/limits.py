@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError, LimitError
+from ..params import MAX_FPS  # the estimators' bound, checked here while reading too
 
 MAX_FRAMES: Final[int] = 5_000_000
 """Frames (data rows) of one recording: 5.8 h at 240 Hz, 1.4 h at 1 kHz."""
@@ -59,10 +60,6 @@ MAX_ABS_VALUE: Final[float] = 1e10
 """Largest magnitude of any number in a recording (positions, quaternions, times,
 accelerations, in whatever units): no capture comes near (time stamps in epoch seconds are
 2e9); beyond it squares and sums lose all precision or overflow."""
-
-MAX_FPS: Final[float] = 100_000.0
-"""Frame rate in Hz (trackers sample at up to 1 kHz): a faster one is a wrong time column or
-a wrong ``fps``, and its tiny time steps overflow derivatives."""
 
 MAX_NPZ_MEMBERS: Final[int] = 64
 """Arrays of one NPZ archive (a recording has 4 to 6)."""
