@@ -550,7 +550,7 @@ def estimate_skeleton(
     use = [s for s in SEGMENTS if s in recording.sensors]
     if method == "reduced":
         use = list(REDUCED_SEGMENTS)
-    warnings: list[str] = []
+    warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     sensors = _SensorPoses.of(recording, use, warnings)
     positions, rotations, ok, quat = (sensors.positions, sensors.rotations, sensors.ok,
@@ -798,7 +798,7 @@ def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, Joint
                              f"the recording lacks; it has {', '.join(recording.sensors)}",
                              sensor=off.sensor)
         local[name] = (off.sensor, vec)
-    warnings: list[str] = []
+    warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     use = [s for s in SEGMENTS if s in recording.sensors]
     sensors = _SensorPoses.of(recording, use, warnings)

@@ -101,6 +101,10 @@ class SkeletonParams(BaseModel):
     stations: dict[Annotated[str, Field(min_length=1, max_length=100)],
                    Annotated[str, Field(min_length=1, max_length=100)]] | None = Field(
         None, max_length=64, description="Tracker station → segment.")
+    tracker_layout: str | None = Field(
+        None, max_length=200,
+        description="Tracker columns, e.g. 'frame,station,x,y,z,az,el,roll' or "
+                    "'time,x,y,z,qx,qy,qz,qw;time=ns' (docs/skeleton-io.md); default detected.")
     offsets: dict[str, JointOffsetIn] | None = Field(
         None, max_length=64,
         description="A calibration: the `offsets` of an earlier skeleton result of the same "
@@ -194,6 +198,9 @@ class TranslationParams(BaseModel):
     right_foot: str = Field("RightFoot", min_length=1, max_length=100)
     acceleration_units: Literal["g", "m/s2", "free-g", "free-m/s2",
                                 "second-differences"] | None = None
+    subject: str | None = Field(
+        None, min_length=1, max_length=100,
+        description="MVNX subject to read, by label or 1-based number; default the first.")
     options: ContactOptionsIn | Hachaj2018OptionsIn = Field(
         default_factory=ContactOptionsIn, validate_default=True,
         description="Options of `method`, validated by its model: contact: "
@@ -222,7 +229,8 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     progress(0.0, "reading")
     started = time.perf_counter()
     recording = read_recording(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
-                               units=params.units, fps=params.fps, stations=params.stations)
+                               units=params.units, fps=params.fps, stations=params.stations,
+                               tracker_layout=params.tracker_layout)
     read_s = time.perf_counter() - started
     result = estimate_skeleton(
         recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
@@ -254,7 +262,7 @@ def run_translation(inputs: Mapping[str, Input], params: TranslationParams, prog
         source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
         accelerations=accelerations.path if accelerations else None,
         left_foot=params.left_foot, right_foot=params.right_foot,
-        acceleration_units=params.acceleration_units)
+        acceleration_units=params.acceleration_units, subject=params.subject)
     read_s = time.perf_counter() - started
     result = estimate_translation(recording, method=params.method, left_foot=params.left_foot,
                                   right_foot=params.right_foot,

@@ -53,6 +53,9 @@ def register(sub: Any) -> None:
                         help="left foot joint (default LeftFoot)")
     parser.add_argument("--right-foot", default="RightFoot", metavar="NAME",
                         help="right foot joint (default RightFoot)")
+    parser.add_argument("--subject", default=None, metavar="LABEL|N",
+                        help="MVNX subject to read, by label or 1-based number (default: "
+                             "the first, with a warning when there are several)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output in the input's format")
     parser.add_argument("--bvh", metavar="OUT.bvh", help="also write a BVH with the root path")
@@ -73,8 +76,12 @@ def run(args: argparse.Namespace) -> int:
     recording = read_kinematics(args.input, format=args.format,
                                 accelerations=args.accelerations,
                                 left_foot=args.left_foot, right_foot=args.right_foot,
-                                acceleration_units=args.acceleration_units)
+                                acceleration_units=args.acceleration_units,
+                                subject=args.subject)
     read_s = time.perf_counter() - started
+    for note in recording.notes:
+        if note.startswith("warning:"):
+            print(note, file=sys.stderr)
     bar = None if args.quiet else ProgressBar(sys.stderr)
     try:
         result = estimate_translation(recording, method=args.method, progress=bar)

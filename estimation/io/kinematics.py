@@ -108,6 +108,8 @@ class KinematicsRecording:
         Path of the file read (the MVNX writer re-streams it).
     notes : tuple of str
         What the reader decided (units, toe joints, contact channels).
+    source_subject : int
+        MVNX: 0-based number of the ``<subject>`` read (the writer corrects its frames).
     """
 
     joints: tuple[str, ...]
@@ -128,6 +130,7 @@ class KinematicsRecording:
     root: str = ""
     source_path: str | None = None
     notes: tuple[str, ...] = ()
+    source_subject: int = 0
 
     def __post_init__(self) -> None:
         pos = self.positions
@@ -694,6 +697,7 @@ def read_kinematics(
     left_foot: str = "LeftFoot",
     right_foot: str = "RightFoot",
     acceleration_units: str | None = None,
+    subject: str | None = None,
 ) -> KinematicsRecording:
     """Read an inertial-suit recording for root-translation estimation.
 
@@ -708,6 +712,8 @@ def read_kinematics(
         Foot joint names (MVNX: segment names, default ``LeftFoot``/``RightFoot``).
     acceleration_units : str, optional
         See :data:`ACCELERATION_UNITS`.
+    subject : str, optional
+        MVNX: label or 1-based number of the subject to read (default the first).
 
     Returns
     -------
@@ -730,7 +736,7 @@ def read_kinematics(
                                    right_foot=right_foot, acceleration_units=acceleration_units)
     from .mvnx import read_mvnx
 
-    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot)
+    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot, subject=subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
