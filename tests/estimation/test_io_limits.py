@@ -293,7 +293,7 @@ def test_random_bytes_and_a_sensor_csv_are_not_a_bvh(tmp_path: Path) -> None:
         sniff_kinematics(example_path(), "bvh")
     truncated = tmp_path / "head.bvh"
     truncated.write_text("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n}\n")
-    with pytest.raises(InputError, match="no a Frames: line in the MOTION section"):
+    with pytest.raises(InputError, match="no Frames: line in the MOTION section"):
         sniff_kinematics(truncated, "bvh")
 
 
