@@ -60,12 +60,38 @@ def runtime_of(request: Request) -> Runtime:
     return runtime
 
 
+MAX_FILENAME_BYTES = 200
+"""Longest stored file name in UTF-8 bytes (file systems allow 255 bytes, not characters)."""
+MAX_CONTENT_TYPE_CHARS = 200
+"""Longest stored media type (the job store's column)."""
+
+
 def _clean_filename(name: str | None) -> str | None:
-    """The base name without control characters (they break logs and some databases)."""
+    """The base name without control characters (they break logs and some databases),
+    cut to ``MAX_FILENAME_BYTES`` UTF-8 bytes, keeping its extension."""
     if not name:
         return None
     name = "".join(c for c in name if c.isprintable()).replace("\\", "/").rsplit("/", 1)[-1]
-    return None if name in ("", ".", "..") else name[:200]
+    if name in ("", ".", ".."):
+        return None
+    if len(name.encode()) > MAX_FILENAME_BYTES:
+        suffix = _suffix(name)
+        stem = name[:len(name) - len(suffix)].encode()[:MAX_FILENAME_BYTES - len(suffix)]
+        name = stem.decode("utf-8", "ignore") + suffix  # "ignore": a character cut in two
+    return name
+
+
+def _stored_content_type(value: str | None, field: str) -> str | None:
+    """``value`` if it can be stored as a recording's media type, else the 422 problem."""
+    if value is None:
+        return None
+    if len(value) > MAX_CONTENT_TYPE_CHARS or not value.isprintable():
+        what = (f"{len(value)} characters" if len(value) > MAX_CONTENT_TYPE_CHARS
+                else "a control character")
+        raise Problem(422, "Invalid request", f"{field}: expected a media type of at most "
+                      f"{MAX_CONTENT_TYPE_CHARS} printable characters, got {what}",
+                      slug="invalid-request", field=field)
+    return value
 
 
 def _suffix(filename: str | None) -> str:
@@ -114,7 +140,9 @@ async def upload_recording(
     runtime = runtime_of(request)
     settings = runtime.settings
     limit = settings.max_upload_bytes
-    content_type = request.headers.get("content-type", "application/octet-stream")
+    content_type = _stored_content_type(
+        request.headers.get("content-type", "application/octet-stream"), "Content-Type")
+    assert content_type is not None
     multipart = content_type.lower().startswith("multipart/form-data")
     length = request.headers.get("content-length")
     if length and length.isdigit() and int(length) > limit + (MULTIPART_OVERHEAD if multipart
@@ -130,7 +158,8 @@ async def upload_recording(
         if multipart:
             part_name, part_type = await receive_multipart(request.stream(), content_type, sink)
             filename = filename or _clean_filename(part_name)
-            content_type = part_type or "application/octet-stream"
+            content_type = (_stored_content_type(part_type, "file.Content-Type")
+                            or "application/octet-stream")
         else:
             await receive_raw(request.stream(), sink)
         await sink.close()
@@ -214,7 +243,10 @@ def _job_response(job: Job, status_code: int = 200,
          responses={202: {"headers": {"Location": {"schema": {"type": "string"}}}}})
 async def create_job(
     request: Request, who: Tenant, body: Annotated[JobCreate, Body()],
-    idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
+    idempotency_key: Annotated[str | None, Header(
+        min_length=1, max_length=255, pattern=r"^[\x21-\x7e]([\x20-\x7e]*[\x21-\x7e])?$",
+        description="1 to 255 printable ASCII characters, not starting or ending with a "
+                    "space.")] = None,
 ) -> JSONResponse:
     """Validate params for the kind, check the recordings exist, queue the job."""
     runtime = runtime_of(request)
@@ -310,6 +342,13 @@ async def cancel_job(request: Request, who: Tenant, job_id: str) -> JSONResponse
                   slug="job-finished", job_status=job.status)
 
 
+def _event_version(last_event_id: str | None) -> int:
+    """The job version a reconnecting client has seen, -1 for none or for an id this server
+    never sent (only event ids it sent, decimal versions, skip anything)."""
+    text = (last_event_id or "").strip()
+    return int(text) if text.isascii() and text.isdigit() and len(text) <= 18 else -1
+
+
 @v1.get("/jobs/{job_id}/events", summary="Follow a job (Server-Sent Events)",
         response_class=StreamingResponse,
         responses={200: {"content": {"text/event-stream": {}}}})
@@ -320,7 +359,7 @@ async def job_events(request: Request, who: Tenant, job_id: str,
     a reconnecting client's ``Last-Event-ID`` (a job version) skips what it has seen."""
     await _job(request, who, job_id)
     store = runtime_of(request).store
-    seen = int(last_event_id) if last_event_id and last_event_id.strip().isdigit() else -1
+    seen = _event_version(last_event_id)
 
     async def stream() -> AsyncIterator[str]:
         version, status, quiet_since = seen, None, time.monotonic()
