@@ -68,7 +68,7 @@ def _location(loc: tuple[int | str, ...], tags: set[str]) -> str:
     if len(loc) > 1 and loc[0] == "body" and loc[1] in tags:
         loc = loc[:1] + loc[2:]  # the discriminated union's tag is not part of the body
     if len(loc) == 2 and loc[0] == "header":  # idempotency_key -> Idempotency-Key
-        return "-".join(w.capitalize() for w in str(loc[1]).split("_"))
+        return "-".join(w.capitalize() for w in str(loc[1]).replace("_", "-").split("-"))
     parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
     return ".".join(parts) or ".".join(str(p) for p in loc)
 
@@ -129,15 +129,18 @@ class BodyTimeout(StarletteHTTPException):
         self.seconds = seconds
 
 
+METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+
 def allowed_methods(request: Request) -> list[str]:
-    """Every method some route answers on the request's path (for a 405's ``Allow``)."""
-    scope = {**request.scope, "method": ""}  # a method no route has: path matches are PARTIAL
-    methods: set[str] = set()
-    for route in request.app.router.routes:
-        match, _ = route.matches(scope)
-        if match is not Match.NONE:
-            methods |= set(getattr(route, "methods", None) or ())
-    return sorted(methods)
+    """Every method some route answers on the request's path (for a 405's ``Allow``).
+
+    Each method is tried against the routes: routers included in others hide their routes'
+    methods, but a route of the path matches the method it answers in full."""
+    routes = request.app.router.routes
+    return [method for method in METHODS
+            if any(route.matches({**request.scope, "method": method})[0] is Match.FULL
+                   for route in routes)]
 
 
 def install(app: FastAPI) -> None:
