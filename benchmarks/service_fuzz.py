@@ -107,7 +107,7 @@ parameters = {{ "path.recording_id" = {{ dictionary = "deletable", probability =
 
 def run_schemathesis(base_url: str, workdir: Path, ids: Ids, *, key: str | None,
                      max_examples: int, seed: int = 1, timeout: float = 3600.0,
-                     workers: int = 1) -> FuzzRun:
+                     workers: int = 1, phases: str | None = None) -> FuzzRun:
     """Run the schemathesis CLI against ``base_url`` (with ``key`` as bearer token, if any)."""
     workdir.mkdir(parents=True, exist_ok=True)
     config = write_config(workdir, ids)
@@ -121,6 +121,8 @@ def run_schemathesis(base_url: str, workdir: Path, ids: Ids, *, key: str | None,
            "--suppress-health-check", "all"]
     if key is not None:
         cmd += ["--header", f"Authorization: Bearer {key}"]
+    if phases is not None:
+        cmd += ["--phases", phases]
     start = time.monotonic()
     done = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=timeout,
                           check=False)

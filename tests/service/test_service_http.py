@@ -311,3 +311,25 @@ async def test_an_upload_holds_no_thread_until_its_first_block(tmp_path: Path) -
     for sink in sinks:
         sink.discard()
     assert _upload_threads() == before
+
+
+def test_serve_passes_the_connection_limits_to_uvicorn(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from service import cli
+
+    configs: list[uvicorn.Config] = []
+
+    class Server:
+        def __init__(self, config: uvicorn.Config) -> None:
+            configs.append(config)
+
+        def run(self) -> None:
+            """Serve nothing."""
+
+    monkeypatch.setattr(uvicorn, "Server", Server)
+    monkeypatch.setattr(cli.signal, "signal", lambda *args: None)
+    monkeypatch.setenv("BONEFIT_MAX_CONNECTIONS", "7")
+    monkeypatch.setenv("BONEFIT_KEEP_ALIVE_SECONDS", "3")
+    assert cli.main(["serve", "--no-worker", "--data-dir", str(tmp_path)]) == 0
+    assert configs[0].limit_concurrency == 7
+    assert configs[0].timeout_keep_alive == 3
