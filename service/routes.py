@@ -22,7 +22,14 @@ from .artifacts import tenant_prefix
 from .auth import metrics_guard, tenant
 from .jobs import TERMINAL, Job, Recording, new_id
 from .kinds import MEDIA_TYPES
-from .problems import MEDIA_TYPE, Problem, not_found
+from .problems import (
+    MEDIA_TYPE,
+    UNAVAILABLE_RETRY_SECONDS,
+    Problem,
+    not_found,
+    outage_types,
+    unavailable,
+)
 from .runtime import Runtime
 from .schemas import (
     JobCreate,
@@ -364,7 +371,15 @@ async def job_events(request: Request, who: Tenant, job_id: str,
     async def stream() -> AsyncIterator[str]:
         version, status, quiet_since = seen, None, time.monotonic()
         while True:
-            job = await run_in_threadpool(store.get_job, job_id, who)
+            try:
+                job = await run_in_threadpool(store.get_job, job_id, who)
+            except outage_types():
+                # the response has started: no 503 any more, but an event the client can act
+                # on (reconnect with Last-Event-ID after the hinted delay), not a cut stream
+                problem = unavailable().body(request.url.path)
+                yield f"retry: {UNAVAILABLE_RETRY_SECONDS * 1000}\nevent: error\n" \
+                      f"data: {json.dumps(problem)}\n\n"
+                return
             if job is None:
                 yield "event: end\ndata: {}\n\n"
                 return

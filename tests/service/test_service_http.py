@@ -333,3 +333,25 @@ def test_serve_passes_the_connection_limits_to_uvicorn(
     assert cli.main(["serve", "--no-worker", "--data-dir", str(tmp_path)]) == 0
     assert configs[0].limit_concurrency == 7
     assert configs[0].timeout_keep_alive == 3
+
+
+def test_an_outage_while_following_a_job_ends_the_stream_with_an_error_event(
+        client: TestClient, runtime: Runtime) -> None:
+    rec = upload(client)
+    job = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": rec["id"]}).json()
+    get_job = runtime.store.get_job
+    calls = []
+
+    def flaky(*args: Any, **kwargs: Any) -> Any:
+        calls.append(args)
+        if len(calls) > 2:  # the route's check and the first poll pass, then the outage
+            raise sqlalchemy.exc.OperationalError("SELECT", {}, Exception("connection lost"))
+        return get_job(*args, **kwargs)
+
+    runtime.store.get_job = flaky  # type: ignore[method-assign]
+    r = client.get(f"/v1/jobs/{job['id']}/events")
+    assert r.status_code == 200
+    events = r.text.strip().split("\n\n")
+    assert events[0].startswith("id: 1\nevent: status")
+    assert events[-1].startswith("retry: 5000\nevent: error\ndata: ")
+    assert '"urn:bonefit:problem:unavailable"' in events[-1]
