@@ -55,7 +55,7 @@ MULTIPART_OVERHEAD = 64 * 1024
 PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
     code: {"description": "Problem details (RFC 9457)",
            "content": {MEDIA_TYPE: {"schema": {"type": "object"}}}}
-    for code in (400, 401, 403, 404, 409, 413, 422, 503)}
+    for code in (400, 401, 403, 404, 408, 409, 413, 422, 503)}
 
 v1 = APIRouter(prefix="/v1", responses=PROBLEM_RESPONSES)
 ops = APIRouter()
@@ -88,10 +88,8 @@ def _clean_filename(name: str | None) -> str | None:
     return name
 
 
-def _stored_content_type(value: str | None, field: str) -> str | None:
+def _stored_content_type(value: str, field: str) -> str:
     """``value`` if it can be stored as a recording's media type, else the 422 problem."""
-    if value is None:
-        return None
     if len(value) > MAX_CONTENT_TYPE_CHARS or not value.isprintable():
         what = (f"{len(value)} characters" if len(value) > MAX_CONTENT_TYPE_CHARS
                 else "a control character")
@@ -149,7 +147,6 @@ async def upload_recording(
     limit = settings.max_upload_bytes
     content_type = _stored_content_type(
         request.headers.get("content-type", "application/octet-stream"), "Content-Type")
-    assert content_type is not None
     multipart = content_type.lower().startswith("multipart/form-data")
     length = request.headers.get("content-length")
     if length and length.isdigit() and int(length) > limit + (MULTIPART_OVERHEAD if multipart
@@ -165,8 +162,8 @@ async def upload_recording(
         if multipart:
             part_name, part_type = await receive_multipart(request.stream(), content_type, sink)
             filename = filename or _clean_filename(part_name)
-            content_type = (_stored_content_type(part_type, "file.Content-Type")
-                            or "application/octet-stream")
+            content_type = (_stored_content_type(part_type, "file.Content-Type") if part_type
+                            else "application/octet-stream")
         else:
             await receive_raw(request.stream(), sink)
         await sink.close()
