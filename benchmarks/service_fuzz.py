@@ -9,8 +9,8 @@ requests carry a key) and one without (loopback clients only, no key sent). Ever
 recorded (HAR); the numbers are counted from it, and the server's log is searched for
 tracebacks.
 
-    python benchmarks/service_fuzz.py                      # about 10,000+ requests
-    python benchmarks/service_fuzz.py --max-examples 50    # a quick look
+    python benchmarks/service_fuzz.py                      # 2 servers x 2 seeds: 10,000+ requests
+    python benchmarks/service_fuzz.py --max-examples 20 --seeds 1   # a quick look
 
 `run_schemathesis` is also used by `tests/e2e/test_fuzz.py` for a bounded run.
 """
@@ -155,7 +155,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--max-examples", type=int, default=400,
                         help="test cases per operation and phase (default 400)")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seeds", default="1,2",
+                        help="comma-separated seeds: one run per seed and server (default 1,2)")
     args = parser.parse_args()
     failed = False
     total = 0
@@ -167,16 +168,17 @@ def main() -> int:
             headers = {"Authorization": f"Bearer {key}"} if key else {}
             with httpx.Client(base_url=server.base_url, headers=headers, timeout=60) as client:
                 ids = seed_ids(client)
-            run = run_schemathesis(server.base_url, tmp / "st", ids, key=key,
-                                   max_examples=args.max_examples, seed=args.seed)
-            log = server.log.read_text(errors="replace")
-            tracebacks = log.count("Traceback")
-            print(report(label, run, tracebacks), flush=True)
-            if not run.ok or tracebacks:
-                failed = True
-                print(run.output[-6000:])
-                print(log[-6000:])
-            total += run.requests
+            for seed in (int(s) for s in args.seeds.split(",")):
+                run = run_schemathesis(server.base_url, tmp / f"st-{seed}", ids, key=key,
+                                       max_examples=args.max_examples, seed=seed)
+                log = server.log.read_text(errors="replace")
+                tracebacks = log.count("Traceback")
+                print(report(f"{label}, seed {seed}", run, tracebacks), flush=True)
+                if not run.ok or tracebacks:
+                    failed = True
+                    print(run.output[-6000:])
+                    print(log[-6000:])
+                total += run.requests
     print(f"total: {total} requests")
     return 1 if failed else 0
 
