@@ -1,6 +1,7 @@
 """Slow clients against a real `bonefit serve --no-worker`: threads and file descriptors.
 
-N clients each start an upload (``Content-Length`` 1 MB) and then send one byte per second.
+N clients each start an upload (``Content-Length`` 1 MB) and then send one byte per second
+(the server gets a 5 s body timeout, so the minimum body rate sheds them within the run).
 The server's thread and descriptor counts are sampled before, while they trickle, and after
 they have gone; a well-behaved client is timed while they trickle. With the concurrent-upload
 cap, the clients over it are answered 503 at once; those under it hold no thread or buffer
@@ -46,8 +47,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--clients", type=int, default=200)
     parser.add_argument("--seconds", type=float, default=15.0)
+    parser.add_argument("--body-timeout", type=float, default=5.0,
+                        help="BONEFIT_BODY_TIMEOUT_SECONDS of the server (default 5)")
     args = parser.parse_args()
-    with temp_dir("bonefit-slow-") as tmp, running_server(tmp / "data", no_worker=True) as server:
+    env = {"BONEFIT_BODY_TIMEOUT_SECONDS": str(args.body_timeout)}
+    with temp_dir("bonefit-slow-") as tmp, running_server(tmp / "data", no_worker=True,
+                                                          extra_env=env) as server:
         port = int(server.base_url.rsplit(":", 1)[1])
         before = counts(server.pid)
         socks = [s for s in (start_slow(port) for _ in range(args.clients)) if s is not None]
@@ -59,7 +64,7 @@ def main() -> int:
                 try:
                     sock.setblocking(False)
                     with contextlib.suppress(BlockingIOError):
-                        if sock.recv(65536):  # answered (503 over the cap): it is shed
+                        if sock.recv(65536):  # answered (503 over the cap, 408): shed
                             refused += 1
                             socks.remove(sock)
                             sock.close()
@@ -80,8 +85,9 @@ def main() -> int:
             sock.close()
         time.sleep(2.0)
         after = counts(server.pid)
-    print(f"{args.clients} slow clients for {args.seconds:.0f} s: {refused} answered at once "
-          f"(503 over the cap), {trickling} still trickling at the end")
+    print(f"{args.clients} slow clients for {args.seconds:.0f} s (body timeout "
+          f"{args.body_timeout:g} s): {refused} shed (503 over the cap, then 408 too slow), "
+          f"{trickling} still trickling at the end")
     print(f"threads: {before[0]} before, {peak[0]} peak, {after[0]} after; "
           f"descriptors: {before[1]} before, {peak[1]} peak, {after[1]} after")
     print(f"a normal upload meanwhile: {r.status_code} in {meanwhile:.2f} s")

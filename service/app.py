@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import AsyncIterator, Mapping
 
 import anyio
@@ -105,14 +106,18 @@ class BodyGuard:
     """ASGI middleware: an idle timeout on request bodies, and a cap on concurrent uploads.
 
     While a request's body is incomplete, each wait for its next chunk is limited to
-    ``body_timeout`` seconds (then :class:`problems.BodyTimeout`, a 408 problem, and the
-    connection is closed). Past ``max_uploads`` uploads in progress, another is answered 503
-    with ``Retry-After`` before its body is read, so slow clients cannot pile up threads,
-    buffers and file descriptors."""
+    ``body_timeout`` seconds, and after the first ``body_timeout`` seconds the body must have
+    arrived at ``min_rate`` bytes per second on average (else :class:`problems.BodyTimeout`, a
+    408 problem, and the connection is closed: a client trickling a byte a second is shed).
+    Past ``max_uploads`` uploads in progress, another is answered 503 with ``Retry-After``
+    before its body is read, so slow clients cannot pile up threads, buffers and file
+    descriptors."""
 
-    def __init__(self, app: ASGIApp, *, body_timeout: float, max_uploads: int) -> None:
+    def __init__(self, app: ASGIApp, *, body_timeout: float, min_rate: float,
+                 max_uploads: int) -> None:
         self.app = app
         self.body_timeout = body_timeout
+        self.min_rate = min_rate
         self.max_uploads = max_uploads
         self.uploads = 0
 
@@ -136,9 +141,10 @@ class BodyGuard:
 
     def _timed(self, receive: Receive) -> Receive:
         complete = False
+        started, received = time.monotonic(), 0
 
         async def timed_receive() -> Message:
-            nonlocal complete
+            nonlocal complete, received
             if complete:  # e.g. waiting for the client to disconnect: no limit
                 return await receive()
             try:
@@ -147,6 +153,12 @@ class BodyGuard:
             except TimeoutError:
                 raise problems.BodyTimeout(self.body_timeout) from None
             complete = message["type"] != "http.request" or not message.get("more_body")
+            received += len(message.get("body", b""))
+            elapsed = time.monotonic() - started
+            if (not complete and elapsed > self.body_timeout
+                    and received < self.min_rate * elapsed):
+                raise problems.BodyTimeout(self.body_timeout, rate=received / elapsed,
+                                           min_rate=self.min_rate)
             return message
 
         return timed_receive
@@ -191,6 +203,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
     problems.install(app)
     app.add_middleware(ErrorBoundary)  # innermost: right outside the exception handlers
     app.add_middleware(BodyGuard, body_timeout=runtime.settings.body_timeout_seconds,
+                       min_rate=runtime.settings.body_min_bytes_per_second,
                        max_uploads=runtime.settings.max_concurrent_uploads)
     app.add_middleware(BodyLimit)
     app.include_router(v1)

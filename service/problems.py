@@ -124,8 +124,14 @@ class BodyTimeout(StarletteHTTPException):
     An HTTPException so that FastAPI's body reading passes it on instead of turning it into
     a 400 "error parsing the body"."""
 
-    def __init__(self, seconds: float) -> None:
-        super().__init__(408, f"no byte of the request body arrived for {seconds:g} s")
+    def __init__(self, seconds: float, *, rate: float | None = None,
+                 min_rate: float | None = None) -> None:
+        if rate is None:
+            detail = f"no byte of the request body arrived for {seconds:g} s"
+        else:
+            detail = (f"the request body arrived at {rate:.0f} bytes/s, under the minimum of "
+                      f"{min_rate:g} bytes/s")
+        super().__init__(408, detail)
         self.seconds = seconds
 
 
@@ -172,8 +178,8 @@ def install(app: FastAPI) -> None:
 
     async def on_body_timeout(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, BodyTimeout)
-        log.info("request body idle for %g s on %s %s: answered 408", exc.seconds,
-                 request.method, request.url.path)
+        log.info("request body too slow on %s %s: %s; answered 408", request.method,
+                 request.url.path, exc.detail)
         problem = Problem(408, "Request body timeout", str(exc.detail), slug="body-timeout",
                           headers={"Connection": "close"}, timeout_seconds=exc.seconds)
         return response(problem, request)

@@ -31,6 +31,9 @@ class Settings(BaseSettings):
         16, ge=1, description="Uploads in progress at once per API process; more: 503.")
     body_timeout_seconds: float = Field(
         30.0, gt=0, description="Longest wait for the next chunk of a request body; then 408.")
+    body_min_bytes_per_second: float = Field(
+        1024.0, ge=0, description="Average rate a request body must keep after its first "
+                                  "body_timeout_seconds (0: none); slower: 408.")
     max_connections: int = Field(
         500, ge=1, description="Open connections and requests per API process (uvicorn "
                                "limit_concurrency); more: 503.")

@@ -261,6 +261,29 @@ def test_idle_bodies_time_out_and_the_connections_are_shed(tmp_path: Path) -> No
     assert not list((tmp_path / "uploads").iterdir())
 
 
+def test_a_trickling_body_is_shed(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path, api_keys=KEYS, body_timeout_seconds=0.5,
+                        body_min_bytes_per_second=1000)
+    app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
+    with serving(app) as port, _slow_upload(port) as sock:
+        sock.setblocking(False)
+        answer = b""
+        deadline = time.monotonic() + SECONDS
+        while not answer:  # a byte every 50 ms: never idle for 0.5 s, but 20 bytes/s
+            assert time.monotonic() < deadline, "the trickling client was never shed"
+            with contextlib.suppress(BlockingIOError, ConnectionError):
+                sock.send(b"0")
+            time.sleep(0.05)
+            with contextlib.suppress(BlockingIOError):
+                answer = sock.recv(65536)
+        sock.settimeout(SECONDS)
+        answer += _read_all(sock)
+    head, _, body = answer.partition(b"\r\n\r\n")
+    assert head.startswith(b"HTTP/1.1 408 "), answer[:300]
+    assert b"under the minimum of 1000 bytes/s" in body
+    assert not list((tmp_path / "uploads").iterdir())
+
+
 def _until(what: Callable[[], httpx.Response], status: int) -> httpx.Response:
     """Repeat ``what`` until it answers ``status`` (the server handles the slow clients'
     requests concurrently, so it may not have started them yet)."""
