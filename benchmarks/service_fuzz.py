@@ -77,6 +77,18 @@ def seed_ids(client: httpx.Client, deletable: int = 4) -> Ids:
                deletable=tuple(upload() for _ in range(deletable)))
 
 
+def worker_elsewhere(data_dir: Path) -> None:
+    """A worker heartbeat in the server's job store, fresh for a day: /readyz answers 200
+    without workers here running the fuzzer's jobs (`bonefit serve --no-worker`)."""
+    from service.jobs import SqlJobStore
+
+    store = SqlJobStore.from_url(f"sqlite:///{data_dir / 'jobs.db'}")
+    try:
+        store.beat_worker("fuzz:elsewhere", time.time() + 86400)
+    finally:
+        store.engine.dispose()
+
+
 def write_config(directory: Path, ids: Ids) -> Path:
     """A schemathesis.toml offering ``ids`` half the time (DELETE gets its own, so the
     recordings the other operations use stay)."""
@@ -168,6 +180,7 @@ def main() -> int:
             headers = {"Authorization": f"Bearer {key}"} if key else {}
             with httpx.Client(base_url=server.base_url, headers=headers, timeout=60) as client:
                 ids = seed_ids(client)
+            worker_elsewhere(tmp / "data")
             for seed in (int(s) for s in args.seeds.split(",")):
                 run = run_schemathesis(server.base_url, tmp / f"st-{seed}", ids, key=key,
                                        max_examples=args.max_examples, seed=seed)

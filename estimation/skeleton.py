@@ -19,6 +19,7 @@ from .joints import JointFit, estimate_joint, range_of_motion
 from .limbs import estimate_limb, standard_lengths, torso_length
 from .model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
 from .orientations import estimate_orientations
+from .params import WEIGHT_MAX, check_fps, check_integer, check_number
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
@@ -152,6 +153,18 @@ def _parse_up(up: ArrayLike) -> NDArray[np.float64]:
     return np.asarray(vec / np.linalg.norm(vec))
 
 
+def _check_options(fps: float, *, i0: int, w_s: float, w_l: float, highpass_s: float,
+                   slip_hz: float, min_range_deg: float) -> None:
+    """Refuse a frame rate or numeric option outside its range (InputError naming it)."""
+    check_fps(fps)
+    check_integer(i0, "i0", low=0, high=2**53)
+    for name, value in (("w_s", w_s), ("w_l", w_l)):
+        check_number(value, name, low=0.0, high=WEIGHT_MAX)
+    check_number(highpass_s, "highpass_s", low=0.0, high=60.0, unit=" s")
+    check_number(slip_hz, "slip_hz", low=0.0, high=fps / 2, unit=" Hz")
+    check_number(min_range_deg, "min_range_deg", low=0.0, high=180.0, unit="°")
+
+
 def _units_hint(length: float, low: float, high: float) -> str:
     typical = np.sqrt(low * high)
     ratio = length / typical
@@ -182,12 +195,35 @@ def _check_units(bone_lengths: Mapping[str, float], warnings: list[str]) -> None
                             f"human range {low}–{high} m; its joints are poorly located")
 
 
+SMOOTH_GATE: Final[float] = 6.0
+"""A smoothed sample is kept only while it moved less than this many noise sds (3-D) from
+the measured one; beyond, the filter is smearing a jump of the data, not removing noise."""
+
+
 def _smooth(x: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
-    """Zero-phase Savitzky–Golay smoothing over ~0.1 s (cubic), for white sensor noise."""
+    """Zero-phase Savitzky–Golay smoothing over ~0.1 s (cubic), for white sensor noise.
+
+    Samples that the filter would move by more than ``SMOOTH_GATE`` white-noise sds keep
+    their measured value: there the path jumps (a take starting from a T-pose frame, a
+    glitch) and a window spanning the jump would drag each joint of a rigid bone along its
+    own polynomial, stretching the bone by up to tens of centimetres.
+    """
     window = round(0.1 * fps) | 1
     if window < 5 or x.shape[0] <= window:
         return x
-    return np.asarray(savgol_filter(x, window, 3, axis=0, mode="interp"))
+    smoothed = np.asarray(savgol_filter(x, window, 3, axis=0, mode="interp"))
+    dd = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    noise = float(np.sqrt(np.sum(np.median(dd ** 2, axis=0)) / 0.4549 / 6.0))
+    jumps = np.linalg.norm(smoothed - x, axis=-1) > SMOOTH_GATE * noise
+    if not jumps.any():
+        return smoothed
+    out = x.copy()
+    # smooth each stretch between jumps on its own, so no window reaches across one
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], jumps.astype(int), [1]])))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        if stop - start > window:
+            out[start:stop] = savgol_filter(x[start:stop], window, 3, axis=0, mode="interp")
+    return out
 
 
 def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -520,6 +556,8 @@ def estimate_skeleton(
     if torso not in ("llsf", "gdke"):
         raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
     up_vec = _parse_up(up)
+    _check_options(recording.fps, i0=i0, w_s=w_s, w_l=w_l, highpass_s=highpass_s,
+                   slip_hz=slip_hz, min_range_deg=min_range_deg)
     n_frames = recording.n_frames
     if not 0 <= i0 < max(n_frames, 1):
         raise InputError(f"i0={i0} is outside the recording's {n_frames} frames", field="i0")
@@ -535,7 +573,7 @@ def estimate_skeleton(
     use = [s for s in SEGMENTS if s in recording.sensors]
     if method == "reduced":
         use = list(REDUCED_SEGMENTS)
-    warnings: list[str] = []
+    warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     sensors = _SensorPoses.of(recording, use, warnings)
     positions, rotations, ok, quat = (sensors.positions, sensors.rotations, sensors.ok,
@@ -783,7 +821,7 @@ def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, Joint
                              f"the recording lacks; it has {', '.join(recording.sensors)}",
                              sensor=off.sensor)
         local[name] = (off.sensor, vec)
-    warnings: list[str] = []
+    warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     use = [s for s in SEGMENTS if s in recording.sensors]
     sensors = _SensorPoses.of(recording, use, warnings)

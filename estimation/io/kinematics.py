@@ -22,17 +22,26 @@ import io
 import json
 import math
 import os
+import time
 import warnings
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+from ..bvh import (
+    BvhMotion,
+    fold_position_channels,
+    forward_kinematics,
+    point_joint_bvh,
+    read_bvh,
+    write_bvh,
+)
 from ..errors import InputError
+from ..results import timings_document
 
 if TYPE_CHECKING:
     from ..translation import TranslationResult
@@ -105,6 +114,8 @@ class KinematicsRecording:
         Path of the file read (the MVNX writer re-streams it).
     notes : tuple of str
         What the reader decided (units, toe joints, contact channels).
+    source_subject : int
+        MVNX: 0-based number of the ``<subject>`` read (the writer corrects its frames).
     """
 
     joints: tuple[str, ...]
@@ -125,6 +136,7 @@ class KinematicsRecording:
     root: str = ""
     source_path: str | None = None
     notes: tuple[str, ...] = ()
+    source_subject: int = 0
 
     def __post_init__(self) -> None:
         pos = self.positions
@@ -617,6 +629,7 @@ def read_kinematics(
     left_foot: str = "LeftFoot",
     right_foot: str = "RightFoot",
     acceleration_units: str | None = None,
+    subject: str | None = None,
 ) -> KinematicsRecording:
     """Read an inertial-suit recording for root-translation estimation.
 
@@ -631,6 +644,8 @@ def read_kinematics(
         Foot joint names (MVNX: segment names, default ``LeftFoot``/``RightFoot``).
     acceleration_units : str, optional
         See :data:`ACCELERATION_UNITS`.
+    subject : str, optional
+        MVNX: label or 1-based number of the subject to read (default the first).
 
     Returns
     -------
@@ -653,7 +668,7 @@ def read_kinematics(
                                    right_foot=right_foot, acceleration_units=acceleration_units)
     from .mvnx import read_mvnx
 
-    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot)
+    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot, subject=subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
@@ -738,42 +753,40 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
         "contacts": [str(c) for c in result.contacts],
         "quality": {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                     for k, v in result.quality.items()},
-        "timings": dict(result.timings),
+        "timings": timings_document(result.timings),
     }
     if recording is not None:
         out["time"] = np.round(recording.time, 6).tolist()
     return out
 
 
-def _flat_bvh(result: TranslationResult, recording: KinematicsRecording,
-              scale: float) -> BvhMotion:
-    """A BVH of point joints: the root with the root path, every other joint a child with
-    position channels (for inputs without a rotation hierarchy)."""
-    r = recording.index(recording.root)
-    pos = result.positions / scale
-    order = [r] + [j for j in range(len(recording.joints)) if j != r]
-    names = tuple(recording.joints[j] for j in order)
-    parents = (-1,) + (0,) * (len(order) - 1)
-    offsets = np.zeros((len(order), 3))
-    offsets[1:] = pos[0, order[1:]] - pos[0, r]
-    chans = tuple(("Xposition", "Yposition", "Zposition") for _ in order)
-    values = np.concatenate([pos[:, r]] + [pos[:, j] - pos[:, r] for j in order[1:]], axis=1)
-    return BvhMotion(names, parents, offsets, chans, 1.0 / result.fps, values)
+def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
+                     scale: float) -> BvhMotion:
+    """The corrected positions as a BVH of rotation channels under a moving root (see
+    :func:`estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
+    return point_joint_bvh(recording.joints, result.positions / scale,
+                           recording.index(recording.root), 1.0 / result.fps)
 
 
 def translated_bvh(result: TranslationResult, recording: KinematicsRecording) -> BvhMotion:
-    """The input BVH with the estimated root path in the root's position channels; for other
-    inputs a point-joint BVH (cm) of the corrected positions."""
+    """The BVH of a translation result, written so that every BVH reader agrees.
+
+    A BVH input comes back with the estimated root path in the root's position channels and
+    its position channels folded (:func:`estimation.bvh.fold_position_channels`: constant
+    ones into OFFSETs, moving ones over a zero OFFSET). Other inputs (and a BVH whose root
+    has no position channels) become a point-joint BVH in centimetres (the BVH's unit) of
+    the corrected positions.
+    """
     motion = recording.bvh
     if motion is None:
-        return _flat_bvh(result, recording, 0.01)
+        return _point_joint_bvh(result, recording, 0.01)
     j = motion.names.index(recording.root)
     values = motion.values.copy()
     start = sum(len(c) for c in motion.channels[:j])
     axes = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
     chans = motion.channels[j]
     if not any(c in axes for c in chans):
-        return _flat_bvh(result, recording, recording.length_scale)
+        return _point_joint_bvh(result, recording, recording.length_scale)
     shift = result.translation / recording.length_scale
     # The root's world position is its parents' transform applied to its channels; parents
     # here are static dummies at most (Bandai's joint_Root), so shifting the channels by the
@@ -785,7 +798,7 @@ def translated_bvh(result: TranslationResult, recording: KinematicsRecording) ->
     for k, ch in enumerate(chans):
         if ch in axes:
             values[:, start + k] = values[0, start + k] + shift[:, axes[ch]]
-    return motion.with_values(values)
+    return fold_position_channels(motion.with_values(values))
 
 
 def write_translation(result: TranslationResult, recording: KinematicsRecording,
@@ -808,14 +821,13 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
         raise InputError(f"unknown output format {format!r}; use {', '.join(OUTPUT_FORMATS)}",
                          field="format")
     if format == "json":
-        text = json.dumps(translation_to_dict(result, recording), separators=(",", ":"))
-        _emit(path, text)
+        started = time.perf_counter()
+        document = translation_to_dict(result, recording)
+        if "write_s" not in result.timings:  # the time to build it; the dump is not timed
+            document["timings"]["write_s"] = time.perf_counter() - started
+        _emit(path, json.dumps(document, separators=(",", ":")))
     elif format == "bvh":
-        motion = translated_bvh(result, recording)
-        if isinstance(path, io.TextIOBase):
-            write_bvh(motion, path)
-        else:
-            write_bvh(motion, path)
+        write_bvh(translated_bvh(result, recording), path)
     elif format == "kinematics-csv":
         if recording.table is None:
             raise InputError(f"cannot write a kinematics CSV for a {recording.source_format} "
@@ -827,6 +839,32 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
         if isinstance(path, io.TextIOBase):
             raise InputError("MVNX output needs a file path", field="format")
         write_mvnx(result, recording, path)
+
+
+def write_translation_files(result: TranslationResult, recording: KinematicsRecording,
+                            outputs: Sequence[tuple[str, PathLike]]) -> TranslationResult:
+    """Write every output, the JSON last with a ``timings.write_s`` covering them all.
+
+    Parameters
+    ----------
+    result : TranslationResult
+        With ``read_s`` in its timings when the caller measured it.
+    recording : KinematicsRecording
+    outputs : sequence of (format, path)
+        Formats of :func:`write_translation` and where to write them.
+
+    Returns
+    -------
+    TranslationResult
+        ``result`` with ``timings["write_s"]``, seconds spent writing.
+    """
+    started = time.perf_counter()
+    for fmt, path in sorted(outputs, key=lambda item: item[0] == "json"):
+        if fmt == "json":
+            result = replace(result, timings={**result.timings,
+                                              "write_s": time.perf_counter() - started})
+        write_translation(result, recording, path, format=fmt)
+    return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
 
 
 def _emit(path: PathLike | io.TextIOBase, text: str) -> None:
