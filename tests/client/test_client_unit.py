@@ -68,7 +68,8 @@ def test_transient_failures_are_retried_with_one_idempotency_key() -> None:
     with Client("http://test", transport=httpx.MockTransport(server), sleep=slept.append) as c:
         job = c.submit("skeleton", "r1")
     assert job.id == "job1"
-    assert len(server.keys) == 6 and len(set(server.keys)) == 1, server.keys
+    assert len(server.keys) == 6, server.keys
+    assert len(set(server.keys)) == 1, server.keys
     assert len(server.jobs) == 1  # no second job
     assert slept[2] == 7.0  # Retry-After obeyed
     assert all(0 < s <= 8.0 * 1.25 for s in slept)
@@ -87,7 +88,8 @@ def test_retries_give_up_after_the_policy_attempts() -> None:
     with Client("http://test", transport=httpx.MockTransport(server), sleep=lambda s: None,
                 retry=RetryPolicy(attempts=3)) as c, pytest.raises(ProblemError) as info:
         c.submit("skeleton", "r1")
-    assert info.value.status == 503 and info.value.detail == "try later"
+    assert info.value.status == 503
+    assert info.value.detail == "try later"
     assert len(server.keys) == 3
 
 
@@ -103,7 +105,8 @@ def test_a_problem_becomes_one_exception_with_the_document() -> None:
             pytest.raises(ProblemError) as info:
         c.upload(b"time,foo\n1,2\n", filename="bad.csv")
     assert info.value.problem == problem
-    assert "unknown column 'foo'" in str(info.value) and "line 1" in str(info.value)
+    assert "unknown column 'foo'" in str(info.value)
+    assert "line 1" in str(info.value)
 
 
 def test_the_async_client_retries_too() -> None:
@@ -118,7 +121,8 @@ def test_the_async_client_retries_too() -> None:
             return (await c.submit("skeleton", "r1")).id
 
     assert asyncio.run(main()) == "job1"
-    assert len(set(server.keys)) == 1 and len(server.jobs) == 1
+    assert len(set(server.keys)) == 1
+    assert len(server.jobs) == 1
 
 
 def test_wait_reconnects_with_last_event_id() -> None:
@@ -172,7 +176,8 @@ def test_typed_skeleton_result() -> None:
            "warnings": ["w"], "timings": {"read_s": 0.1}}
     result = parse_result(doc)
     assert isinstance(result, SkeletonResult)
-    assert result.joints["root"].shape == (2, 3) and result.joints["root"][1, 1] == 1.1
+    assert result.joints["root"].shape == (2, 3)
+    assert result.joints["root"][1, 1] == 1.1
     assert result.orientations["pelvis"].shape == (2, 4)
     assert result.quality["l_knee"].hinge is True
     assert result.quality["l_knee"].rms_residual_m is None

@@ -14,12 +14,11 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import pytest
 
-from bonefit.client import AsyncClient, Client, Job, ProblemError, SkeletonResult, \
-    TranslationResult
+from bonefit.client import AsyncClient, Client, Job, ProblemError, SkeletonResult, TranslationResult
 from tests.e2e.conftest import Launcher, ServerProcess, free_port
 
 if TYPE_CHECKING:
@@ -88,7 +87,8 @@ def test_run_returns_typed_results(embedded: ServerProcess, sensor_csv_bytes: by
         skeleton = client.run(take, "skeleton", {"method": "auto"},
                               progress=lambda j: fractions.append(j.fraction))
         assert isinstance(skeleton, SkeletonResult)
-        assert skeleton.frames == 240 and skeleton.joints["l_knee"].shape == (240, 3)
+        assert skeleton.frames == 240
+        assert skeleton.joints["l_knee"].shape == (240, 3)
         assert fractions[-1] == 1.0
         walker = client.run(kinematics_csv_bytes, "translation", {"method": "contact"},
                             format="kinematics-csv")
@@ -100,7 +100,8 @@ def test_run_returns_typed_results(embedded: ServerProcess, sensor_csv_bytes: by
         assert Path(path).read_text().startswith("HIERARCHY")
         with pytest.raises(ProblemError) as info:
             client.run(b"time,foo\n0,1\n", "skeleton")
-        assert info.value.status == 422 and info.value.problem["field"] == "format"
+        assert info.value.status == 422
+        assert info.value.problem["field"] == "format"
         with pytest.raises(ProblemError) as info:
             client.submit("skeleton", client.upload(take), {"method": "nope"})
         assert info.value.status == 422
@@ -205,7 +206,8 @@ def test_distributed_restart_and_redis_outage_during_wait(
     api, redis_server = cluster
     with Client(api.base_url, KEY) as client:
         quick = client.run(sensor_csv_bytes, "skeleton")
-        assert isinstance(quick, SkeletonResult) and quick.frames == 240
+        assert isinstance(quick, SkeletonResult)
+        assert quick.frames == 240
         rec = client.upload(long_sensor_csv_bytes, filename="long.csv")
         job = client.submit("skeleton", rec)
         waiter = Waiter(client, job)
