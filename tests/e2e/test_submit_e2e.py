@@ -53,7 +53,8 @@ def row_of_bad_value(path: Path) -> int:
     return next(i for i, line in enumerate(path.read_text().splitlines(), 1) if "abc" in line)
 
 
-def submit(server: ServerProcess, takes: list[Path], outdir: Path) -> subprocess.CompletedProcess[str]:
+def submit(server: ServerProcess, takes: list[Path], outdir: Path
+           ) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [str(BONEFIT), "submit", *map(str, takes), "--server", server.base_url, "--kind",
          "skeleton", "--param", "method=auto", "--jobs", "4", "-o", str(outdir)],
