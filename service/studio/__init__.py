@@ -2,16 +2,17 @@
 
 Plain HTML, CSS and ES modules under ``static/``, served as files: no build step, no CDN.
 The page talks only to the public API (``/v1``) with the tab's API key as a bearer token,
-so it sees exactly what that key's tenant may see. ``/docs`` serves Swagger UI from the
-``swagger-ui-bundle`` package's assets instead of FastAPI's CDN page.
+so it sees exactly what that key's tenant may see. ``/docs`` (Swagger UI) and ``/redoc``
+serve the assets shipped in the ``fastapi-offline`` package instead of FastAPI's CDN pages.
 """
 
 from __future__ import annotations
 
+from importlib.resources import files
 from pathlib import Path
 
 from fastapi import APIRouter, FastAPI
-from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -34,11 +35,9 @@ async def studio_job_page(job_id: str) -> FileResponse:
     return FileResponse(INDEX, media_type="text/html", headers=NO_CACHE)
 
 
-def swagger_assets() -> Path:
-    """The Swagger UI files shipped by ``swagger-ui-bundle``."""
-    from swagger_ui_bundle import swagger_ui_path
-
-    return Path(swagger_ui_path)
+def docs_assets() -> Path:
+    """Swagger UI 5 and ReDoc files shipped by ``fastapi-offline`` (OpenAPI 3.1 capable)."""
+    return Path(str(files("fastapi_offline") / "static"))
 
 
 @router.get("/docs")
@@ -46,14 +45,22 @@ async def api_docs() -> HTMLResponse:
     """Swagger UI with local assets: works offline and in the container."""
     return get_swagger_ui_html(
         openapi_url="/openapi.json", title="bonefit API",
-        swagger_js_url="/static/swagger/swagger-ui-bundle.js",
-        swagger_css_url="/static/swagger/swagger-ui.css",
-        swagger_favicon_url="/static/swagger/favicon-32x32.png")
+        swagger_js_url="/static/docs/swagger-ui-bundle.js",
+        swagger_css_url="/static/docs/swagger-ui.css",
+        swagger_favicon_url="/static/docs/favicon.png")
+
+
+@router.get("/redoc")
+async def api_redoc() -> HTMLResponse:
+    """ReDoc with local assets."""
+    return get_redoc_html(openapi_url="/openapi.json", title="bonefit API",
+                          redoc_js_url="/static/docs/redoc.standalone.js",
+                          redoc_favicon_url="/static/docs/favicon.png", with_google_fonts=False)
 
 
 def install(app: FastAPI) -> None:
     """Serve the studio, its static files and the offline docs on ``app`` (created with
     ``docs_url=None, redoc_url=None``)."""
-    app.mount("/static/swagger", StaticFiles(directory=swagger_assets()), name="swagger")
+    app.mount("/static/docs", StaticFiles(directory=docs_assets()), name="api-docs")
     app.mount("/static", StaticFiles(directory=STATIC), name="studio")
     app.include_router(router)

@@ -16,7 +16,7 @@ export const RELIABILITY_COLOURS = {
 export function uprighter(up = [0, 1, 0]) {
   const n = Math.hypot(...up) || 1;
   const u = up.map((c) => c / n);
-  const axis = [u[2], 0, -u[0]]; // u × y
+  const axis = [-u[2], 0, u[0]]; // u × y
   const s = Math.hypot(...axis);
   const c = u[1];
   if (s < 1e-9) return c > 0 ? (p) => p : (p) => [p[0], -p[1], -p[2]];
