@@ -201,7 +201,8 @@ def test_js_modules(start_server: Callable[..., ServerProcess], browser: Browser
         centre: sk.project([1, 2, 3], camera, 800, 600).slice(0, 2),
         upright,
         runs: charts.runs(['left', 'left', 'both', 'none', 'none']),
-        events: api.parseEvents('id: 4\\nevent: progress\\ndata: {"a": 1}\\n\\n: ka\\n\\nevent: end'),
+        events: api.parseEvents(
+          'id: 4\\nevent: progress\\ndata: {"a": 1}\\n\\n: ka\\n\\nevent: end'),
         kind: schema.kindForFormat('tracker') + ' ' + schema.kindForFormat('bvh'),
       };
     }""")
