@@ -223,3 +223,12 @@ def test_importing_the_client_loads_no_service_stack() -> None:
             "assert not heavy, sorted(heavy)\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def test_the_client_extra_is_light() -> None:
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    names = {req.split(">")[0].split("[")[0].strip()
+             for req in project["optional-dependencies"]["client"]}
+    assert names == {"httpx", "numpy"}
