@@ -23,7 +23,8 @@ export function extent(values) {
 }
 
 function chart(title, width, height) {
-  const svg = el("svg", { viewBox: `0 0 ${width} ${height}`, class: "chart", role: "img",
+  const square = width === height ? " square" : "";
+  const svg = el("svg", { viewBox: `0 0 ${width} ${height}`, class: `chart${square}`, role: "img",
     "aria-label": title });
   svg.append(el("title", {}, title));
   return svg;
@@ -35,13 +36,13 @@ export function lineChart(title, time, series, yLabel, { width = 480, height = 1
   const pad = 34;
   const x = scale(time[0], time[time.length - 1], pad, width - 8);
   const [lo, hi] = extent(series.flatMap((s) => s.values));
-  const y = scale(lo, hi, height - 20, 10);
+  const y = scale(lo, hi, height - 20, 18);
   svg.append(el("text", { x: 2, y: 12 }, `${yLabel}: ${hi.toFixed(2)}`));
   svg.append(el("text", { x: 2, y: height - 4 }, `${lo.toFixed(2)} · ${time[time.length - 1].toFixed(1)} s`));
   series.forEach((s, k) => {
     const points = s.values.map((v, i) => `${x(time[i]).toFixed(1)},${y(v).toFixed(1)}`).join(" ");
     svg.append(el("polyline", { points, fill: "none", stroke: s.colour, "stroke-width": 1.5 }));
-    svg.append(el("text", { x: width - 120, y: 14 + 13 * k, fill: s.colour }, s.label));
+    svg.append(el("text", { x: 120 + 90 * k, y: 12, style: `fill:${s.colour}` }, s.label));
   });
   return svg;
 }

@@ -184,7 +184,7 @@ async function translationView(doc, job) {
   for (const [k, v] of Object.entries(doc.quality || {})) {
     const row = side.appendChild(make("tr"));
     row.append(make("th", { scope: "row" }, k), make("td", { className: "num" },
-      typeof v === "number" ? v.toFixed(3) : String(v)));
+      typeof v === "number" ? v.toFixed(3) : JSON.stringify(v)));
   }
   view.append(left, side);
   return view;
