@@ -12,7 +12,7 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -223,3 +223,25 @@ def test_distributed_restart_and_redis_outage_during_wait(
         assert client.result(final).frames > 0  # type: ignore[union-attr]
         after = client.run(sensor_csv_bytes, "skeleton")  # the queue works again
         assert isinstance(after, SkeletonResult)
+
+
+def test_the_documented_client_example_runs(start_server: Callable[..., ServerProcess],
+                                           tmp_path: Path) -> None:
+    import os
+    import re
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    server = start_server(worker=True)
+    doc = (root / "docs" / "studio.md").read_text()
+    section = doc.split("## The Python client", 1)[1]
+    code = re.findall(r"```python\n(.*?)```", section, re.S)[0]
+    code = code.replace("http://127.0.0.1:8000", server.base_url)
+    script = tmp_path / "example.py"
+    script.write_text(code)
+    done = subprocess.run([sys.executable, str(script)], cwd=root, capture_output=True,
+                          text=True, timeout=300,
+                          env={k: v for k, v in os.environ.items() if not k.startswith("BONEFIT")})
+    assert done.returncode == 0, done.stderr
+    assert "succeeded 100%" in done.stdout
+    assert "300 (300, 3)" in done.stdout
