@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from . import _rows as rows
 from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
+from .params import check_number
 from .progress import Progress, no_progress
 
 __all__ = ["LimbFit", "estimate_limb", "paper_cost", "standard_lengths", "torso_length"]
@@ -147,6 +148,8 @@ def standard_lengths(torso_length: float,
     if missing:
         raise InputError(f"anthropometric table lacks {', '.join(missing)}",
                          field="anthropometry")
+    for key in ("torso", *LIMB_KEYS):
+        check_number(ratios[key], f"anthropometry.{key}", low=0.0, low_open=True)
     ref = float(ratios["torso"])
     if not (np.isfinite(torso_length) and torso_length > 0 and np.isfinite(ref) and ref > 0):
         raise InputError("torso lengths must be positive", field="anthropometry")

@@ -27,6 +27,9 @@ class SensorRecording:
         Frame rate, Hz.
     time : ndarray, shape (F,)
         Time of each frame, seconds.
+    warnings : tuple of str
+        What the reader noticed and worked around (ignored stations, dropped frames);
+        ``estimate_skeleton`` passes them on to its result.
     """
 
     sensors: tuple[str, ...]
@@ -34,6 +37,7 @@ class SensorRecording:
     quaternions: NDArray[np.float64]
     fps: float
     time: NDArray[np.float64]
+    warnings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n_frames, n_sensors = self.positions.shape[:2]

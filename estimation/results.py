@@ -2,12 +2,40 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
+
+TIMING_STAGES: Final[tuple[str, ...]] = ("read_s", "estimate_s", "write_s")
+"""Stages every JSON result's ``timings`` names, in seconds (``docs/skeleton-io.md``)."""
+
+
+def timings_document(timings: Mapping[str, float]) -> dict[str, float]:
+    """The ``timings`` of a JSON result: ``read_s``, ``estimate_s``, ``write_s`` first, then
+    any finer stage the producer measured (e.g. ``contacts_s``).
+
+    Parameters
+    ----------
+    timings : mapping of str to float
+        Seconds per stage, as measured; a stage missing from it did not happen in the
+        producer (a recording built in memory is not read) and is written as 0.0.
+
+    Returns
+    -------
+    dict of str to float
+        Finite seconds (a non-finite value becomes 0.0).
+    """
+    def seconds(value: float) -> float:
+        number = float(value)
+        return number if math.isfinite(number) else 0.0
+
+    out = {stage: seconds(timings.get(stage, 0.0)) for stage in TIMING_STAGES}
+    out.update({str(k): seconds(v) for k, v in timings.items() if k not in out})
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,7 +80,9 @@ class SkeletonResult:
     warnings : tuple of str
         Human-readable warnings (small range of motion, ill-conditioned joints, filled gaps).
     timings : mapping of str to float
-        Seconds spent per stage (``read_s``, ``estimate_s``, ``write_s``).
+        Seconds spent per stage (``read_s``, ``estimate_s``, ``write_s``; see
+        :func:`timings_document`). ``estimate_skeleton`` measures ``estimate_s``; whoever
+        reads and writes adds the others (``io.write_skeleton_files``, the CLI, the service).
     """
 
     method: str

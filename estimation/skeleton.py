@@ -19,6 +19,7 @@ from .joints import JointFit, estimate_joint, range_of_motion
 from .limbs import estimate_limb, standard_lengths, torso_length
 from .model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
 from .orientations import estimate_orientations
+from .params import WEIGHT_MAX, check_fps, check_integer, check_number
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
@@ -150,6 +151,18 @@ def _parse_up(up: ArrayLike) -> NDArray[np.float64]:
     if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) == 0:
         raise InputError(f"up must be a non-zero 3-vector, got {up!r}", field="up")
     return np.asarray(vec / np.linalg.norm(vec))
+
+
+def _check_options(fps: float, *, i0: int, w_s: float, w_l: float, highpass_s: float,
+                   slip_hz: float, min_range_deg: float) -> None:
+    """Refuse a frame rate or numeric option outside its range (InputError naming it)."""
+    check_fps(fps)
+    check_integer(i0, "i0", low=0, high=2**53)
+    for name, value in (("w_s", w_s), ("w_l", w_l)):
+        check_number(value, name, low=0.0, high=WEIGHT_MAX)
+    check_number(highpass_s, "highpass_s", low=0.0, high=60.0, unit=" s")
+    check_number(slip_hz, "slip_hz", low=0.0, high=fps / 2, unit=" Hz")
+    check_number(min_range_deg, "min_range_deg", low=0.0, high=180.0, unit="°")
 
 
 def _units_hint(length: float, low: float, high: float) -> str:
@@ -520,6 +533,8 @@ def estimate_skeleton(
     if torso not in ("llsf", "gdke"):
         raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
     up_vec = _parse_up(up)
+    _check_options(recording.fps, i0=i0, w_s=w_s, w_l=w_l, highpass_s=highpass_s,
+                   slip_hz=slip_hz, min_range_deg=min_range_deg)
     n_frames = recording.n_frames
     if not 0 <= i0 < max(n_frames, 1):
         raise InputError(f"i0={i0} is outside the recording's {n_frames} frames", field="i0")
@@ -535,7 +550,7 @@ def estimate_skeleton(
     use = [s for s in SEGMENTS if s in recording.sensors]
     if method == "reduced":
         use = list(REDUCED_SEGMENTS)
-    warnings: list[str] = []
+    warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     sensors = _SensorPoses.of(recording, use, warnings)
     positions, rotations, ok, quat = (sensors.positions, sensors.rotations, sensors.ok,
@@ -783,7 +798,7 @@ def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, Joint
                              f"the recording lacks; it has {', '.join(recording.sensors)}",
                              sensor=off.sensor)
         local[name] = (off.sensor, vec)
-    warnings: list[str] = []
+    warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     use = [s for s in SEGMENTS if s in recording.sensors]
     sensors = _SensorPoses.of(recording, use, warnings)

@@ -26,6 +26,14 @@ from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
 from .errors import EstimationError, InputError
 from .io.kinematics import GRAVITY, KinematicsRecording
+from .params import (
+    CONTACT_OPTION_RANGES,
+    HACHAJ_EPS_RANGE,
+    HACHAJ_WINDOW_RANGE,
+    check_fps,
+    check_integer,
+    check_number,
+)
 from .progress import Progress, no_progress
 
 METHODS: Final[tuple[str, ...]] = ("contact", "hachaj2018")
@@ -320,6 +328,20 @@ def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, ri
     return translation, _contact_labels(left_c, right_c), float(ground)
 
 
+def _hachaj_options(options: Mapping[str, Any]) -> tuple[int, float]:
+    """``window`` and ``eps`` of ``hachaj2018`` from the caller's options, checked."""
+    unknown = sorted(set(options) - {"window", "eps"})
+    if unknown:
+        raise InputError(f"unknown option(s) for hachaj2018: {', '.join(unknown)}; "
+                         "options: eps, window", field=unknown[0])
+    low, high = HACHAJ_WINDOW_RANGE
+    window = check_integer(options.get("window", HACHAJ_WINDOW), "window", low=low, high=high)
+    eps_low, eps_high = HACHAJ_EPS_RANGE
+    eps = check_number(options.get("eps", HACHAJ_EPS_M), "eps", low=eps_low, high=eps_high,
+                       low_open=True, unit=" m")
+    return window, eps
+
+
 # --------------------------------------------------------------------------- contact model
 
 
@@ -385,6 +407,17 @@ class ContactOptions:
     use_toes: bool = True
     use_file_contacts: bool = True
     clip_g: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, (low, high, low_open) in CONTACT_OPTION_RANGES.items():
+            value = getattr(self, name)
+            if name == "clip_g" and value is None:
+                continue
+            check_number(value, name, low=low, high=high, low_open=low_open)
+        for name in ("adapt_relative_speed", "use_toes", "use_file_contacts"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}",
+                                 field=name)
 
 
 def _saturated(raw: NDArray[np.float64], clip_g: float | None,
@@ -728,7 +761,10 @@ def estimate_translation(
     Raises
     ------
     InputError
-        Unknown method or option, unknown foot joint.
+        Unknown method or option, an option outside its range (``field`` names it:
+        ``CONTACT_OPTION_RANGES``, ``HACHAJ_WINDOW_RANGE``, ``HACHAJ_EPS_RANGE``), a frame
+        rate outside ``params.MIN_FPS`` … ``params.MAX_FPS`` (``field="fps"``), unknown foot
+        joint.
     EstimationError
         Fewer than 3 frames.
 
@@ -745,6 +781,7 @@ def estimate_translation(
     started = _time.perf_counter()
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; use {', '.join(METHODS)}", field="method")
+    check_fps(recording.fps)
     lf = left_foot or recording.left_foot
     rf = right_foot or recording.right_foot
     li, ri = recording.index(lf), recording.index(rf)
@@ -761,29 +798,23 @@ def estimate_translation(
     timings: dict[str, float] = {}
     extra: dict[str, Any] = {}
     if method == "hachaj2018":
-        unknown = set(method_options) - {"window", "eps"}
-        if unknown:
-            raise InputError(f"unknown option(s) for hachaj2018: {', '.join(sorted(unknown))}",
-                             field="options")
+        window, eps = _hachaj_options(method_options)
         feet = _feet(recording, lf, rf, use_toes=True)
-        translation, contacts, ground = _hachaj(
-            recording, li, ri, lf, rf, report,
-            window=int(method_options.get("window", HACHAJ_WINDOW)),
-            eps=float(method_options.get("eps", HACHAJ_EPS_M)))
+        translation, contacts, ground = _hachaj(recording, li, ri, lf, rf, report,
+                                                window=window, eps=eps)
         corrected = recording.positions + translation[:, None, :]
         soles = np.stack([f.sole(corrected) for f in feet], axis=1)
         planted = np.where(contacts == "right", soles[:, 1], soles[:, 0])
         floor = np.full(n, float(np.median(planted)))
         levels: NDArray[np.float64] | None = None
         extra["ground_m"] = ground
-        extra["window_samples"] = hachaj_window_length(
-            n, int(method_options.get("window", HACHAJ_WINDOW)))
+        extra["window_samples"] = hachaj_window_length(n, window)
     else:
         fields = set(ContactOptions.__dataclass_fields__)
-        unknown = set(method_options) - fields
+        unknown = sorted(set(method_options) - fields)
         if unknown:
-            raise InputError(f"unknown option(s) for contact: {', '.join(sorted(unknown))}; "
-                             f"options: {', '.join(sorted(fields))}", field="options")
+            raise InputError(f"unknown option(s) for contact: {', '.join(unknown)}; "
+                             f"options: {', '.join(sorted(fields))}", field=unknown[0])
         opt = ContactOptions(**method_options)
         feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
         names = (lf, rf)

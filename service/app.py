@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Callable, Mapping
 
 from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
@@ -20,22 +20,25 @@ from .routes import ops, v1
 from .runtime import Runtime, open_runtime
 from .settings import Settings
 from .uploads import clean_spool
-from .worker import purge, reap
+from .worker import housekeeping, purge, reap
 
 log = logging.getLogger("bonefit.service")
 
 
+def _clean_spool(runtime: Runtime) -> None:
+    clean_spool(runtime.settings.data_dir / "uploads")
+
+
+API_STEPS: Mapping[str, Callable[[Runtime], object]] = {
+    "reap": reap, "purge": purge, "spool cleanup": _clean_spool}
+"""The API process's housekeeping; each step runs even when another one failed."""
+
+
 async def _housekeeping(runtime: Runtime) -> None:
-    """Re-queue jobs of lost workers and apply the retention, forever."""
-    settings = runtime.settings
-    interval = min(settings.lease_seconds / 2, 30.0)
+    """Re-queue jobs of lost workers, apply the retention and clean the spool, forever."""
+    interval = min(runtime.settings.lease_seconds / 2, 30.0)
     while True:
-        try:
-            await run_in_threadpool(reap, runtime)
-            await run_in_threadpool(purge, runtime)
-            await run_in_threadpool(clean_spool, settings.data_dir / "uploads")
-        except Exception:
-            log.exception("housekeeping failed; retrying")
+        await run_in_threadpool(housekeeping, runtime, API_STEPS)
         await asyncio.sleep(interval)
 
 

@@ -86,6 +86,10 @@ class Histogram:
     total: float
 
 
+PURGE_BATCH: Final = 1000
+"""Rows deleted per transaction by the retention: PostgreSQL takes at most 65,535 bound
+parameters in one statement, and a short transaction keeps the table available."""
+
 Expect = Mapping[str, Any]
 """Compare-and-set conditions: column → value, or a tuple of accepted values."""
 
@@ -139,8 +143,18 @@ class JobStore(Protocol):
     def recording_totals(self) -> tuple[int, int]:
         """Number of stored recordings and their total bytes."""
 
-    def purge(self, before: float) -> tuple[list[Recording], list[Job]]:
-        """Delete recordings created and finished jobs ended before ``before``; return them."""
+    def purge(self, before: float, limit: int = PURGE_BATCH) -> tuple[list[Recording], list[Job]]:
+        """Delete at most ``limit`` recordings created and ``limit`` finished jobs ended before
+        ``before``; return them (call again until both lists are empty)."""
+
+    def beat_worker(self, worker_id: str, now: float) -> None:
+        """Record that worker ``worker_id`` is alive and taking jobs at ``now``."""
+
+    def drop_worker(self, worker_id: str) -> None:
+        """Forget worker ``worker_id`` (it stopped taking jobs)."""
+
+    def live_workers(self, since: float) -> list[str]:
+        """Ids of the workers seen alive at or after ``since``."""
 
 
 def _matches(obj: Any, expect: Expect) -> bool:
@@ -160,6 +174,7 @@ class MemoryJobStore:
     def __init__(self) -> None:
         self._recordings: dict[str, Recording] = {}
         self._jobs: dict[str, Job] = {}
+        self._workers: dict[str, float] = {}
         self._lock = threading.Lock()
 
     def init(self) -> None:
@@ -260,17 +275,32 @@ class MemoryJobStore:
         """Count and bytes of recordings."""
         return len(self._recordings), sum(r.size for r in self._recordings.values())
 
-    def purge(self, before: float) -> tuple[list[Recording], list[Job]]:
-        """Delete what is older than ``before``."""
+    def purge(self, before: float, limit: int = PURGE_BATCH) -> tuple[list[Recording], list[Job]]:
+        """Delete at most ``limit`` of each older than ``before``."""
         with self._lock:
-            recs = [r for r in self._recordings.values() if r.created_at < before]
+            recs = [r for r in self._recordings.values() if r.created_at < before][:limit]
             jobs = [j for j in self._jobs.values()
-                    if j.finished_at is not None and j.finished_at < before]
+                    if j.finished_at is not None and j.finished_at < before][:limit]
             for r in recs:
                 del self._recordings[r.id]
             for j in jobs:
                 del self._jobs[j.id]
             return recs, jobs
+
+    def beat_worker(self, worker_id: str, now: float) -> None:
+        """Note the worker alive."""
+        with self._lock:
+            self._workers[worker_id] = now
+
+    def drop_worker(self, worker_id: str) -> None:
+        """Forget the worker."""
+        with self._lock:
+            self._workers.pop(worker_id, None)
+
+    def live_workers(self, since: float) -> list[str]:
+        """Workers seen since ``since``."""
+        with self._lock:
+            return sorted(w for w, seen in self._workers.items() if seen >= since)
 
 
 _metadata = sa.MetaData()
@@ -315,6 +345,12 @@ jobs_table = sa.Table(
     sa.Column("request_hash", sa.String(64)),
     sa.Column("version", sa.Integer, nullable=False),
     sa.UniqueConstraint("tenant", "idempotency_key", name="bonefit_jobs_idempotency"),
+)
+
+workers_table = sa.Table(
+    "bonefit_workers", _metadata,
+    sa.Column("id", sa.String(200), primary_key=True),
+    sa.Column("seen_at", sa.Float, nullable=False, index=True),
 )
 
 _RECORDING_FIELDS = [f.name for f in fields(Recording)]
@@ -505,17 +541,46 @@ class SqlJobStore:
             n, total = conn.execute(sa.select(sa.func.count(), sa.func.sum(t.c.size))).one()
         return int(n), int(total or 0)
 
-    def purge(self, before: float) -> tuple[list[Recording], list[Job]]:
-        """Delete what is older than ``before``."""
+    def purge(self, before: float, limit: int = PURGE_BATCH) -> tuple[list[Recording], list[Job]]:
+        """Delete at most ``limit`` of each older than ``before`` in one short transaction."""
         r, j = recordings_table, jobs_table
         with self.engine.begin() as conn:
             recs = [_recording(row) for row in conn.execute(
-                sa.select(r).where(r.c.created_at < before))]
+                sa.select(r).where(r.c.created_at < before).limit(limit))]
             jobs = [_job(row) for row in conn.execute(
-                sa.select(j).where(j.c.finished_at < before))]
-            conn.execute(r.delete().where(r.c.id.in_([x.id for x in recs])))
-            conn.execute(j.delete().where(j.c.id.in_([x.id for x in jobs])))
+                sa.select(j).where(j.c.finished_at < before).limit(limit))]
+            if recs:
+                conn.execute(r.delete().where(r.c.id.in_([x.id for x in recs])))
+            if jobs:
+                conn.execute(j.delete().where(j.c.id.in_([x.id for x in jobs])))
         return recs, jobs
+
+    def beat_worker(self, worker_id: str, now: float) -> None:
+        """Update the worker's row, inserting it the first time."""
+        w = workers_table
+        with self.engine.begin() as conn:
+            done = conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
+            if done.rowcount == 1:
+                return
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(w.insert().values(id=worker_id, seen_at=now))
+        except sa.exc.IntegrityError:  # inserted meanwhile by a duplicate id: just update
+            with self.engine.begin() as conn:
+                conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
+
+    def drop_worker(self, worker_id: str) -> None:
+        """Delete the worker's row."""
+        w = workers_table
+        with self.engine.begin() as conn:
+            conn.execute(w.delete().where(w.c.id == worker_id))
+
+    def live_workers(self, since: float) -> list[str]:
+        """Workers whose row was updated since ``since``."""
+        w = workers_table
+        with self.engine.connect() as conn:
+            return [row[0] for row in conn.execute(
+                sa.select(w.c.id).where(w.c.seen_at >= since).order_by(w.c.id))]
 
 
 def open_store(url: str) -> JobStore:

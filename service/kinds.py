@@ -3,13 +3,30 @@
 from __future__ import annotations
 
 import importlib
+import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    TypeAdapter,
+    ValidationInfo,
+    field_validator,
+)
 
+from estimation.params import (
+    CONTACT_OPTION_RANGES,
+    HACHAJ_EPS_RANGE,
+    HACHAJ_WINDOW_RANGE,
+    MAX_FPS,
+    MIN_FPS,
+    WEIGHT_MAX,
+)
 from estimation.progress import Progress, scaled
 
 SENSOR_FORMATS = {"sensor-csv": "csv", "tracker": "tracker", "npz": "npz"}
@@ -52,6 +69,15 @@ class JointOffsetIn(BaseModel):
     local: tuple[float, float, float] = Field(description="Metres, in the sensor's frame.")
 
 
+ANTHROPOMETRY_KEYS = Literal["torso", "thigh", "shank", "upperarm", "forearm"]
+"""Keys of a custom anthropometric table (``limbs.standard_lengths``)."""
+TABLE_KEYS: tuple[str, ...] = get_args(ANTHROPOMETRY_KEYS)
+
+ANTHROPOMETRY_TABLE: TypeAdapter[dict[ANTHROPOMETRY_KEYS, float]] = TypeAdapter(
+    dict[ANTHROPOMETRY_KEYS, Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]])
+"""A custom table: positive, finite lengths or ratios, in any one unit."""
+
+
 class SkeletonParams(BaseModel):
     """Parameters of a skeleton job (magnetic 6-DOF trackers)."""
 
@@ -60,20 +86,106 @@ class SkeletonParams(BaseModel):
     method: Literal["auto", "llsf", "gdke", "reduced"] = "auto"
     optimizer: Literal["least-squares", "nelder-mead"] = "least-squares"
     torso: Literal["llsf", "gdke"] = "llsf"
-    anthropometry: Literal["aist", "winter"] | dict[str, float] = "aist"
-    w_s: float = Field(0.01, ge=0)
-    w_l: float = Field(0.01, ge=0)
-    smooth: bool | None = None
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
-    i0: int = Field(0, ge=0, description="Calibration frame of hands, feet and head.")
+    anthropometry: Literal["aist", "winter"] | dict[str, float] = Field(
+        "aist", description="A table name, or lengths (or ratios) of torso, thigh, shank, "
+                            "upperarm and forearm in any one unit.")
+    w_s: float = Field(0.01, ge=0, le=WEIGHT_MAX, description="Weight of eq. 5's length term.")
+    w_l: float = Field(0.01, ge=0, le=WEIGHT_MAX, description="Weight of eq. 5's ratio term.")
+    smooth: StrictBool | None = None
+    up: tuple[float, float, float] = Field(
+        (0.0, 1.0, 0.0), description="World up direction of the source frame (non-zero).")
+    i0: int = Field(0, ge=0, le=2**31, description="Calibration frame of hands, feet and head.")
     units: Literal["m", "cm", "mm", "in"] | None = None
-    fps: float | None = Field(None, gt=0)
-    stations: dict[str, str] | None = Field(None, description="Tracker station → segment.")
+    fps: float | None = Field(None, ge=MIN_FPS, le=MAX_FPS,
+                              description="Frame rate, Hz (tracker files).")
+    stations: dict[Annotated[str, Field(min_length=1, max_length=100)],
+                   Annotated[str, Field(min_length=1, max_length=100)]] | None = Field(
+        None, max_length=64, description="Tracker station → segment.")
+    tracker_layout: str | None = Field(
+        None, max_length=200,
+        description="Tracker columns, e.g. 'frame,station,x,y,z,az,el,roll' or "
+                    "'time,x,y,z,qx,qy,qz,qw;time=ns' (docs/skeleton-io.md); default detected.")
     offsets: dict[str, JointOffsetIn] | None = Field(
         None, max_length=64,
         description="A calibration: the `offsets` of an earlier skeleton result of the same "
                     "suit. Every joint is placed at its offset instead of being fitted "
                     "(method and fit options are then ignored).")
+
+    @field_validator("anthropometry", mode="before")
+    @classmethod
+    def _table(cls, value: Any) -> Any:
+        """One error at ``anthropometry`` or ``anthropometry.<key>``, not one per union arm."""
+        if isinstance(value, dict):
+            return ANTHROPOMETRY_TABLE.validate_python(value)
+        if value not in ("aist", "winter"):
+            raise ValueError(f"use 'aist', 'winter' or a table of {', '.join(TABLE_KEYS)}; "
+                             f"got {value!r}")
+        return value
+
+    @field_validator("up")
+    @classmethod
+    def _non_zero(cls, up: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not any(up):
+            raise ValueError("up must be a non-zero direction")
+        return up
+
+
+def _ranged(default: float | None, name: str, description: str) -> Any:
+    """A field bounded as ``estimation.params.CONTACT_OPTION_RANGES[name]``."""
+    low, high, low_open = CONTACT_OPTION_RANGES[name]
+    if low_open:
+        return Field(default, gt=low, le=high, description=description)
+    return Field(default, ge=low, le=high, description=description)
+
+
+class ContactOptionsIn(BaseModel):
+    """Options of the ``contact`` translation method (``estimation.translation.ContactOptions``:
+    times in seconds, lengths in metres)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    smoothing_s: float = _ranged(0.03, "smoothing_s", "Gaussian σ of positions, s.")
+    sigma_acc: float = _ranged(1.5, "sigma_acc", "Scale of acceleration residuals, m/s².")
+    relative_sigma_acc: float = _ranged(0.0, "relative_sigma_acc",
+                                        "Growth of that scale with the acceleration.")
+    swing_weight: float = _ranged(0.0, "swing_weight", "Weight of a swinging foot's residual.")
+    residual_cap: float = _ranged(9.0, "residual_cap", "Cap of a residual's cost.")
+    swing_cost: float = _ranged(1.0, "swing_cost", "Cost per 10 ms of a foot in the air.")
+    flight_cost: float = _ranged(3.0, "flight_cost", "Extra cost per 10 ms of flight.")
+    switch_cost: float = _ranged(6.0, "switch_cost", "Cost of a change of contact state.")
+    sigma_relative_speed: float = _ranged(0.15, "sigma_relative_speed",
+                                          "Scale of the feet's relative speed, m/s.")
+    adapt_relative_speed: StrictBool = True
+    height_tolerance: float = _ranged(0.03, "height_tolerance", "m.")
+    sigma_height: float = _ranged(0.02, "sigma_height", "m.")
+    floor_tolerance: float = _ranged(0.05, "floor_tolerance", "Same floor level within, m.")
+    floor_ramp_s: float = _ranged(0.25, "floor_ramp_s", "Ease onto a floor level, s.")
+    use_toes: StrictBool = True
+    use_file_contacts: StrictBool = True
+    clip_g: float | None = _ranged(None, "clip_g", "Accelerometer range, g (null: detect).")
+
+
+class Hachaj2018OptionsIn(BaseModel):
+    """Options of the ``hachaj2018`` translation method."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    window: int = Field(100, ge=HACHAJ_WINDOW_RANGE[0], le=HACHAJ_WINDOW_RANGE[1],
+                        description="Gaussian window, samples.")
+    eps: float = Field(0.05, gt=HACHAJ_EPS_RANGE[0], le=HACHAJ_EPS_RANGE[1],
+                       description="Pass-2 threshold, m.")
+
+    @field_validator("window", mode="before")
+    @classmethod
+    def _not_bool(cls, value: Any) -> Any:
+        if isinstance(value, bool):
+            raise ValueError(f"window must be a number of samples, got {value!r}")
+        return value
+
+
+OPTION_MODELS: dict[str, type[ContactOptionsIn] | type[Hachaj2018OptionsIn]] = {
+    "contact": ContactOptionsIn, "hachaj2018": Hachaj2018OptionsIn}
+"""Translation method → the model of its ``options``."""
 
 
 class TranslationParams(BaseModel):
@@ -86,26 +198,40 @@ class TranslationParams(BaseModel):
     right_foot: str = Field("RightFoot", min_length=1, max_length=100)
     acceleration_units: Literal["g", "m/s2", "free-g", "free-m/s2",
                                 "second-differences"] | None = None
-    options: dict[str, float | int | bool | str] = Field(
-        default_factory=dict, description="Method options (hachaj2018: window, eps).")
+    subject: str | None = Field(
+        None, min_length=1, max_length=100,
+        description="MVNX subject to read, by label or 1-based number; default the first.")
+    options: ContactOptionsIn | Hachaj2018OptionsIn = Field(
+        default_factory=ContactOptionsIn, validate_default=True,
+        description="Options of `method`, validated by its model: contact: "
+                    "`ContactOptionsIn`; hachaj2018: `window` (samples), `eps` (m).")
+
+    @field_validator("options", mode="before")
+    @classmethod
+    def _options_of_method(cls, value: Any, info: ValidationInfo) -> Any:
+        """Validate ``options`` by the model of ``method`` (errors at ``options.<key>``)."""
+        model = OPTION_MODELS.get(info.data.get("method", ""))
+        if model is None:  # the method itself is invalid and reported
+            return ContactOptionsIn()
+        if isinstance(value, BaseModel):
+            value = value.model_dump(exclude_unset=True)
+        return model.model_validate(value)
 
 
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
     from estimation.io.sensors import read_recording
-    from estimation.io.skeleton import (
-        offsets_from_dict,
-        write_skeleton_bvh,
-        write_skeleton_csv,
-        write_skeleton_json,
-    )
+    from estimation.io.skeleton import offsets_from_dict, write_skeleton_files
     from estimation.skeleton import estimate_skeleton
 
     source = inputs["recording"]
     progress(0.0, "reading")
+    started = time.perf_counter()
     recording = read_recording(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
-                               units=params.units, fps=params.fps, stations=params.stations)
+                               units=params.units, fps=params.fps, stations=params.stations,
+                               tracker_layout=params.tracker_layout)
+    read_s = time.perf_counter() - started
     result = estimate_skeleton(
         recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
         up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
@@ -116,36 +242,39 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     progress(0.95, "writing")
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
            "csv": outdir / "skeleton.csv"}
-    write_skeleton_json(result, out["json"])
-    write_skeleton_bvh(result, out["bvh"])
-    write_skeleton_csv(result, out["csv"])
+    result = replace(result, timings={**result.timings, "read_s": read_s})
+    write_skeleton_files(result, json_path=out["json"], bvh_path=out["bvh"],
+                         csv_path=out["csv"])
     return out
 
 
 def run_translation(inputs: Mapping[str, Input], params: TranslationParams, progress: Progress,
                     outdir: Path) -> dict[str, Path]:
     """Read the kinematics (and accelerations), estimate the root path, write the results."""
-    from estimation.io.kinematics import read_kinematics, write_translation
+    from estimation.io.kinematics import read_kinematics, write_translation_files
     from estimation.translation import estimate_translation
 
     source = inputs["recording"]
     progress(0.0, "reading")
+    started = time.perf_counter()
     accelerations = inputs.get("accelerations")
     recording = read_kinematics(
         source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
         accelerations=accelerations.path if accelerations else None,
         left_foot=params.left_foot, right_foot=params.right_foot,
-        acceleration_units=params.acceleration_units)
+        acceleration_units=params.acceleration_units, subject=params.subject)
+    read_s = time.perf_counter() - started
     result = estimate_translation(recording, method=params.method, left_foot=params.left_foot,
                                   right_foot=params.right_foot,
-                                  progress=scaled(progress, 0.02, 0.95), **params.options)
+                                  progress=scaled(progress, 0.02, 0.95),
+                                  **params.options.model_dump())
     progress(0.95, "writing")
     out = {"json": outdir / "translation.json", "bvh": outdir / "translation.bvh"}
     if source.format == "kinematics-csv":  # a corrected CSV needs a CSV input to correct
         out["csv"] = outdir / "translation.csv"
     writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv"}
-    for fmt, path in out.items():
-        write_translation(result, recording, path, format=writers[fmt])
+    result = replace(result, timings={**result.timings, "read_s": read_s})
+    write_translation_files(result, recording, [(writers[f], p) for f, p in out.items()])
     return out
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import logging
 import math
 import re
 import shutil
@@ -34,7 +35,10 @@ from .schemas import (
     Status,
     UploadFormat,
 )
+from .storage import free_bytes, is_storage_full, refuse_when_full, storage_full
 from .uploads import UploadSink, receive_multipart, receive_raw, sniff, too_large
+
+log = logging.getLogger("bonefit.service")
 
 Tenant = Annotated[str, Depends(tenant)]
 Limit = Annotated[int, Query(ge=1, le=1000, description="Page size.")]
@@ -125,7 +129,10 @@ async def upload_recording(
     suffix = _suffix(filename)
     spool = settings.data_dir / "uploads" / rec_id
     # only a sensor CSV's summary uses the row count
-    sink = UploadSink(spool / "upload.part", limit, count_rows=format in ("auto", "sensor-csv"))
+    with refuse_when_full("upload spool"):
+        sink = UploadSink(spool / "upload.part", limit,
+                          count_rows=format in ("auto", "sensor-csv"))
+    storage = "upload spool"  # where a full disk is named (507) if one stops the upload
     try:
         if multipart:
             part_name, part_type = await receive_multipart(request.stream(), content_type, sink)
@@ -148,12 +155,18 @@ async def upload_recording(
                         filename=filename, content_type=content_type, format=fmt,
                         size=sink.size, sha256=sink.sha256.hexdigest(), created_at=time.time(),
                         summary=_plain(summary))
+        storage = "artifact storage"
         await run_in_threadpool(runtime.artifacts.put_file, rec.key, path)
         try:
+            storage = "job database"
             await run_in_threadpool(runtime.store.add_recording, rec)
         except Exception:
             await run_in_threadpool(runtime.artifacts.delete, rec.key)
             raise
+    except Exception as exc:
+        if is_storage_full(exc):
+            raise storage_full(storage) from exc
+        raise
     finally:
         sink.discard()  # a malformed, partial or refused upload leaves nothing behind
         shutil.rmtree(spool, ignore_errors=True)
@@ -191,12 +204,12 @@ async def get_recording(request: Request, who: Tenant, recording_id: str) -> Rec
 async def delete_recording(request: Request, who: Tenant, recording_id: str) -> Response:
     """Delete the recording and its bytes (jobs and their results stay)."""
     runtime = runtime_of(request)
-    if not ID.match(recording_id):
-        raise not_found("recording", recording_id)
-    rec = await run_in_threadpool(runtime.store.delete_recording, who, recording_id)
-    if rec is None:
-        raise not_found("recording", recording_id)
+    rec = await _recording(request, who, recording_id)
+    # the bytes first: on a full disk that frees the space the database needs to record the
+    # deletion (a failure after it leaves a record without bytes, which a retry deletes)
     await run_in_threadpool(runtime.artifacts.delete, rec.key)
+    if await run_in_threadpool(runtime.store.delete_recording, who, recording_id) is None:
+        raise not_found("recording", recording_id)
     return Response(status_code=204)
 
 
@@ -228,7 +241,8 @@ async def create_job(
     job = Job(id=new_id(), tenant=who, kind=body.kind, recording_id=body.recording_id,
               params=payload["params"], inputs=inputs, created_at=now, updated_at=now,
               idempotency_key=idempotency_key, request_hash=digest if idempotency_key else None)
-    stored = await run_in_threadpool(runtime.store.add_job, job)
+    with refuse_when_full("job database"):
+        stored = await run_in_threadpool(runtime.store.add_job, job)
     if stored.id != job.id:
         if stored.request_hash != digest:
             raise Problem(422, "Idempotency key reused",
@@ -237,15 +251,30 @@ async def create_job(
         return _job_response(stored, 202, {"Location": _job_url(stored.id)})
     try:
         await run_in_threadpool(runtime.queue.enqueue, job.id)
-    except Exception:
-        await run_in_threadpool(runtime.store.update_job, job.id, {
+    except Exception as exc:
+        await _not_queued(runtime, job.id)
+        if is_storage_full(exc):
+            raise storage_full("job queue") from None
+        raise Problem(503, "Queue unavailable", "the job could not be queued; retry later",
+                      slug="queue-unavailable", headers={"Retry-After": "5"}) from None
+    return _job_response(job, 202, {"Location": _job_url(job.id)})
+
+
+async def _not_queued(runtime: Runtime, job_id: str) -> None:
+    """Fail a job the queue refused and free its Idempotency-Key, so that the client's retry
+    with the same key runs the job instead of returning this failure. If even that cannot be
+    written, the job stays queued with its key: the reaper sends it once the queue is back,
+    and the retry gets it."""
+    try:
+        await run_in_threadpool(runtime.store.update_job, job_id, {
             "status": "failed", "finished_at": time.time(), "stage": "failed",
+            "idempotency_key": None,
             "error": {"type": "urn:bonefit:problem:queue-unavailable", "title": "Queue "
                       "unavailable", "status": 503, "detail": "the job could not be queued"}},
             expect={"status": "queued"})
-        raise Problem(503, "Queue unavailable", "the job could not be queued; retry later",
-                      slug="queue-unavailable") from None
-    return _job_response(job, 202, {"Location": _job_url(job.id)})
+    except Exception:
+        log.exception("job %s: not queued, and could not be marked failed; the reaper will "
+                      "send it", job_id)
 
 
 async def _input_exists(request: Request, who: str, rec_id: str, field: str) -> None:
@@ -378,22 +407,51 @@ async def healthz() -> dict[str, str]:
 
 @ops.get("/readyz", summary="Readiness", responses={503: PROBLEM_RESPONSES[503]})
 async def readyz(request: Request) -> JSONResponse:
-    """Database, queue and storage answer."""
+    """Database, queue and storage answer, the data directory has room, and a worker is alive;
+    else 503 naming the checks that failed."""
     runtime = runtime_of(request)
     checks = {"database": runtime.store.ping, "queue": runtime.queue.ping,
-              "storage": runtime.artifacts.ping}
+              "storage": runtime.artifacts.ping, "disk": lambda: _disk_check(runtime),
+              "workers": lambda: _workers_check(runtime)}
     results: dict[str, str] = {}
-    for name, ping in checks.items():
+    for name, check in checks.items():
         try:
-            await asyncio.wait_for(run_in_threadpool(ping), timeout=5.0)
+            await asyncio.wait_for(run_in_threadpool(check), timeout=5.0)
             results[name] = "ok"
+        except NotReady as exc:
+            results[name] = str(exc)
         except Exception as exc:
             results[name] = f"unavailable: {type(exc).__name__}"
-    if any(v != "ok" for v in results.values()):
-        failed = ", ".join(k for k, v in results.items() if v != "ok")
-        raise Problem(503, "Not ready", f"unreachable: {failed}", slug="not-ready",
-                      checks=results)
+    failed = {k: v for k, v in results.items() if v != "ok"}
+    if failed:
+        detail = "; ".join(f"{k}: {v}" for k, v in failed.items())
+        raise Problem(503, "Not ready", detail, slug="not-ready", checks=results,
+                      failed=sorted(failed))
     return JSONResponse({"status": "ok", "checks": results})
+
+
+class NotReady(Exception):
+    """A readiness check failed; the message says why."""
+
+
+MIB = 1024 * 1024
+
+
+def _disk_check(runtime: Runtime) -> None:
+    minimum = runtime.settings.min_free_bytes
+    if minimum <= 0:
+        return
+    free = free_bytes(runtime.settings.data_dir)
+    if free < minimum:
+        raise NotReady(f"low space: {free / MIB:.0f} MiB free in the data directory "
+                       f"(BONEFIT_MIN_FREE_BYTES: {minimum / MIB:.0f} MiB)")
+
+
+def _workers_check(runtime: Runtime) -> None:
+    window = runtime.settings.worker_stale_seconds
+    if not runtime.store.live_workers(time.time() - window):
+        raise NotReady(f"no worker alive: none has reported in the last {window:.0f} s "
+                       "(start `bonefit worker`, or `bonefit serve` with workers)")
 
 
 @ops.get("/metrics", summary="Prometheus metrics", dependencies=[Depends(metrics_guard)],

@@ -31,13 +31,29 @@ class Settings(BaseSettings):
     max_attempts: int = Field(3, ge=1)
     job_timeout_seconds: float = Field(
         3600.0, ge=0, description="Run time after which a job is stopped and failed (0: none).")
+    job_memory_mb: int = Field(
+        4096, ge=0, description="Memory a job may add to its worker process, MiB; a job "
+                                "needing more fails with a 507 problem (0: no limit).")
     workers: int = Field(2, ge=0, description="Embedded worker processes of `bonefit serve`.")
     retention_seconds: float = Field(0.0, ge=0, description="TTL of recordings/results/jobs.")
     progress_interval_seconds: float = Field(0.5, ge=0)
     shutdown_grace_seconds: float = Field(10.0, ge=0)
+    min_free_bytes: int = Field(
+        256 * 1024**2, ge=0, description="Free space under data_dir below which /readyz "
+                                         "fails (0: not checked).")
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     log_level: str = "info"
+
+    @property
+    def worker_heartbeat_seconds(self) -> float:
+        """How often a worker records that it is alive (a third of the lease, at most 10 s)."""
+        return min(self.lease_seconds / 3, 10.0)
+
+    @property
+    def worker_stale_seconds(self) -> float:
+        """A worker unheard of for this long is not counted as alive by ``/readyz``."""
+        return 3 * self.worker_heartbeat_seconds + 1.0
 
     @property
     def resolved_database_url(self) -> str:

@@ -4,21 +4,23 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..io.sensors import FORMATS, UNITS, example_path, parse_stations, read_recording
-from ..io.skeleton import (
-    read_skeleton_offsets,
-    skeleton_to_dict,
-    write_skeleton_bvh,
-    write_skeleton_csv,
+from ..io.sensors import FORMATS, UNITS, detect_format, example_path, read_recording
+from ..io.skeleton import read_skeleton_offsets, write_skeleton_files
+from ..io.tracker import (
+    TrackerLayout,
+    detect_tracker_layout,
+    parse_stations,
+    parse_tracker_layout,
 )
 from ..model import JOINTS
+from ..params import check_fps
 from ..recording import SensorRecording
 from ..results import SkeletonResult
 from .progress import ProgressBar
@@ -40,10 +42,14 @@ examples:
   bonefit skeleton liberty.txt --format tracker --fps 240 --up=-z \\
       --stations 1=pelvis,2=chest,3=head,4=l_upperarm,5=l_hand,6=r_upperarm,7=r_hand,\\
 8=l_thigh,9=l_foot,10=r_thigh,11=r_foot -o take.json
+  bonefit skeleton trakstar.txt --stations stations.json \
+      --tracker-layout "station,x,y,z,az,el,roll,time,quality;time=s" -o take.json
 
 input formats (docs/skeleton-io.md):
   csv      time,<segment>.x,.y,.z,.qw,.qx,.qy,.qz,...   metres unless --units
-  tracker  station x y z azimuth elevation roll (or qw qx qy qz) per line, inches
+  tracker  station x y z azimuth elevation roll (or qw qx qy qz) per line, inches;
+           header rows, frame counters, time and quality columns, FASTRAK records and
+           ROS CSV are detected (printed as "detected: ..."), or give --tracker-layout
   npz      positions (F,S,3), quaternions (F,S,4), sensors (S,), fps
 
 exit status: 0 on success, 2 with a one-line reason on bad input.
@@ -78,6 +84,9 @@ def register(sub: Any) -> None:
                         help="frame rate, Hz (needed for tracker files)")
     parser.add_argument("--stations", default=None, metavar="MAP",
                         help='tracker station map: "1=pelvis,2=chest,..." or a JSON file')
+    parser.add_argument("--tracker-layout", default=None, metavar="SPEC",
+                        help="tracker columns, e.g. 'frame,station,x,y,z,qw,qx,qy,qz' or "
+                             "'time,x,y,z,qx,qy,qz,qw;time=ns' (default: detected)")
     parser.add_argument("--up", default="+y", metavar="{+y,-y,+z,-z,+x,-x}",
                         help="world up axis of the source frame (default: +y; write --up=-z "
                              "for a negative axis)")
@@ -134,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--up must be one of {', '.join(UP_AXES)}, got {args.up!r}",
                          field="--up")
     fps = _number(args.fps, "--fps", float)
+    if fps is not None:
+        check_fps(fps, "--fps")
     i0 = _number(args.i0, "--i0", int)
     stations = parse_stations(args.stations) if args.stations is not None else None
     offsets = read_skeleton_offsets(args.offsets) if args.offsets is not None else None
@@ -152,8 +163,12 @@ def run(args: argparse.Namespace) -> int:
                              field="output")
 
     start = time.perf_counter()
-    recording = read_recording(source, format=fmt, units=units, fps=fps, stations=stations)
+    layout = _tracker_layout(source, fmt, args.tracker_layout)
+    recording = read_recording(source, format=fmt, units=units, fps=fps, stations=stations,
+                               tracker_layout=layout)
     read_s = time.perf_counter() - start
+    if layout is not None and args.tracker_layout is None:
+        print(f"detected: {layout.describe()}", file=sys.stderr)
     if i0 >= recording.n_frames:
         raise InputError(f"--i0 {i0} is past the last frame ({recording.n_frames - 1})",
                          field="--i0")
@@ -173,26 +188,25 @@ def run(args: argparse.Namespace) -> int:
     timings.setdefault("estimate_s", estimate_s)
     result = dataclasses.replace(result, timings=timings)
 
-    start = time.perf_counter()
     try:
-        if args.bvh is not None:
-            write_skeleton_bvh(result, args.bvh)
-        if args.csv is not None:
-            write_skeleton_csv(result, args.csv)
-        if args.output is not None:
-            document = skeleton_to_dict(result)
-            # write_s covers BVH, CSV and the JSON conversion; the final dump is not timed
-            document["timings"]["write_s"] = time.perf_counter() - start
-            Path(args.output).write_text(json.dumps(document, allow_nan=False) + "\n",
-                                         encoding="utf-8")
+        # write_s covers BVH, CSV and the JSON conversion; the final dump is not timed
+        result = write_skeleton_files(result, json_path=args.output, bvh_path=args.bvh,
+                                      csv_path=args.csv)
     except OSError as exc:
         raise InputError(f"cannot write {exc.filename}: {exc.strerror}",
                          field="output") from None
-    write_s = time.perf_counter() - start
-    result = dataclasses.replace(result, timings={**result.timings, "write_s": write_s})
     if args.output is None:
         print(summary(result, recording))
     return 0
+
+
+def _tracker_layout(source: Path, fmt: str, spec: str | None) -> TrackerLayout | None:
+    """The layout of a tracker input: ``spec``, or detected (printed once the file is read)."""
+    if spec is not None:
+        return parse_tracker_layout(spec)
+    if (detect_format(source) if fmt == "auto" else fmt) != "tracker":
+        return None
+    return detect_tracker_layout(source)
 
 
 def summary(result: SkeletonResult, recording: SensorRecording | None = None) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -52,6 +53,9 @@ def register(sub: Any) -> None:
                         help="left foot joint (default LeftFoot)")
     parser.add_argument("--right-foot", default="RightFoot", metavar="NAME",
                         help="right foot joint (default RightFoot)")
+    parser.add_argument("--subject", default=None, metavar="LABEL|N",
+                        help="MVNX subject to read, by label or 1-based number (default: "
+                             "the first, with a warning when there are several)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output in the input's format")
     parser.add_argument("--bvh", metavar="OUT.bvh", help="also write a BVH with the root path")
@@ -63,7 +67,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``bonefit translate``; returns the exit code."""
-    from ..io.kinematics import read_kinematics, write_translation
+    from ..io.kinematics import read_kinematics, write_translation_files
     from ..translation import estimate_translation
 
     if not Path(args.input).is_file():
@@ -72,21 +76,25 @@ def run(args: argparse.Namespace) -> int:
     recording = read_kinematics(args.input, format=args.format,
                                 accelerations=args.accelerations,
                                 left_foot=args.left_foot, right_foot=args.right_foot,
-                                acceleration_units=args.acceleration_units)
+                                acceleration_units=args.acceleration_units,
+                                subject=args.subject)
     read_s = time.perf_counter() - started
+    for note in recording.notes:
+        if note.startswith("warning:"):
+            print(note, file=sys.stderr)
     bar = None if args.quiet else ProgressBar(sys.stderr)
     try:
         result = estimate_translation(recording, method=args.method, progress=bar)
     finally:
         if bar is not None:
             bar.close()
-    fmt = "kinematics-csv" if recording.source_format == "kinematics-csv" else \
-        recording.source_format
-    write_translation(result, recording, args.output, format=fmt)
+    result = dataclasses.replace(result, timings={**result.timings, "read_s": read_s})
+    outputs = [(recording.source_format, args.output)]
     if args.bvh:
-        write_translation(result, recording, args.bvh, format="bvh")
+        outputs.append(("bvh", args.bvh))
     if args.json:
-        write_translation(result, recording, args.json, format="json")
+        outputs.append(("json", args.json))
+    result = write_translation_files(result, recording, outputs)
     q = result.quality
     print(f"{args.method}: {result.n_frames} frames, path {q['path_length_m']:.2f} m, "
           f"closure {q['closure_cm']:.1f} cm, foot skate {q['foot_skate_cm_s']:.1f} cm/s, "

@@ -21,7 +21,6 @@ if TYPE_CHECKING:
     from .sensors import (
         RowCounter,
         example_path,
-        parse_stations,
         read_recording,
         sniff_recording,
         write_sensor_csv,
@@ -38,17 +37,28 @@ if TYPE_CHECKING:
         write_skeleton_csv,
         write_skeleton_json,
     )
+    from .tracker import (
+        TrackerLayout,
+        detect_tracker_layout,
+        parse_stations,
+        parse_tracker_layout,
+        read_tracker_ascii,
+    )
 
 __all__ = [
     "KinematicsRecording",
     "RowCounter",
+    "TrackerLayout",
+    "detect_tracker_layout",
     "example_path",
     "offsets_from_dict",
     "parse_stations",
+    "parse_tracker_layout",
     "read_kinematics",
     "read_recording",
     "read_skeleton_json",
     "read_skeleton_offsets",
+    "read_tracker_ascii",
     "skeleton_from_dict",
     "skeleton_to_bvh",
     "skeleton_to_dict",
@@ -68,8 +78,10 @@ __all__ = [
 __getattr__, __dir__ = lazy_attributes(__name__, {
     "kinematics": ("KinematicsRecording", "read_kinematics", "sniff_kinematics",
                    "translation_to_dict", "write_kinematics_csv", "write_translation"),
-    "sensors": ("RowCounter", "example_path", "parse_stations", "read_recording",
+    "sensors": ("RowCounter", "example_path", "read_recording",
                 "sniff_recording", "write_sensor_csv", "write_sensor_npz"),
+    "tracker": ("TrackerLayout", "detect_tracker_layout", "parse_stations",
+                "parse_tracker_layout", "read_tracker_ascii"),
     "skeleton": ("offsets_from_dict", "read_skeleton_json", "read_skeleton_offsets",
                  "skeleton_from_dict", "skeleton_to_bvh", "skeleton_to_dict",
                  "write_skeleton_bvh", "write_skeleton_csv", "write_skeleton_json"),

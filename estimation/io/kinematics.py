@@ -22,9 +22,10 @@ import io
 import json
 import math
 import os
+import time
 import warnings
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -33,6 +34,7 @@ from numpy.typing import NDArray
 
 from ..bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
 from ..errors import InputError
+from ..results import timings_document
 
 if TYPE_CHECKING:
     from ..translation import TranslationResult
@@ -105,6 +107,8 @@ class KinematicsRecording:
         Path of the file read (the MVNX writer re-streams it).
     notes : tuple of str
         What the reader decided (units, toe joints, contact channels).
+    source_subject : int
+        MVNX: 0-based number of the ``<subject>`` read (the writer corrects its frames).
     """
 
     joints: tuple[str, ...]
@@ -125,6 +129,7 @@ class KinematicsRecording:
     root: str = ""
     source_path: str | None = None
     notes: tuple[str, ...] = ()
+    source_subject: int = 0
 
     def __post_init__(self) -> None:
         pos = self.positions
@@ -617,6 +622,7 @@ def read_kinematics(
     left_foot: str = "LeftFoot",
     right_foot: str = "RightFoot",
     acceleration_units: str | None = None,
+    subject: str | None = None,
 ) -> KinematicsRecording:
     """Read an inertial-suit recording for root-translation estimation.
 
@@ -631,6 +637,8 @@ def read_kinematics(
         Foot joint names (MVNX: segment names, default ``LeftFoot``/``RightFoot``).
     acceleration_units : str, optional
         See :data:`ACCELERATION_UNITS`.
+    subject : str, optional
+        MVNX: label or 1-based number of the subject to read (default the first).
 
     Returns
     -------
@@ -653,7 +661,7 @@ def read_kinematics(
                                    right_foot=right_foot, acceleration_units=acceleration_units)
     from .mvnx import read_mvnx
 
-    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot)
+    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot, subject=subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
@@ -738,7 +746,7 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
         "contacts": [str(c) for c in result.contacts],
         "quality": {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                     for k, v in result.quality.items()},
-        "timings": dict(result.timings),
+        "timings": timings_document(result.timings),
     }
     if recording is not None:
         out["time"] = np.round(recording.time, 6).tolist()
@@ -808,8 +816,11 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
         raise InputError(f"unknown output format {format!r}; use {', '.join(OUTPUT_FORMATS)}",
                          field="format")
     if format == "json":
-        text = json.dumps(translation_to_dict(result, recording), separators=(",", ":"))
-        _emit(path, text)
+        started = time.perf_counter()
+        document = translation_to_dict(result, recording)
+        if "write_s" not in result.timings:  # the time to build it; the dump is not timed
+            document["timings"]["write_s"] = time.perf_counter() - started
+        _emit(path, json.dumps(document, separators=(",", ":")))
     elif format == "bvh":
         motion = translated_bvh(result, recording)
         if isinstance(path, io.TextIOBase):
@@ -827,6 +838,32 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
         if isinstance(path, io.TextIOBase):
             raise InputError("MVNX output needs a file path", field="format")
         write_mvnx(result, recording, path)
+
+
+def write_translation_files(result: TranslationResult, recording: KinematicsRecording,
+                            outputs: Sequence[tuple[str, PathLike]]) -> TranslationResult:
+    """Write every output, the JSON last with a ``timings.write_s`` covering them all.
+
+    Parameters
+    ----------
+    result : TranslationResult
+        With ``read_s`` in its timings when the caller measured it.
+    recording : KinematicsRecording
+    outputs : sequence of (format, path)
+        Formats of :func:`write_translation` and where to write them.
+
+    Returns
+    -------
+    TranslationResult
+        ``result`` with ``timings["write_s"]``, seconds spent writing.
+    """
+    started = time.perf_counter()
+    for fmt, path in sorted(outputs, key=lambda item: item[0] == "json"):
+        if fmt == "json":
+            result = replace(result, timings={**result.timings,
+                                              "write_s": time.perf_counter() - started})
+        write_translation(result, recording, path, format=fmt)
+    return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
 
 
 def _emit(path: PathLike | io.TextIOBase, text: str) -> None:

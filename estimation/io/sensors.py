@@ -1,5 +1,8 @@
 """Readers of 6-DOF sensor recordings: bonefit sensor CSV, tracker ASCII and NPZ.
 
+Tracker exports are read by :mod:`estimation.io.tracker`, which shares the public helpers
+here (``open_text``, ``check_recording`` ...).
+
 Every reader returns a :class:`~estimation.recording.SensorRecording` in metres with unit
 scalar-first quaternions (sensor → source frame) and NaN for dropped samples, and raises
 :class:`~estimation.errors.InputError` naming the line, column, field or sensor at fault.
@@ -12,14 +15,13 @@ import codecs
 import contextlib
 import csv
 import io
-import json
 import math
 import mmap
 import os
 import zipfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +29,9 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..model import SEGMENTS
 from ..recording import SensorRecording
+
+if TYPE_CHECKING:
+    from .tracker import TrackerLayout
 
 PathLike = str | os.PathLike[str]
 
@@ -81,73 +86,12 @@ def unit_scale(units: str) -> float:
     return UNITS[key]
 
 
-def parse_stations(spec: str | Mapping[Any, Any] | PathLike) -> dict[int, str]:
-    """Station-number → segment mapping of a tracker recording.
-
-    Parameters
-    ----------
-    spec : str, mapping or path
-        ``"1=pelvis,2=chest,..."``, a mapping ``{1: "pelvis", ...}`` (keys may be strings of
-        digits), or the path of a JSON file holding such a mapping.
-
-    Returns
-    -------
-    dict of int to str
-
-    Raises
-    ------
-    InputError
-        On a malformed entry, an unknown segment or a segment given twice.
-    """
-    items: list[tuple[Any, Any]]
-    if isinstance(spec, Mapping):
-        items = list(spec.items())
-    else:
-        text = os.fspath(spec).strip()
-        path = Path(text)
-        if text.endswith(".json") or ("=" not in text and path.is_file()):
-            try:
-                loaded = json.loads(path.read_text(encoding="utf-8"))
-            except FileNotFoundError:
-                raise InputError(f"stations file {text} not found", field="stations") from None
-            except (OSError, ValueError) as exc:
-                raise InputError(f"cannot read stations file {text}: {exc}",
-                                 field="stations") from None
-            if not isinstance(loaded, dict):
-                raise InputError("stations JSON must be an object {\"1\": \"pelvis\", ...}",
-                                 field="stations")
-            items = list(loaded.items())
-        else:
-            items = []
-            for part in text.split(","):
-                if not part.strip():
-                    continue
-                key, sep, value = part.partition("=")
-                if not sep:
-                    raise InputError(f"stations entry {part.strip()!r} is not NUMBER=SEGMENT",
-                                     field="stations")
-                items.append((key.strip(), value.strip()))
-    mapping: dict[int, str] = {}
-    for key, value in items:
-        try:
-            number = int(key)
-        except (TypeError, ValueError):
-            raise InputError(f"station {key!r} is not a number", field="stations") from None
-        if value not in SEGMENTS:
-            raise InputError(f"station {number} maps to unknown segment {value!r}; "
-                             f"segments are {', '.join(SEGMENTS)}", field="stations")
-        if value in mapping.values():
-            raise InputError(f"segment {value!r} is given to two stations", field="stations")
-        mapping[number] = str(value)
-    if not mapping:
-        raise InputError("stations mapping is empty", field="stations")
-    return mapping
-
-
 # --------------------------------------------------------------------------- helpers
 
 
-def _open_text(path: PathLike) -> io.TextIOWrapper:
+def open_text(path: PathLike) -> io.TextIOWrapper:
+    """Text handle of a recording (UTF-8, BOM dropped, bad bytes as U+FFFD); InputError for a
+    directory or an unreadable file."""
     try:
         # undecodable bytes become U+FFFD and then fail as a named column or number
         return open(path, encoding="utf-8-sig", errors="replace", newline="")
@@ -159,7 +103,7 @@ def _open_text(path: PathLike) -> io.TextIOWrapper:
                          field="input") from None
 
 
-def _metadata(line: str) -> tuple[str, str] | None:
+def metadata_comment(line: str) -> tuple[str, str] | None:
     """``# key: value`` comment → (key, value); None for other comments."""
     body = line.lstrip("#").strip()
     key, sep, value = body.partition(":")
@@ -173,7 +117,8 @@ def _metadata(line: str) -> tuple[str, str] | None:
     return None
 
 
-def _parse_fps(value: Any, field: str = "fps") -> float:
+def parse_fps(value: Any, field: str = "fps") -> float:
+    """A positive finite frame rate (Hz) from ``value``; InputError naming ``field``."""
     try:
         fps = float(value)
     except (TypeError, ValueError):
@@ -183,7 +128,7 @@ def _parse_fps(value: Any, field: str = "fps") -> float:
     return fps
 
 
-def _normalise_quaternions(quats: NDArray[np.float64], sensors: tuple[str, ...],
+def normalise_quaternions(quats: NDArray[np.float64], sensors: tuple[str, ...],
                            lines: NDArray[np.int64] | None) -> NDArray[np.float64]:
     """Unit quaternions; InputError naming the sample whose norm is far from 1."""
     norm = np.linalg.norm(quats, axis=-1)
@@ -199,7 +144,7 @@ def _normalise_quaternions(quats: NDArray[np.float64], sensors: tuple[str, ...],
         return np.asarray(quats / norm[..., None], dtype=float)
 
 
-def _check_recording(rec: SensorRecording, units: str) -> SensorRecording:
+def check_recording(rec: SensorRecording, units: str) -> SensorRecording:
     """All-NaN sensors and positions whose size does not fit the declared units."""
     valid = rec.valid()
     for s, name in enumerate(rec.sensors):
@@ -227,11 +172,13 @@ def _check_recording(rec: SensorRecording, units: str) -> SensorRecording:
     return rec
 
 
-def _time_from_fps(n_frames: int, fps: float) -> NDArray[np.float64]:
+def time_from_fps(n_frames: int, fps: float) -> NDArray[np.float64]:
+    """Frame times (F,), seconds, from 0 at ``fps``."""
     return np.arange(n_frames, dtype=float) / fps
 
 
-def _fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
+def fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
+    """Frame rate (Hz) of increasing frame times (F,) in seconds; InputError otherwise."""
     if time.size < 2:
         raise InputError("one frame only: give fps to set the frame rate", field="fps")
     steps = np.diff(time)
@@ -290,7 +237,7 @@ def _csv_header(rows: Iterator[tuple[int, list[str]]],
     """The header row and its line, after leading ``# key: value`` comments (into ``meta``)."""
     for line, row in rows:
         if row[0].lstrip().startswith("#"):
-            found = _metadata(",".join(row))
+            found = metadata_comment(",".join(row))
             if found:
                 meta[found[0]] = found[1]
             continue
@@ -360,7 +307,7 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         whose size does not fit ``units``.
     """
     meta: dict[str, str] = {}
-    with _open_text(path) as handle:
+    with open_text(path) as handle:
         rows = _csv_rows(handle)
         header, header_line = _csv_header(rows, meta)
         time_col, sensors, index = _parse_csv_header(header, header_line)
@@ -398,10 +345,10 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
     values = table[:, index]  # (F, S, 7)
     values[~np.isfinite(values).all(axis=-1)] = np.nan
     positions = values[..., :3] * scale
-    quats = _normalise_quaternions(values[..., 3:], tuple(sensors), line_arr)
+    quats = normalise_quaternions(values[..., 3:], tuple(sensors), line_arr)
 
     if fps is None and "fps" in meta:
-        fps = _parse_fps(meta["fps"])
+        fps = parse_fps(meta["fps"])
     if time_col is not None:
         time = table[:, time_col]
         bad = ~np.isfinite(time)
@@ -414,14 +361,14 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
             i = int(np.argmax(steps <= 0)) + 1
             raise InputError(f"time does not increase at line {lines[i]}", line=lines[i],
                              column=time_col + 1, field="time")
-        rate = _parse_fps(fps) if fps is not None else _fps_from_time(time)
+        rate = parse_fps(fps) if fps is not None else fps_from_time(time)
     elif fps is not None:
-        rate = _parse_fps(fps)
-        time = _time_from_fps(len(data), rate)
+        rate = parse_fps(fps)
+        time = time_from_fps(len(data), rate)
     else:
         raise InputError("no time column: give fps (frame rate, Hz)", field="fps")
     rec = SensorRecording(tuple(sensors), positions, quats, rate, np.asarray(time, dtype=float))
-    return _check_recording(rec, units)
+    return check_recording(rec, units)
 
 
 def write_sensor_csv(recording: SensorRecording, path: PathLike, *, units: str = "m",
@@ -449,182 +396,6 @@ def write_sensor_csv(recording: SensorRecording, path: PathLike, *, units: str =
     for row in table:
         out.write(",".join("" if not math.isfinite(v) else fmt.format(v) for v in row) + "\n")
     Path(path).write_text(out.getvalue(), encoding="utf-8")
-
-
-# --------------------------------------------------------------------------- tracker ASCII
-
-
-def _tracker_records(handle: io.TextIOWrapper, meta: dict[str, str]
-                     ) -> Iterator[tuple[int, list[str]]]:
-    for line, text in enumerate(handle, 1):
-        stripped = text.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            found = _metadata(stripped)
-            if found:
-                meta[found[0]] = found[1]
-            continue
-        yield line, stripped.replace(",", " ").split()
-
-
-class _StationCycle:
-    """Splits a stream of station numbers into frames.
-
-    Trackers report their stations in a fixed order each frame (the order of the first
-    cycle); a frame ends when a station does not come later in that order than the previous
-    record, so a station missing from a frame leaves a gap instead of shifting the rest.
-    """
-
-    def __init__(self) -> None:
-        self.rank: dict[int, float] = {}
-        self.last: int | None = None
-
-    def starts_frame(self, number: int) -> bool:
-        if self.last is None:
-            self.rank[number] = 0.0
-            new = True
-        elif number not in self.rank:
-            # first seen (first cycle, or a station missing from it): it follows the previous
-            self.rank[number] = self.rank[self.last] + 0.5 ** len(self.rank)
-            new = False
-        else:
-            new = self.rank[number] <= self.rank[self.last]
-        self.last = number
-        return new
-
-
-def _station(token: str, line: int) -> int:
-    try:
-        return int(float(token))
-    except ValueError:
-        raise InputError(f"malformed station number {token!r} at line {line}, column 1",
-                         line=line, column=1, field="station") from None
-
-
-def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | None = None,
-                       units: str | None = None, fps: float | None = None) -> SensorRecording:
-    """Read a Polhemus LIBERTY/PATRIOT or Ascension trakSTAR style ASCII export.
-
-    Parameters
-    ----------
-    path : path
-        Whitespace-separated records, one per station per frame:
-        ``station x y z azimuth elevation roll`` (angles in degrees, sensor → source rotation
-        R = Rz(azimuth)·Ry(elevation)·Rx(roll)) or ``station x y z qw qx qy qz``. A frame is a
-        cycle of stations: it ends when a station repeats. Lines starting with ``#`` are
-        comments; ``# units: cm``, ``# fps: 240`` and ``# stations: 1=pelvis,...`` set
-        defaults for the parameters below.
-    stations : mapping or str
-        Station number → segment name (``{1: "pelvis", ...}`` or ``"1=pelvis,2=chest"``).
-        Required (here or in the file); every station in the file must be mapped.
-    units : {"in", "cm", "mm", "m"}, optional
-        Units of the positions; default inches (the trackers' factory setting).
-    fps : float
-        Frame rate, Hz (the files carry no time). Required: LIBERTY runs at 240 Hz, PATRIOT at
-        60 Hz, trakSTAR at 80 Hz by default, and the rate depends on the station count.
-
-    Returns
-    -------
-    SensorRecording
-        Sensors in station-number order; a station absent from a frame is a dropped sample.
-
-    Raises
-    ------
-    InputError
-        Unmapped station, unknown segment, malformed number (line and column), records of
-        mixed length, missing fps, non-unit quaternion, all-NaN sensor, implausible units.
-    """
-    meta: dict[str, str] = {}
-    frames: list[dict[int, list[float]]] = []
-    frame_lines: list[int] = []
-    current: dict[int, list[float]] = {}
-    width: int | None = None
-    cycle = _StationCycle()
-    with _open_text(path) as handle:
-        for line, tokens in _tracker_records(handle, meta):
-            if len(tokens) not in (7, 8):
-                raise InputError(
-                    f"line {line} has {len(tokens)} fields; expected 'station x y z azimuth "
-                    f"elevation roll' (7) or 'station x y z qw qx qy qz' (8)", line=line)
-            if width is None:
-                width = len(tokens)
-            elif len(tokens) != width:
-                raise InputError(f"line {line} has {len(tokens)} fields, earlier records have "
-                                 f"{width}", line=line)
-            number = _station(tokens[0], line)
-            values: list[float] = []
-            for col, tok in enumerate(tokens[1:], 2):
-                try:
-                    values.append(float(tok))
-                except ValueError:
-                    raise InputError(f"malformed number {_short(tok)} at line {line}, column {col}",
-                                     line=line, column=col) from None
-            if cycle.starts_frame(number):
-                if current:
-                    frames.append(current)
-                current = {}
-                frame_lines.append(line)
-            current[number] = values
-    if current:
-        frames.append(current)
-    if not frames or width is None:
-        raise InputError(f"{os.fspath(path)} holds no tracker records", field="frames")
-
-    if stations is None:
-        if "stations" not in meta:
-            raise InputError("tracker files need a stations mapping (station number → "
-                             "segment), e.g. stations='1=pelvis,2=chest'", field="stations")
-        stations = meta["stations"]
-    mapping = parse_stations(stations)
-    numbers = sorted({n for frame in frames for n in frame})
-    for number in numbers:
-        if number not in mapping:
-            line = next(frame_lines[i] for i, f in enumerate(frames) if number in f)
-            raise InputError(f"station {number} (first frame at line {line}) is not in the "
-                             f"stations mapping {_format_stations(mapping)}",
-                             field="stations", line=line)
-    order = sorted(mapping)
-    for number in order:
-        if number not in numbers:
-            raise InputError(f"station {number} ({mapping[number]}) has no records",
-                             sensor=mapping[number])
-    sensors = tuple(mapping[n] for n in order)
-    n_frames = len(frames)
-    table = np.full((n_frames, len(order), width - 1), np.nan)
-    for i, frame in enumerate(frames):
-        for s, number in enumerate(order):
-            if number in frame:
-                table[i, s] = frame[number]
-    table[~np.isfinite(table).all(axis=-1)] = np.nan
-
-    units = units if units is not None else meta.get("units", "in")
-    scale = unit_scale(units)
-    if fps is None:
-        if "fps" not in meta:
-            raise InputError("tracker files carry no time: give fps (LIBERTY 240, PATRIOT 60, "
-                             "trakSTAR 80 Hz by default)", field="fps")
-        fps = _parse_fps(meta["fps"])
-    rate = _parse_fps(fps)
-    positions = table[..., :3] * scale
-    line_arr = np.asarray(frame_lines, dtype=np.int64)
-    if width == 8:
-        quats = _normalise_quaternions(table[..., 3:], sensors, line_arr)
-    else:
-        angles = table[..., 3:].reshape(-1, 3)
-        ok = np.isfinite(angles).all(axis=-1)
-        xyzw = np.full((angles.shape[0], 4), np.nan)
-        if ok.any():
-            from scipy.spatial.transform import Rotation  # only here: sniffing needs no scipy
-
-            xyzw[ok] = Rotation.from_euler("ZYX", angles[ok], degrees=True).as_quat()
-        quats = xyzw[:, [3, 0, 1, 2]].reshape(n_frames, len(order), 4)
-    rec = SensorRecording(sensors, positions, quats, rate, _time_from_fps(n_frames, rate))
-    return _check_recording(rec, units)
-
-
-def _format_stations(mapping: Mapping[int, str]) -> str:
-    return ",".join(f"{k}={v}" for k, v in sorted(mapping.items()))
 
 
 # --------------------------------------------------------------------------- NPZ
@@ -686,7 +457,7 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
             raise InputError("sensors must be an array of strings", field="sensors")
         sensors = tuple(str(s) for s in names.reshape(-1))
         if fps is None:
-            fps = _parse_fps(get("fps").reshape(-1)[0] if get("fps").size else None)
+            fps = parse_fps(get("fps").reshape(-1)[0] if get("fps").size else None)
         time = np.array(archive["time"], dtype=float) if "time" in archive.files else None
         if units is None and "units" in archive.files:
             units = str(get("units").reshape(-1)[0])
@@ -701,14 +472,14 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
         raise InputError(f"quaternions must have shape {(*positions.shape[:2], 4)}, "
                          f"got {quats.shape}", field="quaternions")
     units = units or "m"
-    rate = _parse_fps(fps)
+    rate = parse_fps(fps)
     values = np.concatenate([positions * unit_scale(units), quats], axis=-1)
     values[~np.isfinite(values).all(axis=-1)] = np.nan
-    quats_n = _normalise_quaternions(values[..., 3:], sensors, None)
+    quats_n = normalise_quaternions(values[..., 3:], sensors, None)
     if time is None:
-        time = _time_from_fps(positions.shape[0], rate)
+        time = time_from_fps(positions.shape[0], rate)
     rec = SensorRecording(sensors, values[..., :3], quats_n, rate, time)
-    return _check_recording(rec, units)
+    return check_recording(rec, units)
 
 
 def write_sensor_npz(recording: SensorRecording, path: PathLike) -> None:
@@ -726,8 +497,9 @@ def write_sensor_npz(recording: SensorRecording, path: PathLike) -> None:
 def detect_format(path: PathLike) -> str:
     """Format of a recording file: ``"csv"``, ``"tracker"`` or ``"npz"``.
 
-    By content first (a ZIP archive is NPZ; a first data line of 7 or 8 numbers without
-    commas is tracker ASCII; a header with ``<segment>.<component>`` columns is CSV), then by
+    By content first (a ZIP archive is NPZ; records whose layout
+    :func:`~estimation.io.tracker.detect_tracker_layout` recognises are a tracker export; a
+    header with ``<segment>.<component>`` columns is CSV), then by
     extension (``.npz``, ``.csv``; ``.txt``/``.dat``/``.asc`` are tracker files).
 
     Raises
@@ -746,6 +518,10 @@ def detect_format(path: PathLike) -> str:
     if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
         return "npz"
     text = head.decode("utf-8", errors="replace")
+    from .tracker import looks_like_tracker
+
+    if looks_like_tracker(text):
+        return "tracker"
     for raw in text.splitlines():
         line = raw.strip().lstrip("\ufeff")
         if not line or line.startswith("#"):
@@ -783,7 +559,8 @@ def _resolve_format(path: PathLike, format: str) -> str:
 
 def read_recording(path: PathLike, *, format: str = "auto", units: str | None = None,
                    fps: float | None = None,
-                   stations: Mapping[Any, Any] | str | None = None) -> SensorRecording:
+                   stations: Mapping[Any, Any] | str | None = None,
+                   tracker_layout: str | TrackerLayout | None = None) -> SensorRecording:
     """Read a sensor recording in any supported format.
 
     Parameters
@@ -796,7 +573,11 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
     fps : float, optional
         Frame rate, Hz; required for tracker files and CSV files without a ``time`` column.
     stations : mapping or str, optional
-        Station → segment mapping of tracker files (see :func:`parse_stations`).
+        Station → segment mapping of tracker files (see
+        :func:`~estimation.io.tracker.parse_stations`).
+    tracker_layout : str, optional
+        Column layout of a tracker file (see :func:`~estimation.io.tracker.parse_tracker_layout`);
+        detected from the file when omitted.
 
     Returns
     -------
@@ -816,7 +597,10 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
     if fmt == "csv":
         return read_sensor_csv(path, units=units, fps=fps)
     if fmt == "tracker":
-        return read_tracker_ascii(path, stations=stations, units=units, fps=fps)
+        from .tracker import read_tracker_ascii
+
+        return read_tracker_ascii(path, stations=stations, units=units, fps=fps,
+                                  layout=tracker_layout)
     return read_sensor_npz(path, units=units, fps=fps)
 
 
@@ -842,7 +626,8 @@ def sniff_recording(path: PathLike, format: str = "auto", *,
         ``format`` (str), ``frames`` (int), ``sensors`` (list of str: segment names; for
         tracker files the station numbers as strings unless the file names them with a
         ``# stations:`` comment), ``fps`` (float or None when the file does not say),
-        ``units`` (str or None).
+        ``units`` (str or None); for tracker files also ``layout``, the detected
+        :class:`~estimation.io.tracker.TrackerLayout` spec.
 
     Raises
     ------
@@ -855,13 +640,14 @@ def sniff_recording(path: PathLike, format: str = "auto", *,
     meta: dict[str, str] = {}
     if fmt == "csv":
         return _sniff_csv(path, meta, counted_rows)
-    with _open_text(path) as handle:
-        return _sniff_tracker(handle, meta)
+    from .tracker import sniff_tracker
+
+    return sniff_tracker(path)
 
 
 def _sniff_csv(path: PathLike, meta: dict[str, str],
                counted_rows: int | None = None) -> dict[str, Any]:
-    with _open_text(path) as handle:
+    with open_text(path) as handle:
         header, header_line = _csv_header(_csv_rows(handle), meta)
         time_col, sensors, _ = _parse_csv_header(header, header_line)
         times: list[float] = []
@@ -883,10 +669,10 @@ def _sniff_csv(path: PathLike, meta: dict[str, str],
                 break
     fps: float | None = None
     if "fps" in meta:
-        fps = _parse_fps(meta["fps"])
+        fps = parse_fps(meta["fps"])
     elif len(times) >= 2:
         try:
-            fps = _fps_from_time(np.asarray(times, dtype=float))
+            fps = fps_from_time(np.asarray(times, dtype=float))
         except InputError:
             fps = None
     return {"format": "csv", "frames": frames, "sensors": sensors, "fps": fps,
@@ -1002,37 +788,6 @@ def _sniff_line_lead(line: bytes) -> bytes:
     decoder = codecs.getincrementaldecoder("utf-8")("replace")
     lead = decoder.decode(line).lstrip()
     return lead[0].encode() if lead else decoder.getstate()[0]
-
-
-def _sniff_tracker(handle: io.TextIOWrapper, meta: dict[str, str]) -> dict[str, Any]:
-    cycle = _StationCycle()
-    order: list[int] = []
-    frames = 0
-    for line, text in enumerate(handle, 1):
-        stripped = text.lstrip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            found = _metadata(stripped.strip())
-            if found:
-                meta[found[0]] = found[1]
-            continue
-        first = stripped.split(None, 1)[0].rstrip(",")
-        number = _station(first, line)
-        if cycle.starts_frame(number):
-            frames += 1
-        if number not in order:
-            order.append(number)
-    sensors = [str(n) for n in sorted(order)]
-    if "stations" in meta:
-        try:
-            mapping = parse_stations(meta["stations"])
-            sensors = [mapping.get(n, str(n)) for n in sorted(order)]
-        except InputError:
-            pass
-    fps = _parse_fps(meta["fps"]) if "fps" in meta else None
-    return {"format": "tracker", "frames": frames, "sensors": sensors, "fps": fps,
-            "units": meta.get("units", "in")}
 
 
 def _sniff_npz(path: PathLike) -> dict[str, Any]:

@@ -11,7 +11,9 @@ import io
 import json
 import math
 import os
+import time
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -22,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from ..bvh import BvhMotion, write_bvh
 from ..errors import InputError
 from ..model import JOINTS
-from ..results import JointOffset, SkeletonResult
+from ..results import JointOffset, SkeletonResult, timings_document
 from .sensors import unit_scale
 
 PathLike = str | os.PathLike[str]
@@ -140,7 +142,7 @@ def skeleton_to_dict(result: SkeletonResult, *, decimals: int = 6) -> dict[str, 
                          for name, q in result.orientations.items()},
         "quality": _json_safe({k: dict(v) for k, v in result.quality.items()}),
         "warnings": [str(w) for w in result.warnings],
-        "timings": _json_safe(dict(result.timings)),
+        "timings": timings_document(result.timings),
     }
 
 
@@ -156,9 +158,55 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
         Decimal places of positions in metres.
     indent : int, optional
         Pretty-print indentation; compact by default.
+
+    Notes
+    -----
+    ``timings`` always has ``read_s``, ``estimate_s`` and ``write_s``; when ``result`` has no
+    ``write_s``, it is the time spent building the document here (the final dump is not
+    timed). :func:`write_skeleton_files` writes BVH, CSV and JSON with one ``write_s``.
     """
-    text = json.dumps(skeleton_to_dict(result, decimals=decimals), indent=indent,
-                      allow_nan=False)
+    started = time.perf_counter()
+    document = skeleton_to_dict(result, decimals=decimals)
+    if "write_s" not in result.timings:
+        document["timings"]["write_s"] = time.perf_counter() - started
+    _dump(document, path, indent)
+
+
+def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None = None,
+                         bvh_path: PathLike | None = None, csv_path: PathLike | None = None,
+                         decimals: int = 6) -> SkeletonResult:
+    """Write the BVH, the CSV, then the JSON whose ``timings.write_s`` covers all three.
+
+    Parameters
+    ----------
+    result : SkeletonResult
+        With ``read_s`` and ``estimate_s`` in its timings when the caller measured them.
+    json_path, bvh_path, csv_path : path, optional
+        Files to write; None: skip.
+    decimals : int
+        Decimal places of JSON positions in metres.
+
+    Returns
+    -------
+    SkeletonResult
+        ``result`` with ``timings["write_s"]``: seconds from the start to the end of the
+        writes (in the JSON: up to building its document; the final dump is not timed).
+    """
+    started = time.perf_counter()
+    if bvh_path is not None:
+        write_skeleton_bvh(result, bvh_path)
+    if csv_path is not None:
+        write_skeleton_csv(result, csv_path)
+    if json_path is not None:
+        document = skeleton_to_dict(result, decimals=decimals)
+        document["timings"]["write_s"] = time.perf_counter() - started
+        _dump(document, json_path, None)
+    return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
+
+
+def _dump(document: Mapping[str, Any], path: PathLike | io.TextIOBase,
+          indent: int | None) -> None:
+    text = json.dumps(document, indent=indent, allow_nan=False)
     if isinstance(path, io.TextIOBase):
         path.write(text)
     else:

@@ -246,6 +246,14 @@ def wait_for_job(client: httpx.Client, job_id: str, *, timeout: float = 90.0,
         time.sleep(0.2)
 
 
+def wait_ready(client: httpx.Client, timeout: float = 120) -> httpx.Response:
+    """/readyz once it answers 200 (the workers register after loading), or its last answer."""
+    deadline = time.monotonic() + timeout
+    while (r := client.get("/readyz")).status_code != 200 and time.monotonic() < deadline:
+        time.sleep(0.5)
+    return r
+
+
 def _sensor_csv(n_frames: int, seed: int) -> bytes:
     from estimation.io.sensors import write_sensor_csv
     from estimation.simulate.sensors import example_motion, simulate_sensors

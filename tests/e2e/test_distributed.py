@@ -28,6 +28,7 @@ from tests.e2e.conftest import (
     submit,
     upload,
     wait_for_job,
+    wait_ready,
 )
 
 if TYPE_CHECKING:
@@ -125,9 +126,10 @@ def test_external_servers_answer(redis_url: str, postgres_url: str, s3: S3Server
 
 def test_ready_on_redis_postgres_and_s3(cluster: Cluster, postgres_url: str) -> None:
     with cluster.client() as client:
-        r = client.get("/readyz")
+        r = wait_ready(client)
     assert r.status_code == 200, r.text
-    assert r.json()["checks"] == {"database": "ok", "queue": "ok", "storage": "ok"}
+    assert r.json()["checks"] == {"database": "ok", "queue": "ok", "storage": "ok",
+                                  "disk": "ok", "workers": "ok"}
     engine = sqlalchemy.create_engine(postgres_url)
     try:
         tables = sqlalchemy.inspect(engine).get_table_names()

@@ -16,7 +16,14 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.e2e.conftest import Launcher, ServerProcess, submit, upload, wait_for_job
+from tests.e2e.conftest import (
+    Launcher,
+    ServerProcess,
+    submit,
+    upload,
+    wait_for_job,
+    wait_ready,
+)
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
@@ -251,7 +258,7 @@ def test_idempotent_retry(client: httpx.Client, sensor_csv_bytes: bytes) -> None
 
 def test_probes_and_metrics(client: httpx.Client) -> None:
     assert client.get("/healthz").json() == {"status": "ok"}
-    assert client.get("/readyz").json()["status"] == "ok"
+    assert wait_ready(client).json()["status"] == "ok"
     text = client.get("/metrics").text
     assert 'bonefit_jobs{kind="skeleton",status="succeeded"}' in text
     assert "bonefit_queue_depth" in text

@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import json
 import socket
+import time
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from service.app import create_app
+from service.jobs import JobStore, SqlJobStore
 from service.settings import Settings
 from tests.e2e.conftest import Launcher, ServerProcess
 
@@ -64,11 +66,18 @@ class Fixture:
         return self.loop.run_until_complete(self.client.request(method, url, **kwargs))
 
 
+def worker_elsewhere(store: JobStore) -> None:
+    """A worker heartbeat that stays fresh for the session: /readyz is ready without workers
+    running jobs here (they would change what the fuzzed requests find)."""
+    store.beat_worker("fuzz:elsewhere", time.time() + 86400)
+
+
 @pytest.fixture(scope="module")
 def api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fixture]:
     data = tmp_path_factory.mktemp("fuzz-data")
     app = create_app(Settings(data_dir=data, api_keys={KEY: "fuzz", OTHER_KEY: "other"},
                               max_upload_bytes=MAX_UPLOAD, workers=0), housekeeping=False)
+    worker_elsewhere(app.state.runtime.store)
     loop = asyncio.new_event_loop()
     transport = httpx.ASGITransport(app=app, raise_app_exceptions=True)
     client = httpx.AsyncClient(transport=transport, base_url="http://bonefit.test")
@@ -266,6 +275,9 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ServerProce
     try:
         server = launcher.server({"BONEFIT_API_KEYS": json.dumps({KEY: "fuzz", OTHER_KEY: "o"}),
                                   "BONEFIT_MAX_UPLOAD_BYTES": str(MAX_UPLOAD)}, worker=False)
+        store = SqlJobStore.from_url(f"sqlite:///{server.data_dir / 'jobs.db'}")
+        worker_elsewhere(store)
+        store.engine.dispose()
         with server.client() as client:
             ids = seed(client.request)
         yield server, ids

@@ -68,6 +68,8 @@ def test_help_shows_examples(capsys: pytest.CaptureFixture[str]) -> None:
     (["--format", "c3d"], ["--format", "c3d"]),
     (["--fps", "-3"], ["--fps", "positive"]),
     (["--fps", "fast"], ["--fps", "number"]),
+    (["--fps", "5e-324"], ["--fps", "1 Hz", "5e-324"]),
+    (["--fps", "inf"], ["--fps", "10000 Hz"]),
     (["--i0", "x"], ["--i0", "number"]),
     (["--i0", "5000"], ["--i0", "past the last frame"]),
     (["--stations", "1:pelvis"], ["1:pelvis", "NUMBER=SEGMENT"]),

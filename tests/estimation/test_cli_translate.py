@@ -41,6 +41,9 @@ def test_translate_writes_csv_bvh_and_json(walk_csv: Path, tmp_path: Path,
     assert data["method"] == "contact"
     assert len(data["contacts"]) == corrected.n_frames
     assert (tmp_path / "o.bvh").read_text().startswith("HIERARCHY")
+    # the timings contract of every JSON result (README): the CLI measured all three
+    assert list(data["timings"])[:3] == ["read_s", "estimate_s", "write_s"]
+    assert all(data["timings"][k] > 0 for k in ("read_s", "estimate_s", "write_s"))
 
 
 def test_translate_faithful_method(walk_csv: Path, tmp_path: Path) -> None:

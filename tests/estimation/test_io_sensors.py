@@ -18,15 +18,14 @@ from estimation.io.sensors import (
     RowCounter,
     detect_format,
     example_path,
-    parse_stations,
     read_recording,
     read_sensor_csv,
     read_sensor_npz,
-    read_tracker_ascii,
     sniff_recording,
     write_sensor_csv,
     write_sensor_npz,
 )
+from estimation.io.tracker import parse_stations, read_tracker_ascii
 from estimation.model import JOINT_SEGMENTS, SEGMENTS
 from estimation.recording import SensorRecording
 
@@ -300,8 +299,11 @@ def test_tracker_needs_stations_and_fps(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="stations mapping") as err:
         read_tracker_ascii(path, fps=240)
     assert err.value.field == "stations"
-    with pytest.raises(InputError, match=r"station 2 .* not in the stations mapping"):
-        read_tracker_ascii(path, stations="1=pelvis", fps=240)
+    # an unmapped station is ignored with a warning naming it (it used to be an error)
+    rec = read_tracker_ascii(path, stations="1=pelvis", fps=240)
+    assert rec.sensors == ("pelvis",)
+    assert any(re.search(r"station 2 .* not in the stations mapping .*ignored", w)
+               for w in rec.warnings)
     with pytest.raises(InputError, match="unknown segment 'torso'"):
         read_tracker_ascii(path, stations="1=pelvis,2=torso", fps=240)
     with pytest.raises(InputError, match="station 4 \\(head\\) has no records") as err:
@@ -400,7 +402,7 @@ def test_sniff_summarises_without_parsing_rows(tmp_path: Path) -> None:
         "format": "npz", "frames": 40, "sensors": list(rec.sensors), "fps": 50.0, "units": "m"}
     info = sniff_recording(write(tmp_path / "lib.txt", TRACKER))
     assert info == {"format": "tracker", "frames": 4, "sensors": ["1", "2"], "fps": None,
-                    "units": "in"}
+                    "units": "in", "layout": "station,x,y,z,az,el,roll"}
     named = write(tmp_path / "n.txt", "# stations: 1=pelvis,2=chest\n# fps: 240\n" + TRACKER)
     assert sniff_recording(named)["sensors"] == ["pelvis", "chest"]
     assert sniff_recording(named)["fps"] == 240

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ from estimation.io.skeleton import (
     skeleton_to_dict,
     write_skeleton_bvh,
     write_skeleton_csv,
+    write_skeleton_files,
     write_skeleton_json,
 )
 from estimation.model import JOINTS, SEGMENTS
@@ -240,7 +242,10 @@ def test_json_contract_keys_types_and_no_nan(tmp_path: Path) -> None:
     assert quality["rms_residual_m"] == pytest.approx(0.002)
     assert doc["quality"]["root"]["rms_residual_m"] is None
     assert doc["warnings"] == ["l_knee is a hinge"]
-    assert doc["timings"] == {"estimate_s": 0.5}
+    # the README's contract: every stage named; one not run here (no file read) is 0.0
+    assert list(doc["timings"]) == ["read_s", "estimate_s", "write_s"]
+    assert (doc["timings"]["read_s"], doc["timings"]["estimate_s"]) == (0.0, 0.5)
+    assert doc["timings"]["write_s"] >= 0
 
 
 def test_json_round_trip(tmp_path: Path) -> None:
@@ -257,7 +262,10 @@ def test_json_round_trip(tmp_path: Path) -> None:
     assert back.bone_lengths["l_thigh"] == 0.42
     assert back.quality["l_knee"]["hinge"] is True
     assert back.warnings == result.warnings
-    assert skeleton_to_dict(back) == skeleton_to_dict(result)
+    written = json.loads((tmp_path / "s.json").read_text())
+    assert skeleton_to_dict(back) == written  # write_s: measured by write_skeleton_json
+    assert {k: v for k, v in written.items() if k != "timings"} == {
+        k: v for k, v in skeleton_to_dict(result).items() if k != "timings"}
 
 
 def test_json_refuses_nan_joints_and_foreign_documents(tmp_path: Path) -> None:
@@ -293,3 +301,16 @@ def test_csv_one_row_per_frame_in_metres(tmp_path: Path) -> None:
     np.testing.assert_allclose(table[:, 0], np.arange(6) / 30.0, atol=1e-6)
     k = header.index("l_wrist.x")
     np.testing.assert_allclose(table[:, k:k + 3], result.joints["l_wrist"], atol=1e-6)
+
+
+def test_write_skeleton_files_times_every_write_in_the_json(tmp_path: Path) -> None:
+    result = replace(rigid_result(n_frames=9, seed=2),
+                     timings={"read_s": 0.125, "estimate_s": 0.5, "torso_s": 0.25})
+    out = write_skeleton_files(result, json_path=tmp_path / "s.json",
+                               bvh_path=tmp_path / "s.bvh", csv_path=tmp_path / "s.csv")
+    doc = json.loads((tmp_path / "s.json").read_text())
+    assert list(doc["timings"]) == ["read_s", "estimate_s", "write_s", "torso_s"]
+    assert (doc["timings"]["read_s"], doc["timings"]["estimate_s"]) == (0.125, 0.5)
+    assert 0 < doc["timings"]["write_s"] <= out.timings["write_s"]  # BVH and CSV before it
+    assert (tmp_path / "s.bvh").read_text().startswith("HIERARCHY")
+    assert (tmp_path / "s.csv").is_file()

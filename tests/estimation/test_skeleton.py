@@ -476,3 +476,35 @@ def test_a_prior_is_only_as_certain_as_its_anchor() -> None:
         assert out.quality["prior_sigma_m"] == s0
     # the prior anchored on an uncertain point pulls the centre less
     assert shifts[1] < 0.8 * shifts[0], shifts
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("w_s", -1.0), ("w_l", float("nan")), ("w_s", 1e300), ("highpass_s", float("inf")),
+    ("slip_hz", -0.5), ("min_range_deg", 400.0), ("i0", 2.5), ("i0", True)])
+def test_out_of_range_options_are_refused_naming_them(sim15: Sim, option: str,
+                                                      value: object) -> None:
+    rec, _ = sim15
+    with pytest.raises(InputError) as info:
+        estimate_skeleton(rec, **{option: value})  # type: ignore[arg-type]
+    assert info.value.field == option
+    assert repr(value) in info.value.detail
+
+
+@pytest.mark.parametrize("fps", [5e-324, 0.5, 1e5])
+def test_an_absurd_frame_rate_is_refused_not_overflowed(sim15: Sim, fps: float) -> None:
+    rec, _ = sim15
+    odd = replace(rec, fps=fps)
+    with pytest.raises(InputError) as info:
+        estimate_skeleton(odd)
+    assert info.value.field == "fps"
+    assert "1 Hz" in info.value.detail
+    assert "10000 Hz" in info.value.detail
+
+
+def test_a_custom_anthropometric_table_must_be_positive_and_finite(sim15: Sim) -> None:
+    rec, _ = sim15
+    table = {"torso": 1.0, "thigh": 0.5, "shank": float("inf"), "upperarm": 0.4,
+             "forearm": 0.3}
+    with pytest.raises(InputError) as info:
+        estimate_skeleton(rec, method="reduced", anthropometry=table)
+    assert info.value.field == "anthropometry.shank"

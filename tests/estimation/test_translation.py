@@ -14,6 +14,7 @@ from estimation.io.kinematics import KinematicsRecording, read_kinematics
 from estimation.simulate.inertial import simulate_walker
 from estimation.translation import (
     HACHAJ_EPS_M,
+    ContactOptions,
     TranslationResult,
     estimate_translation,
     hachaj_smooth,
@@ -250,3 +251,45 @@ def test_bad_requests_raise() -> None:
         accelerations={k: v[:2] for k, v in rec.accelerations.items()}, root="Hips")
     with pytest.raises(EstimationError):
         estimate_translation(short)
+
+
+@pytest.mark.parametrize(("options", "field"), [
+    ({"window": 0}, "window"), ({"window": -5}, "window"), ({"window": 2.5}, "window"),
+    ({"window": 1e9}, "window"), ({"window": True}, "window"), ({"eps": "x"}, "eps"),
+    ({"eps": 0.0}, "eps"), ({"eps": float("nan")}, "eps"), ({"bogus": 1}, "bogus")])
+def test_hachaj2018_options_out_of_range_are_refused_naming_them(
+        options: dict[str, object], field: str) -> None:
+    rec, _, _ = simulate_walker(fps=30)
+    with pytest.raises(InputError) as info:
+        estimate_translation(rec, method="hachaj2018", **options)
+    assert info.value.field == field
+
+
+def test_hachaj2018_takes_an_integral_window_given_as_a_float() -> None:
+    rec, _, _ = simulate_walker(fps=30)
+    as_float = estimate_translation(rec, method="hachaj2018", window=50.0)
+    as_int = estimate_translation(rec, method="hachaj2018", window=50)
+    assert as_float.quality["window_samples"] == as_int.quality["window_samples"] == 50
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("switch_cost", -1.0), ("sigma_acc", 0.0), ("smoothing_s", float("inf")),
+    ("clip_g", -2.0), ("use_toes", "yes"), ("floor_ramp_s", "0.2")])
+def test_contact_options_out_of_range_are_refused_naming_them(option: str,
+                                                              value: object) -> None:
+    rec, _, _ = simulate_walker(fps=30)
+    with pytest.raises(InputError) as info:
+        estimate_translation(rec, **{option: value})
+    assert info.value.field == option
+    with pytest.raises(InputError):
+        ContactOptions(**{option: value})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("fps", [5e-324, 1e6])
+def test_an_absurd_frame_rate_is_refused(fps: float) -> None:
+    rec, _, _ = simulate_walker(fps=30)
+    odd = KinematicsRecording(joints=rec.joints, positions=rec.positions, fps=fps,
+                              time=rec.time, accelerations=rec.accelerations, root=rec.root)
+    with pytest.raises(InputError) as info:
+        estimate_translation(odd)
+    assert info.value.field == "fps"

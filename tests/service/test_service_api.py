@@ -413,8 +413,10 @@ def test_internal_errors_do_not_leak(runtime: Runtime) -> None:
 
 def test_health_ready_and_metrics(client: TestClient, runtime: Runtime, worker: Worker) -> None:
     assert client.get("/healthz").json() == {"status": "ok"}
+    worker.beat()  # what its serve loop does
     assert client.get("/readyz").json()["checks"] == {"database": "ok", "queue": "ok",
-                                                      "storage": "ok"}
+                                                      "storage": "ok", "disk": "ok",
+                                                      "workers": "ok"}
     job = submit(client, upload(client)["id"])
     submit(client, upload(client)["id"])
     drain(runtime, worker)
@@ -429,14 +431,17 @@ def test_health_ready_and_metrics(client: TestClient, runtime: Runtime, worker: 
     assert job
 
 
-def test_readyz_reports_what_is_down(client: TestClient, runtime: Runtime) -> None:
+def test_readyz_reports_what_is_down(client: TestClient, runtime: Runtime,
+                                     worker: Worker) -> None:
     def down() -> None:
         raise ConnectionError("no")
 
+    worker.beat()
     runtime.queue.ping = down  # type: ignore[method-assign]
     body = assert_problem(client.get("/readyz"), 503)
     assert body["checks"] == {"database": "ok", "queue": "unavailable: ConnectionError",
-                              "storage": "ok"}
+                              "storage": "ok", "disk": "ok", "workers": "ok"}
+    assert body["failed"] == ["queue"]
 
 
 def test_openapi_documents_the_kinds(client: TestClient) -> None:

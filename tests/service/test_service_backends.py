@@ -69,6 +69,7 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
     with sql.engine.begin() as conn:  # the PostgreSQL database is shared by the module's tests
         conn.execute(sa.text("DELETE FROM bonefit_jobs"))
         conn.execute(sa.text("DELETE FROM bonefit_recordings"))
+        conn.execute(sa.text("DELETE FROM bonefit_workers"))
     yield sql
     sql.engine.dispose()
 
@@ -137,6 +138,66 @@ def test_idempotency_keys_are_per_tenant(store: JobStore) -> None:
     assert again.id == a.id
     assert again.request_hash == "h"
     assert store.add_job(job("other", idempotency_key="k")).id != a.id
+
+
+def test_a_freed_idempotency_key_takes_a_new_job(store: JobStore) -> None:
+    refused = store.add_job(job(idempotency_key="k", request_hash="h"))
+    assert store.update_job(refused.id, {"status": "failed", "idempotency_key": None},
+                            expect={"status": "queued"}) is not None
+    retried = store.add_job(job(idempotency_key="k", request_hash="h"))
+    assert retried.id != refused.id
+    assert store.add_job(job(idempotency_key="k", request_hash="h")).id == retried.id
+
+
+def test_worker_heartbeats(store: JobStore) -> None:
+    now = time.time()
+    assert store.live_workers(now - 10) == []
+    store.beat_worker("a:1", now - 60)
+    store.beat_worker("b:2", now)
+    assert store.live_workers(now - 10) == ["b:2"]
+    store.beat_worker("a:1", now)  # an update, not a second row
+    assert store.live_workers(now - 10) == ["a:1", "b:2"]
+    store.drop_worker("a:1")
+    store.drop_worker("gone:3")
+    assert store.live_workers(0) == ["b:2"]
+
+
+def _expired_jobs(store: JobStore, n: int, finished_at: float) -> None:
+    """``n`` finished jobs; on PostgreSQL in one INSERT ... SELECT (a few hundred ms)."""
+    if isinstance(store, SqlJobStore) and store.engine.dialect.name == "postgresql":
+        with store.engine.begin() as conn:
+            conn.execute(sa.text(
+                "INSERT INTO bonefit_jobs (id, tenant, kind, recording_id, params, inputs, "
+                "created_at, updated_at, status, finished_at, attempts, fraction, stage, "
+                "results, cancel_requested, version) SELECT 'old' || g, 't', 'skeleton', 'r', "
+                "'{}', '{}', 0, 0, 'succeeded', :at, 1, 1, 'done', "
+                "'{\"json\": \"t/jobs/x\"}', false, 1 FROM generate_series(1, :n) AS g"),
+                {"at": finished_at, "n": n})
+        return
+    for _ in range(n):
+        store.add_job(job(status="succeeded", finished_at=finished_at,
+                          results={"json": "t/jobs/x"}))
+
+
+def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
+                                                        tmp_path: Path) -> None:
+    from service.artifacts import MemoryArtifactStore
+    from service.jobs import PURGE_BATCH
+    from service.runtime import Runtime
+    from service.settings import Settings
+    from service.worker import purge
+
+    postgres = isinstance(store, SqlJobStore) and store.engine.dialect.name == "postgresql"
+    n = 70_000 if postgres else 2 * PURGE_BATCH + 5  # over PostgreSQL's 65,535 parameters
+    now = time.time()
+    _expired_jobs(store, n, now - 100)
+    kept = store.add_job(job(status="succeeded", finished_at=now))
+    store.add_recording(recording(created_at=now - 100))
+    runtime = Runtime(Settings(data_dir=tmp_path, retention_seconds=50), store, MemoryQueue(),
+                      MemoryArtifactStore())
+    assert purge(runtime, now=now) == n + 1
+    assert store.counts() == {("skeleton", "succeeded"): 1}
+    assert store.get_job(kept.id) is not None
 
 
 def test_concurrent_claims_have_one_winner(store: JobStore) -> None:

@@ -1,0 +1,74 @@
+"""The job kinds pass the tracker layout and the MVNX subject through to the readers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from estimation.errors import InputError
+from estimation.io.mvnx import y_up_to_z_up
+from estimation.simulate.inertial import simulate_walker
+from service.kinds import Input, SkeletonParams, TranslationParams, run_skeleton, run_translation
+
+NS = "http://www.xsens.com/mvn/mvnx"
+SEGMENTS = ("Pelvis", "LeftFoot", "RightFoot")
+
+
+def no_progress(fraction: float, stage: str = "") -> None:
+    """Progress callback that ignores reports."""
+
+
+def test_skeleton_params_carry_the_tracker_layout(tmp_path: Path) -> None:
+    path = tmp_path / "t.txt"
+    path.write_text("1 1.0 2.0 3.0 0 0 0 0.5 2\n2 1.0 9.0 3.0 0 0 0 0.5 2\n")
+    params = SkeletonParams(fps=60, stations={"1": "pelvis", "2": "chest"},
+                            tracker_layout="station,x,y,z,az,el,roll")
+    # the layout given is the one used: it has 7 columns where the file has 9
+    with pytest.raises(InputError, match="has 9 fields; the layout 'station,x,y,z,az,el,roll'"):
+        run_skeleton({"recording": Input(path, "tracker")}, params, no_progress, tmp_path)
+    with pytest.raises(ValidationError):
+        SkeletonParams(tracker_layout="x" * 201)
+
+
+def mvnx_two_subjects(path: Path) -> None:
+    _rec, truth, _ = simulate_walker(fps=60)
+    free = {k: (truth.positions[2:, k] - 2 * truth.positions[1:-1, k]
+                + truth.positions[:-2, k]) * 3600 for k in (1, 3)}
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', f'<mvnx version="4" xmlns="{NS}">']
+    for label, shift in (("first", 0.0), ("second", 1.0)):
+        lines += [f'<subject label="{label}" frameRate="60">', "<segments>"]
+        lines += [f'<segment label="{s}" id="{i}"/>' for i, s in enumerate(SEGMENTS, 1)]
+        lines += ["</segments>", "<sensors>"]
+        lines += [f'<sensor label="{s}"/>' for s in SEGMENTS]
+        lines += ["</sensors>", "<frames>"]
+        for i in range(len(free[1])):
+            pos = y_up_to_z_up(truth.positions[i + 1, [0, 1, 3]]) + np.array([0.0, shift, 0.0])
+            acc = [0.0, 0.0, 0.0, *y_up_to_z_up(free[1][i]), *y_up_to_z_up(free[3][i])]
+            lines += [f'<frame time="{round(i * 1000 / 60)}" type="normal">',
+                      "<position>" + " ".join(f"{v:.6f}" for v in pos.ravel()) + "</position>",
+                      "<sensorFreeAcceleration>" + " ".join(f"{v:.6f}" for v in acc)
+                      + "</sensorFreeAcceleration>", "</frame>"]
+        lines += ["</frames>", "</subject>"]
+    lines.append("</mvnx>")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_translation_params_carry_the_subject(tmp_path: Path) -> None:
+    path = tmp_path / "duo.mvnx"
+    mvnx_two_subjects(path)
+    roots = {}
+    for subject in ("first", "2"):
+        out = tmp_path / subject
+        out.mkdir()
+        files = run_translation({"recording": Input(path, "mvnx")},
+                                TranslationParams(subject=subject), no_progress, out)
+        roots[subject] = json.loads(files["json"].read_text())["root"]
+    # the second subject stands 1 m further along MVNX +y, which is Y-up -z
+    assert roots["2"][0][2] == pytest.approx(roots["first"][0][2] - 1.0, abs=1e-3)
+    with pytest.raises(InputError, match="no subject 'third'"):
+        run_translation({"recording": Input(path, "mvnx")}, TranslationParams(subject="third"),
+                        no_progress, tmp_path)
