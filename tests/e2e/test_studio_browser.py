@@ -144,6 +144,36 @@ def test_api_key_bad_file_and_tenants(start_server: Callable[..., ServerProcess]
     assert other.locator("#stage").count() == 0
 
 
+def test_jobs_cancel_retry_and_filter(start_server: Callable[..., ServerProcess],
+                                     browser: Browser, long_sensor_csv_bytes: bytes,
+                                     tmp_path: Path) -> None:
+    server = start_server({"BONEFIT_WORKERS": "1"})
+    take = tmp_path / "long.csv"
+    take.write_bytes(long_sensor_csv_bytes)
+    page = open_page(browser, server.base_url)
+    ready(page)
+    upload(page, take)
+    assert upload_state(page, "long.csv")[0] == "ok"
+    page.click("#submit-jobs")
+    cancel = page.get_by_role("button", name="Cancel job of long.csv")
+    cancel.focus()
+    page.keyboard.press("Enter")  # the controls work from the keyboard
+    page.wait_for_selector("#jobs tbody tr[data-status=cancelled]")
+    page.get_by_role("button", name="Retry job of long.csv").click()
+    page.wait_for_function("document.querySelectorAll('#jobs tbody tr').length === 2")
+    first, retried = (page.locator("#jobs tbody tr").nth(i).get_attribute("data-job")
+                      for i in (1, 0))
+    assert first != retried
+    page.locator(f'#jobs tr[data-job="{retried}"] button').click()  # cancel the retry too
+    page.wait_for_function(
+        "document.querySelectorAll('#jobs tbody tr[data-status=cancelled]').length === 2")
+    page.select_option("#status-filter", "succeeded")
+    page.wait_for_selector("#jobs-empty", state="visible")
+    assert page.locator("#jobs tbody tr").count() == 0
+    page.select_option("#status-filter", "cancelled")
+    page.wait_for_function("document.querySelectorAll('#jobs tbody tr').length === 2")
+
+
 def test_translation_view(start_server: Callable[..., ServerProcess], browser: Browser,
                           kinematics_csv_bytes: bytes, tmp_path: Path) -> None:
     server = start_server()
