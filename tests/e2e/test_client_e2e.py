@@ -225,6 +225,32 @@ def test_distributed_restart_and_redis_outage_during_wait(
         assert isinstance(after, SkeletonResult)
 
 
+@pytest.mark.services
+def test_distributed_submit_during_a_redis_outage(
+        cluster: tuple[ServerProcess, RedisServer], sensor_csv_bytes: bytes) -> None:
+    api, redis_server = cluster
+    with Client(api.base_url, KEY) as client:
+        rec = client.upload(sensor_csv_bytes, filename="walk.csv")
+        redis_server.stop()
+        submitted: list[Job] = []
+        thread = threading.Thread(target=lambda: submitted.append(
+            client.submit("skeleton", rec)), daemon=True)
+        thread.start()  # 503 queue-unavailable with Retry-After: the client retries
+        time.sleep(3)
+        redis_server.start()
+        thread.join(120)
+        assert submitted, "submit did not return"
+        done = client.wait(submitted[0], timeout=120)
+        assert done.status == "succeeded", done
+        jobs = jobs_of(client, rec.id)
+        ran = [j for j in jobs if j.status != "failed"]
+        assert [j.id for j in ran] == [done.id]  # one job ran
+        refused = [j for j in jobs if j.status == "failed"]
+        assert refused, "the outage never refused the submission"
+        assert all((j.error or {}).get("type", "").endswith("queue-unavailable") and
+                   j.attempts == 0 for j in refused), refused  # the refused tries never ran
+
+
 def test_the_documented_client_example_runs(start_server: Callable[..., ServerProcess],
                                            tmp_path: Path) -> None:
     import os
