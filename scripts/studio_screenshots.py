@@ -85,7 +85,7 @@ def make_takes(folder: Path) -> tuple[Path, Path, Path]:
 
 
 def shoot(url: str, takes: tuple[Path, Path, Path], out: Path, chromium: str) -> list[Path]:
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
     sensors, suit, broken = takes
     shots: list[Path] = []
@@ -109,8 +109,8 @@ def shoot(url: str, takes: tuple[Path, Path, Path], out: Path, chromium: str) ->
         page.set_input_files("#file-input", [str(suit)])
         page.wait_for_selector(f'#uploads tr[data-file="{suit.name}"] td.info[data-state]')
         page.click("#submit-jobs")
-        page.wait_for_function("document.querySelectorAll('#jobs tbody tr[data-status=succeeded]')"
-                               ".length === 2")
+        expect(page.locator("#jobs tbody tr[data-status=succeeded]")).to_have_count(2,
+                                                                              timeout=90_000)
         shots.append(out / "studio-jobs.png")
         page.locator("#jobs-title").scroll_into_view_if_needed()
         page.screenshot(path=shots[-1])

@@ -23,6 +23,15 @@ TIMEOUT_MS = 90_000
 BAD_CSV = b"time,foo\n0,1\n"
 
 
+def expect(locator: Any) -> Any:
+    """Playwright's web-first assertions (they poll without eval, which the page's CSP
+    forbids), with the tests' timeout."""
+    from playwright.sync_api import expect as playwright_expect
+
+    playwright_expect.set_options(timeout=TIMEOUT_MS)
+    return playwright_expect(locator)
+
+
 def open_page(browser: Browser, url: str, **context: Any) -> Page:
     """A fresh tab (its own sessionStorage) on ``url``; offline except for the server."""
     origin = "/".join(url.split("/")[:3])
@@ -89,7 +98,7 @@ def test_upload_watch_view_and_download(start_server: Callable[..., ServerProces
     page.click(f'#jobs tr[data-job="{job_id}"] a')
     page.wait_for_url(f"{server.base_url}/jobs/{job_id}")
     page.wait_for_selector("#stage")
-    page.wait_for_function("document.querySelectorAll('#joint-table tbody tr').length === 16")
+    expect(page.locator("#joint-table tbody tr")).to_have_count(16)
     first = canvas_png(page)
     scrub(page, 120)
     assert page.input_value("#frame") == "120"
@@ -160,18 +169,17 @@ def test_jobs_cancel_retry_and_filter(start_server: Callable[..., ServerProcess]
     page.keyboard.press("Enter")  # the controls work from the keyboard
     page.wait_for_selector("#jobs tbody tr[data-status=cancelled]")
     page.get_by_role("button", name="Retry job of long.csv").click()
-    page.wait_for_function("document.querySelectorAll('#jobs tbody tr').length === 2")
+    expect(page.locator("#jobs tbody tr")).to_have_count(2)
     first, retried = (page.locator("#jobs tbody tr").nth(i).get_attribute("data-job")
                       for i in (1, 0))
     assert first != retried
     page.locator(f'#jobs tr[data-job="{retried}"] button').click()  # cancel the retry too
-    page.wait_for_function(
-        "document.querySelectorAll('#jobs tbody tr[data-status=cancelled]').length === 2")
+    expect(page.locator("#jobs tbody tr[data-status=cancelled]")).to_have_count(2)
     page.select_option("#status-filter", "succeeded")
     page.wait_for_selector("#jobs-empty", state="visible")
     assert page.locator("#jobs tbody tr").count() == 0
     page.select_option("#status-filter", "cancelled")
-    page.wait_for_function("document.querySelectorAll('#jobs tbody tr').length === 2")
+    expect(page.locator("#jobs tbody tr")).to_have_count(2)
 
 
 def test_translation_view(start_server: Callable[..., ServerProcess], browser: Browser,
