@@ -32,7 +32,14 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 from numpy.typing import NDArray
 
-from ..bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+from ..bvh import (
+    BvhMotion,
+    fold_position_channels,
+    forward_kinematics,
+    point_joint_bvh,
+    read_bvh,
+    write_bvh,
+)
 from ..errors import InputError
 from ..results import timings_document
 
@@ -753,35 +760,33 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
     return out
 
 
-def _flat_bvh(result: TranslationResult, recording: KinematicsRecording,
-              scale: float) -> BvhMotion:
-    """A BVH of point joints: the root with the root path, every other joint a child with
-    position channels (for inputs without a rotation hierarchy)."""
-    r = recording.index(recording.root)
-    pos = result.positions / scale
-    order = [r] + [j for j in range(len(recording.joints)) if j != r]
-    names = tuple(recording.joints[j] for j in order)
-    parents = (-1,) + (0,) * (len(order) - 1)
-    offsets = np.zeros((len(order), 3))
-    offsets[1:] = pos[0, order[1:]] - pos[0, r]
-    chans = tuple(("Xposition", "Yposition", "Zposition") for _ in order)
-    values = np.concatenate([pos[:, r]] + [pos[:, j] - pos[:, r] for j in order[1:]], axis=1)
-    return BvhMotion(names, parents, offsets, chans, 1.0 / result.fps, values)
+def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
+                     scale: float) -> BvhMotion:
+    """The corrected positions as a BVH of rotation channels under a moving root (see
+    :func:`estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
+    return point_joint_bvh(recording.joints, result.positions / scale,
+                           recording.index(recording.root), 1.0 / result.fps)
 
 
 def translated_bvh(result: TranslationResult, recording: KinematicsRecording) -> BvhMotion:
-    """The input BVH with the estimated root path in the root's position channels; for other
-    inputs a point-joint BVH (cm) of the corrected positions."""
+    """The BVH of a translation result, written so that every BVH reader agrees.
+
+    A BVH input comes back with the estimated root path in the root's position channels and
+    its position channels folded (:func:`estimation.bvh.fold_position_channels`: constant
+    ones into OFFSETs, moving ones over a zero OFFSET). Other inputs (and a BVH whose root
+    has no position channels) become a point-joint BVH in centimetres (the BVH's unit) of
+    the corrected positions.
+    """
     motion = recording.bvh
     if motion is None:
-        return _flat_bvh(result, recording, 0.01)
+        return _point_joint_bvh(result, recording, 0.01)
     j = motion.names.index(recording.root)
     values = motion.values.copy()
     start = sum(len(c) for c in motion.channels[:j])
     axes = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
     chans = motion.channels[j]
     if not any(c in axes for c in chans):
-        return _flat_bvh(result, recording, recording.length_scale)
+        return _point_joint_bvh(result, recording, recording.length_scale)
     shift = result.translation / recording.length_scale
     # The root's world position is its parents' transform applied to its channels; parents
     # here are static dummies at most (Bandai's joint_Root), so shifting the channels by the
@@ -793,7 +798,7 @@ def translated_bvh(result: TranslationResult, recording: KinematicsRecording) ->
     for k, ch in enumerate(chans):
         if ch in axes:
             values[:, start + k] = values[0, start + k] + shift[:, axes[ch]]
-    return motion.with_values(values)
+    return fold_position_channels(motion.with_values(values))
 
 
 def write_translation(result: TranslationResult, recording: KinematicsRecording,
@@ -822,11 +827,7 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
             document["timings"]["write_s"] = time.perf_counter() - started
         _emit(path, json.dumps(document, separators=(",", ":")))
     elif format == "bvh":
-        motion = translated_bvh(result, recording)
-        if isinstance(path, io.TextIOBase):
-            write_bvh(motion, path)
-        else:
-            write_bvh(motion, path)
+        write_bvh(translated_bvh(result, recording), path)
     elif format == "kinematics-csv":
         if recording.table is None:
             raise InputError(f"cannot write a kinematics CSV for a {recording.source_format} "
