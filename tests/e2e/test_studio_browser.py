@@ -166,6 +166,10 @@ def test_jobs_cancel_retry_and_filter(start_server: Callable[..., ServerProcess]
     page.click("#submit-jobs")
     cancel = page.get_by_role("button", name="Cancel job of long.csv")
     cancel.focus()
+    page.wait_for_selector("#jobs tbody tr[data-status=running]")  # progress events arrive...
+    page.wait_for_timeout(1500)
+    assert page.evaluate("document.activeElement.getAttribute('aria-label')") == \
+        "Cancel job of long.csv"  # ...and the focus stays on the button
     page.keyboard.press("Enter")  # the controls work from the keyboard
     page.wait_for_selector("#jobs tbody tr[data-status=cancelled]")
     page.get_by_role("button", name="Retry job of long.csv").click()

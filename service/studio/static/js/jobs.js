@@ -26,17 +26,8 @@ function button(text, label, onClick) {
   return b;
 }
 
-function renderRow(job, row = make("tr")) {
-  row.dataset.job = job.id;
-  row.dataset.status = job.status;
-  const name = names.get(job.recording_id) || job.recording_id;
-  const bar = make("progress", { max: 1, value: job.progress.fraction });
-  bar.setAttribute("aria-label", `Progress of ${name}`);
-  const status = make("td", { className: `status-${job.status}` }, job.status);
-  if (job.error) status.title = problemText(job.error);
-  const progress = make("td");
-  progress.append(bar, make("span", { className: "pct" }, ` ${percent(job)}`));
-  const actions = make("td", { className: "row" });
+function actionsCell(job, name) {
+  const actions = make("td", { className: "row actions" });
   const open = make("a", { href: `/jobs/${job.id}` }, "open");
   open.setAttribute("aria-label", `Open job of ${name}`);
   open.addEventListener("click", (e) => { e.preventDefault(); navigate(`/jobs/${job.id}`); });
@@ -46,14 +37,48 @@ function renderRow(job, row = make("tr")) {
   } else if (job.status !== "succeeded") {
     actions.append(button("retry", `Retry job of ${name}`, () => retry(job)));
   }
-  row.replaceChildren(make("td", {}, new Date(job.created_at).toLocaleTimeString()),
-    make("td", {}, job.kind), make("td", {}, name), status, progress, actions);
+  return actions;
+}
+
+function statusCell(job) {
+  const status = make("td", { className: `status status-${job.status}` }, job.status);
+  if (job.error) status.title = problemText(job.error);
+  return status;
+}
+
+function progressCell(job, name) {
+  const bar = make("progress", { max: 1, value: job.progress.fraction });
+  bar.setAttribute("aria-label", `Progress of ${name}`);
+  const cell = make("td", { className: "progress" });
+  cell.append(bar, make("span", { className: "pct" }, ` ${percent(job)}`));
+  return cell;
+}
+
+function renderRow(job) {
+  const row = make("tr");
+  const name = names.get(job.recording_id) || job.recording_id;
+  row.dataset.job = job.id;
+  row.dataset.status = job.status;
+  row.append(make("td", {}, new Date(job.created_at).toLocaleTimeString()),
+    make("td", {}, job.kind), make("td", {}, name), statusCell(job), progressCell(job, name),
+    actionsCell(job, name));
   return row;
 }
 
+/** A new state of a listed job, changed in place: the buttons (and the keyboard focus on
+ *  them) stay unless the actions themselves change. */
 function update(job) {
   const row = document.querySelector(`#jobs tr[data-job="${job.id}"]`);
-  if (row) renderRow(job, row);
+  if (!row) return;
+  const name = names.get(job.recording_id) || job.recording_id;
+  const before = row.dataset.status;
+  row.dataset.status = job.status;
+  row.querySelector("td.status").replaceWith(statusCell(job));
+  row.querySelector("progress").value = job.progress.fraction;
+  row.querySelector(".pct").textContent = ` ${percent(job)}`;
+  if (ACTIVE.has(before) !== ACTIVE.has(job.status)) {
+    row.querySelector("td.actions").replaceWith(actionsCell(job, name));
+  }
 }
 
 async function cancel(id) {
