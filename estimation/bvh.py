@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import io
 import os
-import re
+import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +46,8 @@ class BvhMotion:
         Seconds per frame.
     values : ndarray, shape (F, C)
         Channel values per frame, in node then channel order; rotations in degrees.
+    notes : tuple of str
+        What the reader tolerated (a ``Frames:`` count that differs from the rows).
     """
 
     names: tuple[str, ...]
@@ -53,9 +56,12 @@ class BvhMotion:
     channels: tuple[tuple[str, ...], ...]
     frame_time: float
     values: NDArray[np.float64]
+    notes: tuple[str, ...] = ()
     _starts: tuple[int, ...] = field(init=False, repr=False)
+    _with_children: frozenset[int] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "_with_children", frozenset(self.parents))
         starts, total = [], 0
         for ch in self.channels:
             starts.append(total)
@@ -76,12 +82,22 @@ class BvhMotion:
         return 1.0 / self.frame_time
 
     def index(self, name: str) -> int:
-        """Index of node ``name``; raises InputError listing the nodes present."""
+        """Index of node ``name``; raises InputError listing the joints present."""
         try:
             return self.names.index(name)
         except ValueError:
-            raise InputError(f"joint {name!r} not in BVH; it has {', '.join(self.names)}",
+            raise InputError(f"joint {name!r} not in BVH; it has {', '.join(self.joints())}",
                              field=name) from None
+
+    def is_end_site(self, node: int) -> bool:
+        """Whether ``node`` is an End Site (``<parent>_end``: no channels, no children)."""
+        parent = self.parents[node]
+        return (parent >= 0 and not self.channels[node] and node not in self._with_children
+                and self.names[node].startswith(f"{self.names[parent]}_end"))
+
+    def joints(self) -> tuple[str, ...]:
+        """Names of the real joints (end sites left out), in file order."""
+        return tuple(n for j, n in enumerate(self.names) if not self.is_end_site(j))
 
     def channel_values(self, node: int) -> NDArray[np.float64]:
         """Values (F, n_channels) of one node's channels."""
@@ -146,11 +162,77 @@ def forward_kinematics(motion: BvhMotion) -> tuple[NDArray[np.float64], list[Rot
     return positions, rotations
 
 
-_TOKEN = re.compile(r"\S+")
+MAX_NODES: Final[int] = 10_000
+"""Most nodes (joints and end sites) a BVH may declare; real rigs have a few hundred."""
+MAX_CHANNELS: Final[int] = 6
+"""Most channels per joint: three positions and three rotations."""
+
+
+class _Tokens:
+    """Whitespace-separated tokens of the hierarchy, read one line at a time from an
+    iterator, so that nothing beyond the point of failure is split or kept."""
+
+    def __init__(self, lines: Iterator[str]) -> None:
+        self.lines = lines
+        self.buffer: list[str] = []  # tokens left on the current line
+        self.line = 0               # 1-based number of the current line
+
+    def _fill(self) -> bool:
+        while not self.buffer:
+            text = next(self.lines, None)
+            if text is None:
+                return False
+            self.line += 1
+            self.buffer = text.split()[::-1]
+        return True
+
+    def peek(self) -> str | None:
+        """The next token, or None at the end of the file."""
+        return self.buffer[-1] if self._fill() else None
+
+    def take(self, expected: str | None = None, what: str = "") -> tuple[str, int]:
+        """The next token and its line; InputError at the end or when it is not ``expected``
+        (compared without case)."""
+        if not self._fill():
+            wanted = f"; expected {expected or what}" if expected or what else ""
+            raise InputError(f"unexpected end of BVH file{wanted}", line=self.line)
+        tok = self.buffer.pop()
+        if expected is not None and tok.upper() != expected.upper():
+            raise InputError(f"expected {expected!r}, found {tok!r}", line=self.line)
+        return tok, self.line
+
+    def rest_of_line(self) -> list[str]:
+        """The tokens left on the current line (consumed)."""
+        rest = self.buffer[::-1]
+        self.buffer = []
+        return rest
+
+    def number(self, what: str) -> float:
+        """The next token as a finite number."""
+        tok, line = self.take(what=what)
+        try:
+            value = float(tok)
+        except ValueError:
+            raise InputError(f"expected a number ({what}), found {tok!r}", line=line) from None
+        if not np.isfinite(value):
+            raise InputError(f"{what} must be finite, found {tok!r}", line=line)
+        return value
+
+
+@dataclass
+class _Hierarchy:
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[list[float]] = field(default_factory=list)
+    channels: list[tuple[str, ...]] = field(default_factory=list)
 
 
 def read_bvh(source: str | os.PathLike[str] | io.TextIOBase) -> BvhMotion:
     """Read a BVH file.
+
+    Accepts what Blender's importer accepts: a UTF-8 byte-order mark, CRLF line ends, tabs,
+    joint names with spaces (3ds Max Biped's ``Bip01 L Thigh``) and a ``Frames:`` count larger
+    than the rows present (the rows are read; ``notes`` says so).
 
     Parameters
     ----------
@@ -159,137 +241,194 @@ def read_bvh(source: str | os.PathLike[str] | io.TextIOBase) -> BvhMotion:
     Returns
     -------
     BvhMotion
+        Offsets and position channels in the file's length unit.
 
     Raises
     ------
     InputError
-        On a malformed hierarchy or motion section, naming the line.
+        On a malformed hierarchy or motion section, naming the line; on more than
+        :data:`MAX_NODES` nodes or :data:`MAX_CHANNELS` channels per joint.
     """
     if isinstance(source, io.TextIOBase):
         text = source.read()
     else:
         text = Path(source).read_text(encoding="utf-8", errors="replace")
-    lines = text.splitlines()
-    tokens: list[tuple[str, int]] = [
-        (m.group(0), n) for n, line in enumerate(lines, 1) for m in _TOKEN.finditer(line)
-    ]
-    pos = 0
+    lines = iter(io.StringIO(text.removeprefix("\ufeff"), newline=None))
+    tokens = _Tokens(lines)
+    tokens.take("HIERARCHY")
+    tokens.take("ROOT")
+    tree = _Hierarchy()
+    _read_nodes(tokens, tree)
+    tokens.take("MOTION")
+    n_frames, frame_time, body_start = _read_motion_header(tokens)
+    values, notes = _read_motion_rows(lines, body_start, n_frames,
+                                      sum(len(c) for c in tree.channels))
+    return BvhMotion(tuple(tree.names), tuple(tree.parents), np.array(tree.offsets, dtype=float),
+                     tuple(tree.channels), frame_time, values, notes=notes)
 
-    def take(expected: str | None = None) -> tuple[str, int]:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise InputError("unexpected end of BVH file", line=len(lines))
-        tok, line = tokens[pos]
-        pos += 1
-        if expected is not None and tok.upper() != expected.upper():
-            raise InputError(f"expected {expected!r}, found {tok!r}", line=line)
-        return tok, line
 
-    def number() -> float:
-        tok, line = take()
-        try:
-            return float(tok)
-        except ValueError:
-            raise InputError(f"expected a number, found {tok!r}", line=line) from None
-
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[tuple[str, ...]] = []
-
-    take("HIERARCHY")
+def _read_nodes(tokens: _Tokens, tree: _Hierarchy) -> None:
+    """Read the ROOT node (its keyword already taken) and everything below it."""
     stack: list[int] = []
-    tok, line = take()
-    if tok.upper() != "ROOT":
-        raise InputError(f"expected ROOT, found {tok!r}", line=line)
     keyword = "ROOT"
     while True:
-        if keyword in ("ROOT", "JOINT"):
-            name, _ = take()
-            node_name = name
-        else:  # End Site
-            take("Site")
-            node_name = f"{names[stack[-1]]}_end"
-        take("{")
-        names.append(node_name)
-        parents.append(stack[-1] if stack else -1)
-        stack.append(len(names) - 1)
-        take("OFFSET")
-        offsets.append([number(), number(), number()])
+        line = tokens.line
+        if keyword == "END":
+            tokens.take("Site")
+            node_name = f"{tree.names[stack[-1]]}_end"
+            while node_name in tree.names:  # a second end site of the same joint
+                node_name += "_"
+        else:
+            node_name = _node_name(tokens, keyword, line)
+        tokens.take("{")
+        if len(tree.names) >= MAX_NODES:
+            raise InputError(f"more than {MAX_NODES} joints in the hierarchy; "
+                             "not a body's skeleton", line=line)
+        tree.names.append(node_name)
+        tree.parents.append(stack[-1] if stack else -1)
+        stack.append(len(tree.names) - 1)
+        tokens.take("OFFSET")
+        tree.offsets.append([tokens.number("OFFSET x"), tokens.number("OFFSET y"),
+                             tokens.number("OFFSET z")])
         chans: tuple[str, ...] = ()
-        if keyword != "End" and pos < len(tokens) and tokens[pos][0].upper() == "CHANNELS":
-            take()
-            count_tok, count_line = take()
-            if not count_tok.isdigit():
-                raise InputError(f"expected a channel count, found {count_tok!r}",
-                                 line=count_line)
-            items = [take() for _ in range(int(count_tok))]
-            for ch, ch_line in items:
-                if ch not in _AXES and ch not in _ROT_AXES:
-                    raise InputError(f"unknown channel {ch!r}", line=ch_line)
-            chans = tuple(ch for ch, _ in items)
-        channels.append(chans)
-        # children or closing braces
-        while True:
-            tok, line = take()
-            up = tok.upper()
-            if up in ("JOINT", "END"):
-                keyword = "JOINT" if up == "JOINT" else "End"
-                break
-            if tok == "}":
-                stack.pop()
-                if not stack:
-                    keyword = ""
-                    break
-                continue
-            raise InputError(f"unexpected {tok!r} in hierarchy", line=line)
+        nxt = tokens.peek()
+        if keyword != "END" and nxt is not None and nxt.upper() == "CHANNELS":
+            chans = _read_channels(tokens)
+        tree.channels.append(chans)
+        keyword = _close_nodes(tokens, stack)
         if not stack:
-            break
+            return
 
-    take("MOTION")
-    take("Frames:")
-    count_tok, count_line = take()
-    try:
-        n_frames = int(count_tok)
-    except ValueError:
-        raise InputError(f"bad frame count {count_tok!r}", line=count_line) from None
-    take("Frame")
-    take("Time:")
-    frame_time = number()
+
+def _node_name(tokens: _Tokens, keyword: str, line: int) -> str:
+    """A ROOT or JOINT name: the rest of its line (names may hold spaces), an opening brace
+    on the same line excepted."""
+    rest = tokens.rest_of_line()
+    if rest and rest[-1] == "{":
+        tokens.buffer = ["{"]
+        rest = rest[:-1]
+    elif rest and rest[-1].endswith("{"):
+        tokens.buffer = ["{"]
+        rest[-1] = rest[-1][:-1]
+    if not rest:
+        raise InputError(f"{keyword} without a name", line=line)
+    return " ".join(rest)
+
+
+def _read_channels(tokens: _Tokens) -> tuple[str, ...]:
+    tokens.take("CHANNELS")
+    count_tok, count_line = tokens.take(what="a channel count")
+    if not count_tok.isdigit():
+        raise InputError(f"expected a channel count, found {count_tok!r}", line=count_line)
+    count = int(count_tok)
+    if count > MAX_CHANNELS:
+        raise InputError(f"CHANNELS {count_tok}: a joint has at most {MAX_CHANNELS} channels "
+                         "(3 positions, 3 rotations)", line=count_line)
+    chans = []
+    for _ in range(count):
+        ch, ch_line = tokens.take(what="a channel name")
+        if ch not in _AXES and ch not in _ROT_AXES:
+            raise InputError(f"unknown channel {ch!r}; expected Xposition, Yposition, "
+                             "Zposition, Xrotation, Yrotation or Zrotation", line=ch_line)
+        chans.append(ch)
+    return tuple(chans)
+
+
+def _close_nodes(tokens: _Tokens, stack: list[int]) -> str:
+    """Consume closing braces up to the next JOINT / End Site; returns its keyword ("" when
+    the root closed)."""
+    while True:
+        tok, line = tokens.take(what="JOINT, End Site or '}'")
+        up = tok.upper()
+        if up in ("JOINT", "END"):
+            return up
+        if tok == "}":
+            stack.pop()
+            if not stack:
+                return ""
+            continue
+        raise InputError(f"unexpected {tok!r} in hierarchy; expected JOINT, End Site or '}}'",
+                         line=line)
+
+
+def _read_motion_header(tokens: _Tokens) -> tuple[int, float, int]:
+    """``Frames: N`` and ``Frame Time: dt``; returns N, dt and the number of the header's
+    last line."""
+    tok, line = tokens.take(what="Frames:")
+    if tok.upper() == "FRAMES:":
+        count_tok, line = tokens.take(what="a frame count")
+    elif tok.upper().startswith("FRAMES:"):
+        count_tok = tok[len("FRAMES:"):]
+    else:
+        raise InputError(f"expected 'Frames:', found {tok!r}", line=line)
+    if not count_tok.isdigit():
+        raise InputError(f"bad frame count {count_tok!r}", line=line)
+    tokens.take("Frame")
+    tokens.take("Time:")
+    frame_time = tokens.number("frame time")
     if not frame_time > 0:
-        raise InputError(f"frame time must be positive, got {frame_time}",
-                         line=tokens[pos - 1][1])
-    n_channels = sum(len(c) for c in channels)
-    first_line = tokens[pos][1] if pos < len(tokens) else len(lines) + 1
-    body = lines[first_line - 1:]
-    rows = [ln for ln in body if ln.strip()]
-    if len(rows) < n_frames:
-        raise InputError(f"header says {n_frames} frames, file has {len(rows)}",
-                         line=len(lines))
+        raise InputError(f"frame time must be positive, got {frame_time}", line=tokens.line)
+    if tokens.rest_of_line():
+        raise InputError("motion rows must start on the line after 'Frame Time:'",
+                         line=tokens.line)
+    return int(count_tok), frame_time, tokens.line
+
+
+def _read_motion_rows(lines: Iterator[str], start: int, n_frames: int, n_channels: int
+                      ) -> tuple[NDArray[np.float64], tuple[str, ...]]:
+    """Channel values (F, C) of the remaining non-blank lines, the first being line
+    ``start + 1``."""
+    if n_channels == 0:
+        raise InputError("the hierarchy declares no channels", line=start)
+    numbered = [(n, ln) for n, ln in enumerate(lines, start + 1) if ln.strip()]
+    notes: tuple[str, ...] = ()
+    if len(numbered) < n_frames:
+        notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
+                 f"read {len(numbered)}",)
+    elif len(numbered) > n_frames:
+        notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
+                 f"read the first {n_frames}",)
+        numbered = numbered[:n_frames]
+    if not numbered:
+        raise InputError("no motion rows after 'Frame Time:'", line=start)
+    values = _parse_rows([ln for _, ln in numbered], n_channels)
+    if values is None:
+        _raise_bad_row(numbered, n_channels)
+    assert values is not None
+    return values, notes
+
+
+def _parse_rows(rows: list[str], n_channels: int) -> NDArray[np.float64] | None:
+    """All rows as floats, or None when any row is malformed (wrong count, not a number,
+    not finite)."""
     try:
-        values = np.loadtxt(io.StringIO("\n".join(rows[:n_frames])), dtype=float, ndmin=2)
-    except ValueError as exc:
-        bad = _first_bad_row(rows[:n_frames], n_channels)
-        raise InputError(f"malformed motion row: {exc}",
-                         line=first_line + bad if bad is not None else None) from None
-    if values.shape != (n_frames, n_channels):
-        bad = _first_bad_row(rows[:n_frames], n_channels)
-        raise InputError(f"motion rows must have {n_channels} values",
-                         line=first_line + bad if bad is not None else None)
-    return BvhMotion(tuple(names), tuple(parents), np.array(offsets, dtype=float),
-                     tuple(channels), float(frame_time), values)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            values = np.loadtxt(rows, dtype=float, ndmin=2)
+    except (ValueError, UserWarning):
+        return None
+    if values.shape != (len(rows), n_channels) or not np.isfinite(values).all():
+        return None
+    return values
 
 
-def _first_bad_row(rows: list[str], n_channels: int) -> int | None:
-    for i, row in enumerate(rows):
+def _raise_bad_row(numbered: list[tuple[int, str]], n_channels: int) -> None:
+    for line, row in numbered:
         parts = row.split()
         if len(parts) != n_channels:
-            return i
-        try:
-            [float(p) for p in parts]
-        except ValueError:
-            return i
-    return None
+            cut = " (a truncated row?)" if len(parts) < n_channels else ""
+            raise InputError(f"motion row has {len(parts)} values, the hierarchy declares "
+                             f"{n_channels} channels{cut}", line=line)
+        for k, part in enumerate(parts, 1):
+            try:
+                value = float(part)
+            except ValueError:
+                raise InputError(f"not a number: {part[:40]!r} (value {k} of the row)",
+                                 line=line, column=k) from None
+            if not np.isfinite(value):
+                raise InputError(f"value {k} of the row is {part!r}; channel values must be "
+                                 "finite", line=line, column=k)
+    raise InputError("malformed motion rows", line=numbered[0][0])
 
 
 def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,

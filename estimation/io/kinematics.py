@@ -24,8 +24,8 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..bvh import (
+    MAX_NODES,
     BvhMotion,
     fold_position_channels,
     forward_kinematics,
@@ -41,15 +42,25 @@ from ..bvh import (
     write_bvh,
 )
 from ..errors import InputError
+from ..kinematics import GRAVITY as GRAVITY  # re-exported: callers import it from here
+from ..kinematics import KinematicsRecording as KinematicsRecording
 from ..results import timings_document
+from . import limits
+from .body import (
+    Feet,
+    classify,
+    find_bvh_feet,
+    find_column_feet,
+    leg_length,
+    match_sensor,
+    parse_length_unit,
+    resolve_length_unit,
+)
 
 if TYPE_CHECKING:
     from ..translation import TranslationResult
 
 PathLike = str | os.PathLike[str]
-
-GRAVITY: Final[float] = 9.80665
-"""Standard gravity, m/s²."""
 
 FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx")
 """Input formats of :func:`read_kinematics` (besides ``"auto"``)."""
@@ -70,106 +81,6 @@ accelerometer readings (sensor frame, gravity included); ``free-*`` are gravity-
 positions (file length unit per frame²), accepted only when declared."""
 
 
-@dataclass(frozen=True, eq=False)
-class KinematicsRecording:
-    """Global joint positions of an inertial suit plus its foot accelerometers.
-
-    Attributes
-    ----------
-    joints : tuple of str
-        Joint names, length J, in file order.
-    positions : ndarray, shape (F, J, 3)
-        Global joint positions, metres, world frame with +Y up. They may or may not contain
-        a root translation: both estimators replace it.
-    fps : float
-        Frame rate, Hz.
-    time : ndarray, shape (F,)
-        Frame times, seconds.
-    accelerations : mapping of str to ndarray, shape (F, 3)
-        Foot joint name → acceleration, m/s². Frame given by ``acceleration_frame``.
-    acceleration_frame : {"sensor", "world"}
-        ``"sensor"``: accelerometer readings (specific force) in the sensor frame, gravity
-        included (|a| ≈ 9.81 at rest). ``"world"``: gravity-free acceleration in the world
-        frame (+Y up).
-    left_foot, right_foot : str
-        Names of the foot joints (ankles) in ``joints``.
-    toes : mapping of str to str
-        Foot joint → toe joint (or toe end site) used for heel/toe contacts, when present.
-    contacts : mapping of str to ndarray of bool, shape (F,)
-        Foot joint → contact flags read from the file (MVNX footContacts, ``<Foot>.c``
-        columns); empty when the file has none.
-    source_format : str
-        ``"kinematics-csv"``, ``"bvh"`` or ``"mvnx"``.
-    length_scale : float
-        Metres per length unit of the source file (0.01 for cm).
-    columns : tuple of str
-        Kinematics CSV: every column of the file, in order (for passthrough).
-    table : ndarray, shape (F, C) or None
-        Kinematics CSV: every value of the file, in file units.
-    bvh : BvhMotion or None
-        BVH input: the motion (its root translation is what the writer replaces).
-    root : str
-        Name of the root joint whose path is reported (hips).
-    source_path : str or None
-        Path of the file read (the MVNX writer re-streams it).
-    notes : tuple of str
-        What the reader decided (units, toe joints, contact channels).
-    source_subject : int
-        MVNX: 0-based number of the ``<subject>`` read (the writer corrects its frames).
-    """
-
-    joints: tuple[str, ...]
-    positions: NDArray[np.float64]
-    fps: float
-    time: NDArray[np.float64]
-    accelerations: Mapping[str, NDArray[np.float64]]
-    acceleration_frame: str = "sensor"
-    left_foot: str = "LeftFoot"
-    right_foot: str = "RightFoot"
-    toes: Mapping[str, str] = field(default_factory=dict)
-    contacts: Mapping[str, NDArray[np.bool_]] = field(default_factory=dict)
-    source_format: str = "kinematics-csv"
-    length_scale: float = 0.01
-    columns: tuple[str, ...] = ()
-    table: NDArray[np.float64] | None = None
-    bvh: BvhMotion | None = None
-    root: str = ""
-    source_path: str | None = None
-    notes: tuple[str, ...] = ()
-    source_subject: int = 0
-
-    def __post_init__(self) -> None:
-        pos = self.positions
-        if pos.ndim != 3 or pos.shape[1] != len(self.joints) or pos.shape[2] != 3:
-            raise InputError(f"positions must be (F, {len(self.joints)}, 3), got {pos.shape}",
-                             field="positions")
-        if self.acceleration_frame not in ("sensor", "world"):
-            raise InputError("acceleration_frame must be 'sensor' or 'world'",
-                             field="acceleration_frame")
-        for foot in (self.left_foot, self.right_foot):
-            if foot not in self.joints:
-                raise InputError(f"foot joint {foot!r} not found; joints: "
-                                 f"{', '.join(self.joints)}", field=foot)
-            acc = self.accelerations.get(foot)
-            if acc is None or acc.shape != (pos.shape[0], 3):
-                raise InputError(f"no (F, 3) accelerations for foot {foot!r}", sensor=foot)
-        if not self.root:
-            object.__setattr__(self, "root", self.joints[0])
-
-    @property
-    def n_frames(self) -> int:
-        """Number of frames F."""
-        return int(self.positions.shape[0])
-
-    def index(self, joint: str) -> int:
-        """Index of ``joint``; InputError listing the joints present otherwise."""
-        try:
-            return self.joints.index(joint)
-        except ValueError:
-            raise InputError(f"joint {joint!r} not found; joints: {', '.join(self.joints)}",
-                             field=joint) from None
-
-
 # --------------------------------------------------------------------------- helpers
 
 
@@ -181,7 +92,7 @@ def _fps_from_time(time: NDArray[np.float64]) -> float:
     if not step > 0 or not np.all(steps > 0):
         bad = int(np.argmax(steps <= 0)) + 2
         raise InputError("time must increase from frame to frame", field="Time", line=bad + 1)
-    fps = 1.0 / step
+    fps = limits.check_fps(1.0 / step, field="Time")
     return round(fps, 6) if abs(fps - round(fps, 6)) < 1e-6 * fps else fps
 
 
@@ -252,22 +163,16 @@ def _resolve_acceleration_units(
         f"{names}); declare acceleration_units", field="acceleration_units")
 
 
-def _foot_not_found(foot: str, joints: tuple[str, ...], what: str) -> InputError:
-    return InputError(f"foot joint {foot!r} not found in the {what}; joints: "
-                      f"{', '.join(joints)}", field=foot)
-
-
 def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]) -> str | None:
-    """Toe joint of ``foot``: a joint named like the foot's side with 'toe' in it
-    (``LeftToe``, ``LeftToeBase``, ``Toes_L``). Anonymous end sites (Shadow's ``EndSite4``)
-    are not taken: where they sit on the foot is not known."""
-    low_foot = foot.lower()
-    side = "left" if "left" in low_foot or low_foot.startswith("l") or low_foot.endswith("_l") \
-        else "right"
-    marks = {"left": ("left", "_l", "l_"), "right": ("right", "_r", "r_")}[side]
+    """Toe joint of ``foot`` (positions in metres): a joint named like a toe of the foot's
+    side (``LeftToe``, ``LeftToeBase``, ``Toes_L``, ``lToe``) 2–35 cm from the foot.
+    Anonymous end sites (Shadow's ``EndSite4``) are not taken: where they sit on the foot is
+    not known."""
+    side = classify(foot)[0]
+    if side is None:
+        return None
     i = joints.index(foot)
-    candidates = [name for name in joints if "toe" in name.lower()
-                  and any(m in name.lower() for m in marks)]
+    candidates = [name for name in joints if classify(name) == (side, "toe")]
     if not candidates:
         return None
     gaps = [float(np.median(np.linalg.norm(positions[:, joints.index(c)] - positions[:, i],
@@ -279,34 +184,62 @@ def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]
 # --------------------------------------------------------------------------- kinematics CSV
 
 
+def _open_csv(path: PathLike) -> io.TextIOWrapper:
+    try:
+        # undecodable bytes become U+FFFD and then fail as a named column or number
+        return open(path, encoding="utf-8-sig", errors="replace", newline="")
+    except (IsADirectoryError, PermissionError) as exc:
+        raise InputError(f"cannot read {os.fspath(path)}: {exc.strerror}",
+                         field="input") from None
+
+
+def _table_header(first: str) -> list[str]:
+    header = [h.strip() for h in next(csv.reader([first]), [])] if first.strip() else []
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=1, field="header")
+    for h in header:
+        limits.check_count("characters in a column name", len(h), "MAX_NAME_CHARS",
+                           line=1, field="header")
+    return header
+
+
 def _read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
     """Header and numeric body of a CSV; a fast parse first, a row-by-row one to name the
-    line and column of a bad value."""
-    with open(path, encoding="utf-8", newline="") as handle:
-        header_line = handle.readline()
+    line and column of a bad value. Lines, columns and rows are bounded by
+    ``estimation.io.limits`` before they are read."""
+    with _open_csv(path) as handle:
+        lines = limits.bounded_lines(handle)
+        header = _table_header(next(lines, ""))
+        if not header:
+            raise InputError("empty file: no header line", line=1, field="header")
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("error")
-                body = np.loadtxt(handle, delimiter=",", dtype=float, ndmin=2)
+                body = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2,
+                                  max_rows=limits.max_rows(len(header)) + 1)
         except (ValueError, UserWarning):
             body = None
-    header = [h.strip() for h in next(csv.reader([header_line]))] if header_line else []
     if body is not None and body.shape[0] and body.shape[1] == len(header):
+        limits.check_rows(body.shape[0], len(header))
+        _check_table(body, header)
         return header, body
     return _read_table_slowly(path)
 
 
 def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
-    with open(path, encoding="utf-8", newline="") as handle:
-        reader = csv.reader(handle)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError("empty file", line=1) from None
+    with _open_csv(path) as handle:
+        lines = limits.bounded_lines(handle)
+        header = _table_header(next(lines, ""))
+        if not header:
+            raise InputError("empty file: no header line", line=1, field="header")
+        reader = csv.reader(lines)
         rows: list[list[float]] = []
-        for lineno, row in enumerate(reader, start=2):
+        lineno = 1
+        for row in _csv_records(reader):
+            lineno = reader.line_num + 1
             if not row or all(not c.strip() for c in row):
                 continue
+            if len(rows) == limits.max_rows(len(header)):
+                limits.check_rows(len(rows) + 1, len(header), line=lineno)
             if len(row) != len(header):
                 raise InputError(f"row has {len(row)} values, the header has {len(header)}",
                                  line=lineno)
@@ -315,11 +248,37 @@ def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
                              for c in row])
             except ValueError:
                 col = next(i for i, c in enumerate(row) if not _is_number(c))
-                raise InputError(f"not a number: {row[col]!r} in column {header[col]!r}",
+                raise InputError(f"not a number: {row[col][:40]!r} in column {header[col]!r}",
                                  line=lineno, column=col + 1, field=header[col]) from None
     if not rows:
         raise InputError("no data rows", line=2)
-    return header, np.array(rows, dtype=float)
+    table = np.array(rows, dtype=float)
+    _check_table(table, header)
+    return header, table
+
+
+def _csv_records(reader: Any) -> Iterator[list[str]]:
+    """The rows of a ``csv.reader``; its errors (a NUL byte, an unclosed quote) as
+    InputError."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InputError(f"unreadable CSV at line {reader.line_num + 1}: {exc}",
+                             line=reader.line_num + 1) from None
+        yield row
+
+
+def _check_table(table: NDArray[np.float64], header: list[str]) -> None:
+    """Refuse an infinite or absurdly large value (NaN is reported by the readers as a
+    missing value), naming its line and column (rows counted from line 2)."""
+    bad = limits.first_bad_value(table)
+    if bad is not None:
+        row, col = bad
+        limits.check_value(float(table[row, col]), line=row + 2, column=col + 1,
+                           field=header[col])
 
 
 def _is_number(text: str) -> bool:
@@ -343,24 +302,29 @@ def _position_joints(header: list[str]) -> tuple[str, ...]:
 def read_kinematics_csv(
     path: PathLike,
     *,
-    left_foot: str = "LeftFoot",
-    right_foot: str = "RightFoot",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
     acceleration_units: str | None = None,
-    length_units_m: float = 0.01,
+    units: str | float | None = "auto",
 ) -> KinematicsRecording:
     """Read a kinematics CSV (the layout of Hachaj & Ogiela's Shadow exports).
 
     Parameters
     ----------
     path : path
-    left_foot, right_foot : str
-        Foot joints; ``<Foot>.Dx/.Dy/.Dz`` and ``<Foot>.ax/.ay/.az`` must exist.
+    left_foot, right_foot : str, optional
+        Foot joints (overrides); by default the columns named like a left and a right foot
+        (:func:`estimation.io.body.find_column_feet`). ``<Foot>.Dx/.Dy/.Dz`` and
+        ``<Foot>.ax/.ay/.az`` must exist.
     acceleration_units : str, optional
         One of :data:`ACCELERATION_UNITS`. By default the columns must look like g with
         gravity (median |a| ≈ 1); m/s², gravity-free data and second differences of positions
         are reported as InputError rather than guessed.
-    length_units_m : float
-        Metres per position unit (0.01: cm).
+    units : str or float, optional
+        Length unit of the positions: ``"auto"`` (default: inferred from the hips–feet
+        distance, cm for the paper's layout), a name of
+        :data:`~estimation.io.body.LENGTH_UNITS` or metres per unit; a unit giving legs
+        outside a person's range is refused naming the likely one.
 
     Returns
     -------
@@ -375,28 +339,49 @@ def read_kinematics_csv(
     declared = _check_units(acceleration_units)
     header, table = _read_table(path)
     col = {h: i for i, h in enumerate(header)}
-    time_key = next((h for h in header if h.lower() == "time"), None)
     joints = _position_joints(header)
     if not joints:
         raise InputError("no <Joint>.Dx/.Dy/.Dz position columns", field="header", line=1)
-    for foot in (left_foot, right_foot):
-        if foot not in joints:
-            raise _foot_not_found(foot, joints, "position columns")
     if np.isnan(table).any():
         r, c = np.argwhere(np.isnan(table))[0]
         raise InputError(f"missing value in column {header[c]!r}", line=int(r) + 2,
                          column=int(c) + 1, field=header[c])
-    positions = np.stack([np.stack([table[:, col[f"{j}.D{a}"]] for a in "xyz"], axis=-1)
-                          for j in joints], axis=1) * length_units_m
-    n = table.shape[0]
-    if time_key is not None:
-        time = table[:, col[time_key]].copy()
-        fps = _fps_from_time(time)
-    else:
+    raw_pos = np.stack([np.stack([table[:, col[f"{j}.D{a}"]] for a in "xyz"], axis=-1)
+                        for j in joints], axis=1)
+    feet = find_column_feet(joints, np.median(raw_pos[:, :, 1], axis=0), left_foot, right_foot)
+    root = _guess_root(joints)
+    scale, unit_note = _csv_length_unit(raw_pos, joints, root, feet, units)
+    positions = raw_pos * scale
+    time_key = next((h for h in header if h.lower() == "time"), None)
+    if time_key is None:
         raise InputError("no Time column", field="Time", line=1)
+    time = table[:, col[time_key]].copy()
+    fps = _fps_from_time(time)
+    raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
+    unit, note = _resolve_acceleration_units(
+        raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name)
+    acc_scale, frame = ACCELERATION_UNITS[unit]
+    if unit == "second-differences":
+        acc_scale = scale * fps * fps
+    accelerations = {f: a * acc_scale for f, a in raw.items()}
+    notes = [feet.note(), unit_note, note]
+    toes, contacts = _csv_toes_and_contacts(header, table, joints, positions,
+                                            (feet.left, feet.right), notes)
+    return KinematicsRecording(
+        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
+        acceleration_frame=frame, left_foot=feet.left, right_foot=feet.right, toes=toes,
+        contacts=contacts, source_format="kinematics-csv", length_scale=scale,
+        columns=tuple(header), table=table, root=root, source_path=str(path),
+        notes=tuple(notes))
+
+
+def _csv_foot_accelerations(header: list[str], table: NDArray[np.float64],
+                            feet: tuple[str, str]) -> dict[str, NDArray[np.float64]]:
+    """Raw ``<Foot>.ax/.ay/.az`` columns (F, 3) of each foot."""
+    col = {h: i for i, h in enumerate(header)}
     sensors = tuple(h[:-3] for h in header if h.endswith(".ax"))
     raw: dict[str, NDArray[np.float64]] = {}
-    for foot in (left_foot, right_foot):
+    for foot in feet:
         keys = [f"{foot}.a{a}" for a in "xyz"]
         missing = [k for k in keys if k not in col]
         if missing:
@@ -404,17 +389,19 @@ def read_kinematics_csv(
                              f"sensors with accelerations: {', '.join(sensors) or 'none'}",
                              field=missing[0], sensor=foot)
         raw[foot] = np.stack([table[:, col[k]] for k in keys], axis=-1)
-    unit, note = _resolve_acceleration_units(
-        raw, {f: positions[:, joints.index(f)] / length_units_m for f in raw}, declared,
-        Path(path).name)
-    scale, frame = ACCELERATION_UNITS[unit]
-    if unit == "second-differences":
-        scale = length_units_m * fps * fps
-    accelerations = {f: a * scale for f, a in raw.items()}
-    notes = [note]
+    return raw
+
+
+def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
+                           joints: tuple[str, ...], positions: NDArray[np.float64],
+                           feet: tuple[str, str], notes: list[str]
+                           ) -> tuple[dict[str, str], dict[str, NDArray[np.bool_]]]:
+    """Toe of each foot (by name) and contact flags from ``<Foot>.c``/``<Toe>.c`` columns;
+    appends what was found to ``notes``."""
+    col = {h: i for i, h in enumerate(header)}
     contacts: dict[str, NDArray[np.bool_]] = {}
     toes: dict[str, str] = {}
-    for foot in (left_foot, right_foot):
+    for foot in feet:
         toe = _auto_toe(foot, joints, positions)
         if toe is not None:
             toes[foot] = toe
@@ -423,13 +410,17 @@ def read_kinematics_csv(
         if flags:
             contacts[foot] = np.any(np.stack([table[:, col[k]] for k in flags]) > 0.5, axis=0)
             notes.append(f"contacts of {foot} from {', '.join(flags)}")
-    del n
-    return KinematicsRecording(
-        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
-        acceleration_frame=frame, left_foot=left_foot, right_foot=right_foot, toes=toes,
-        contacts=contacts, source_format="kinematics-csv", length_scale=length_units_m,
-        columns=tuple(header), table=table, root=_guess_root(joints), source_path=str(path),
-        notes=tuple(notes))
+    return toes, contacts
+
+
+def _csv_length_unit(raw_pos: NDArray[np.float64], joints: tuple[str, ...], root: str,
+                     feet: Feet, units: str | float | None) -> tuple[float, str]:
+    """Metres per unit of position columns, from the median root–foot distance."""
+    r = joints.index(root)
+    legs = [float(np.median(np.linalg.norm(raw_pos[:, joints.index(f)] - raw_pos[:, r],
+                                           axis=1))) for f in (feet.left, feet.right)]
+    return resolve_length_unit(float(np.mean(legs)), parse_length_unit(units),
+                               f"{root} to {feet.left}/{feet.right}, median distance")
 
 
 def _guess_root(joints: tuple[str, ...]) -> str:
@@ -452,18 +443,7 @@ def read_acceleration_csv(
     unit or None.
     """
     header, table = _read_table(path)
-    unit: str | None = None
-    names: list[str] = []
-    for h in header:
-        base = h
-        for open_, close in (("[", "]"), ("(", ")")):
-            if open_ in h and h.endswith(close):
-                base, _, rest = h.partition(open_)
-                found = _check_units(rest[:-1].strip())
-                if unit is not None and found != unit:
-                    raise InputError("acceleration columns declare different units", field=h)
-                unit = found
-        names.append(base.strip())
+    names, unit = acceleration_header(header)
     col = {h: i for i, h in enumerate(names)}
     tkey = next((h for h in names if h.lower() in ("time", "t")), None)
     if tkey is None:
@@ -480,6 +460,37 @@ def read_acceleration_csv(
             raise InputError(f"sensor {s!r} lacks one of {', '.join(keys)}", sensor=s)
         out[s] = np.stack([table[:, col[k]] for k in keys], axis=-1)
     return table[:, col[tkey]].copy(), out, unit
+
+
+def acceleration_header(header: list[str]) -> tuple[list[str], str | None]:
+    """Column names of an accelerations CSV without their unit suffixes (``LeftFoot.ax [g]``
+    → ``LeftFoot.ax``), and the unit they declare (None when none does).
+
+    Raises
+    ------
+    InputError
+        An unknown unit, or columns declaring different units.
+    """
+    unit: str | None = None
+    names: list[str] = []
+    for h in header:
+        base = h
+        for open_, close in (("[", "]"), ("(", ")")):
+            if open_ in h and h.endswith(close):
+                base, _, rest = h.partition(open_)
+                found = _check_units(rest[:-1].strip())
+                if unit is not None and found != unit:
+                    raise InputError("acceleration columns declare different units", field=h)
+                unit = found
+        names.append(base.strip())
+    return names, unit
+
+
+def acceleration_sensors(names: list[str]) -> list[str]:
+    """Sensors with all three of ``<Sensor>.ax/.ay/.az`` among ``names``."""
+    present = set(names)
+    return [n[:-3] for n in names if n.endswith(".ax")
+            and {f"{n[:-3]}.ay", f"{n[:-3]}.az"} <= present]
 
 
 def _varying_root(motion: BvhMotion) -> int:
@@ -520,10 +531,10 @@ def read_bvh_kinematics(
     path: PathLike,
     accelerations: PathLike,
     *,
-    left_foot: str = "LeftFoot",
-    right_foot: str = "RightFoot",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
     acceleration_units: str | None = None,
-    length_units_m: float = 0.01,
+    units: str | float | None = "auto",
 ) -> KinematicsRecording:
     """Read a BVH motion plus a CSV of foot accelerations.
 
@@ -534,62 +545,70 @@ def read_bvh_kinematics(
     accelerations : path
         ``time,<Foot>.ax,<Foot>.ay,<Foot>.az,...``; resampled onto the BVH frame times when
         the times differ.
-    left_foot, right_foot : str
-        Foot joints of the BVH hierarchy (and sensor names in the accelerations file).
+    left_foot, right_foot : str, optional
+        Foot joints of the BVH hierarchy (overrides); by default found by name or topology
+        (:func:`estimation.io.body.find_bvh_feet`). The accelerations file names the sensors
+        by these joints, or by the only foot-named sensor of each side.
     acceleration_units : str, optional
         As in :func:`read_kinematics_csv`; a unit in the header cells counts as declared.
-    length_units_m : float
-        Metres per BVH length unit (0.01: cm).
+    units : str or float, optional
+        BVH length unit: ``"auto"`` (default: inferred from the legs' bone lengths), a name
+        of :data:`~estimation.io.body.LENGTH_UNITS` (``m``, ``cm``, ``mm``, ``in``, ``ft``,
+        ``cmu``) or metres per unit; a unit giving legs outside a person's range is refused
+        naming the likely one.
 
     Returns
     -------
     KinematicsRecording
+        ``notes`` say which feet, toes and unit were used and how they were found.
     """
     declared = _check_units(acceleration_units)
     motion = read_bvh(path)
-    for foot in (left_foot, right_foot):
-        if foot not in motion.names:
-            raise _foot_not_found(foot, motion.names, "BVH")
+    feet = find_bvh_feet(motion, left_foot, right_foot)
+    names = motion.names
+    scale, unit_note = resolve_length_unit(
+        leg_length(motion, names.index(feet.left), names.index(feet.right)),
+        parse_length_unit(units), f"hips to {feet.left}/{feet.right} along the bones")
     raw_pos, root = bvh_positions_without_root_translation(motion)
-    positions = raw_pos * length_units_m
     n = motion.n_frames
     time = np.arange(n, dtype=np.float64) * float(motion.frame_time)
     a_time, a_raw, header_unit = read_acceleration_csv(accelerations)
     if declared is None:
         declared = header_unit
     raw: dict[str, NDArray[np.float64]] = {}
-    for foot in (left_foot, right_foot):
-        if foot not in a_raw:
+    notes = [feet.note(), unit_note, *motion.notes]
+    for foot in (feet.left, feet.right):
+        sensor = match_sensor(foot, list(a_raw))
+        if sensor is None:
             raise InputError(f"no accelerations for foot {foot!r} in "
                              f"{Path(accelerations).name}; sensors: {', '.join(a_raw) or 'none'}",
                              sensor=foot)
-        a = a_raw[foot]
-        if a.shape[0] != n or not np.allclose(a_time - a_time[0], time, atol=0.25 / motion.fps):
-            if a_time[0] > time[0] + 1.0 / motion.fps or a_time[-1] < time[-1] - 1.0 / motion.fps:
-                raise InputError(
-                    f"accelerations cover {a_time[0]:.3f}–{a_time[-1]:.3f} s, the BVH "
-                    f"0–{time[-1]:.3f} s", field="time")
-            a = np.stack([np.interp(time, a_time, a[:, k]) for k in range(3)], axis=-1)
-        raw[foot] = a
-    names = motion.names
+        if sensor != foot:
+            notes.append(f"accelerations of {foot} from sensor {sensor}")
+        raw[foot] = _on_bvh_frames(a_raw[sensor], a_time, time, motion.fps)
     unit, note = _resolve_acceleration_units(
         raw, {f: raw_pos[:, names.index(f)] for f in raw}, declared, Path(accelerations).name)
-    scale, frame = ACCELERATION_UNITS[unit]
+    acc_scale, frame = ACCELERATION_UNITS[unit]
     if unit == "second-differences":
-        scale = length_units_m * motion.fps ** 2
-    toes: dict[str, str] = {}
-    notes = [note, f"root translation of {names[root]} ignored"]
-    for foot in (left_foot, right_foot):
-        child = _child(motion, names.index(foot))
-        if child is not None:
-            toes[foot] = names[child]
-            notes.append(f"{names[child]} is the toe of {foot}")
+        acc_scale = scale * motion.fps ** 2
+    notes += [note, f"root translation of {names[root]} ignored"]
     return KinematicsRecording(
-        joints=names, positions=positions, fps=motion.fps, time=time,
-        accelerations={f: a * scale for f, a in raw.items()}, acceleration_frame=frame,
-        left_foot=left_foot, right_foot=right_foot, toes=toes, source_format="bvh",
-        length_scale=length_units_m, bvh=motion, root=names[root], source_path=str(path),
-        notes=tuple(notes))
+        joints=names, positions=raw_pos * scale, fps=motion.fps, time=time,
+        accelerations={f: a * acc_scale for f, a in raw.items()}, acceleration_frame=frame,
+        left_foot=feet.left, right_foot=feet.right, toes=dict(feet.toes),
+        source_format="bvh", length_scale=scale, bvh=motion, root=names[root],
+        source_path=str(path), notes=tuple(notes))
+
+
+def _on_bvh_frames(a: NDArray[np.float64], a_time: NDArray[np.float64],
+                   time: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+    """Accelerations resampled onto the BVH frame times when their times differ."""
+    if a.shape[0] == time.shape[0] and np.allclose(a_time - a_time[0], time, atol=0.25 / fps):
+        return a
+    if a_time[0] > time[0] + 1.0 / fps or a_time[-1] < time[-1] - 1.0 / fps:
+        raise InputError(f"accelerations cover {a_time[0]:.3f}–{a_time[-1]:.3f} s, the BVH "
+                         f"0–{time[-1]:.3f} s", field="time")
+    return np.stack([np.interp(time, a_time, a[:, k]) for k in range(3)], axis=-1)
 
 
 # --------------------------------------------------------------------------- dispatch
@@ -626,9 +645,10 @@ def read_kinematics(
     *,
     format: str = "auto",
     accelerations: PathLike | None = None,
-    left_foot: str = "LeftFoot",
-    right_foot: str = "RightFoot",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
     acceleration_units: str | None = None,
+    units: str | float | None = "auto",
     subject: str | None = None,
 ) -> KinematicsRecording:
     """Read an inertial-suit recording for root-translation estimation.
@@ -640,10 +660,14 @@ def read_kinematics(
     format : {"auto", "kinematics-csv", "bvh", "mvnx"}
     accelerations : path, optional
         Foot accelerations CSV; required with a BVH.
-    left_foot, right_foot : str
-        Foot joint names (MVNX: segment names, default ``LeftFoot``/``RightFoot``).
+    left_foot, right_foot : str, optional
+        Foot joint names, overriding the ones found by name (and, in a BVH, topology); MVNX:
+        segment names, default ``LeftFoot``/``RightFoot``.
     acceleration_units : str, optional
         See :data:`ACCELERATION_UNITS`.
+    units : str or float, optional
+        Length unit of a BVH or kinematics CSV: ``"auto"`` (inferred from the legs), ``m``,
+        ``cm``, ``mm``, ``in``, ``ft``, ``cmu`` or metres per unit. MVNX is in metres.
     subject : str, optional
         MVNX: label or 1-based number of the subject to read (default the first).
 
@@ -654,21 +678,27 @@ def read_kinematics(
     Raises
     ------
     InputError
-        Unreadable file, missing foot (listing the joints present), unrecognised units.
+        Unreadable file, missing foot (listing the joints present), unrecognised units, a
+        length unit that does not give a person's legs.
     """
     fmt = _resolve_format(path, format)
     if fmt == "kinematics-csv":
         return read_kinematics_csv(path, left_foot=left_foot, right_foot=right_foot,
-                                   acceleration_units=acceleration_units)
+                                   acceleration_units=acceleration_units, units=units)
     if fmt == "bvh":
         if accelerations is None:
             raise InputError("a BVH input needs an accelerations CSV "
                              "(time,<Foot>.ax,<Foot>.ay,<Foot>.az,...)", field="accelerations")
         return read_bvh_kinematics(path, accelerations, left_foot=left_foot,
-                                   right_foot=right_foot, acceleration_units=acceleration_units)
+                                   right_foot=right_foot, acceleration_units=acceleration_units,
+                                   units=units)
     from .mvnx import read_mvnx
 
-    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot, subject=subject)
+    if parse_length_unit(units) not in (None, 1.0):
+        raise InputError(f"MVNX positions are in metres; units {units!r} does not apply",
+                         field="units")
+    return read_mvnx(path, left_foot=left_foot or "LeftFoot",
+                     right_foot=right_foot or "RightFoot", subject=subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
@@ -686,15 +716,24 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
         return sniff_mvnx(path)
     if fmt == "bvh":
         return _sniff_bvh(path)
-    with open(path, encoding="utf-8", newline="") as handle:
-        reader = csv.reader(handle)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError("empty file", line=1) from None
+    return _sniff_kinematics_csv(path)
+
+
+def _sniff_kinematics_csv(path: PathLike) -> dict[str, Any]:
+    with _open_csv(path) as handle:
+        lines = limits.bounded_lines(handle)
+        header = _table_header(next(lines, ""))
+        if not header:
+            raise InputError("empty file: no header line", line=1, field="header")
+        joints = _position_joints(header)
+        if not joints:
+            raise InputError("not a kinematics CSV: the header has no <Joint>.Dx/.Dy/.Dz "
+                             "position columns", field="header", line=1)
+        limits.check_count("joints", len(joints), "MAX_JOINTS", line=1, field="header")
         tcol = next((i for i, h in enumerate(header) if h.lower() == "time"), None)
+        reader = csv.reader(lines)
         frames, t0, t1 = 0, math.nan, math.nan
-        for row in reader:
+        for row in _csv_records(reader):
             if not row:
                 continue
             frames += 1
@@ -702,31 +741,73 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
                 try:
                     t0, t1 = (float(row[tcol]), t0) if frames == 1 else (t0, float(row[tcol]))
                 except (ValueError, IndexError):
-                    raise InputError("bad Time value", line=frames + 1) from None
+                    raise InputError("bad Time value", line=reader.line_num + 1,
+                                     column=tcol + 1, field=header[tcol]) from None
+    limits.check_rows(frames, len(header))
     fps = 1.0 / (t1 - t0) if frames >= 2 and t1 > t0 else None
-    return {"format": fmt, "frames": frames, "joints": list(_position_joints(header)),
-            "fps": fps,
-            "sensors": [h[:-3] for h in header if h.endswith(".ax")]}
+    return {"format": "kinematics-csv", "frames": frames, "joints": list(joints),
+            "fps": fps if fps is not None and math.isfinite(fps) else None,
+            "sensors": acceleration_sensors(header)}
 
 
 def _sniff_bvh(path: PathLike) -> dict[str, Any]:
+    """Joints, fps and frames (the rows present, at most the header's count) of a BVH;
+    InputError when the file is not a BVH at all (no ``HIERARCHY`` first, no ``ROOT``, no
+    ``MOTION`` section with ``Frames:`` and ``Frame Time:``)."""
     joints: list[str] = []
-    frames = 0
+    frames: int | None = None
     fps: float | None = None
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        for line in handle:
-            parts = line.split()
+    seen = {"HIERARCHY": False, "MOTION": False, "FRAME": False}
+    with open(path, encoding="utf-8-sig", errors="replace") as handle:
+        lines = limits.bounded_lines(handle)
+        for line, text in enumerate(lines, 1):
+            parts = text.split()
             if not parts:
                 continue
             key = parts[0].upper()
+            if not seen["HIERARCHY"] and key != "HIERARCHY":
+                raise InputError(f"not a BVH file: line {line} should be HIERARCHY, "
+                                 f"got {_snippet(text)}", line=line, field="format")
+            if key in seen:
+                seen[key] = True
             if key in ("ROOT", "JOINT") and len(parts) > 1:
-                joints.append(parts[1])
-            elif key == "FRAMES:" and len(parts) > 1:
-                frames = int(parts[1])
-            elif key == "FRAME" and len(parts) > 2:
-                fps = 1.0 / float(parts[2])
+                joints.append(" ".join(p for p in parts[1:] if p != "{")[:limits.MAX_NAME_CHARS])
+                if len(joints) > MAX_NODES:
+                    raise InputError(f"more than {MAX_NODES} joints in the hierarchy",
+                                     line=line)
+            elif key == "FRAMES:" and seen["MOTION"]:
+                frames = _bvh_number(parts, 1, line, int)
+            elif key == "FRAME" and seen["MOTION"]:
+                step = _bvh_number(parts, 2, line, float)
+                fps = (limits.check_fps(1.0 / step, field="Frame Time", line=line)
+                       if step > 0 and math.isfinite(step) else None)
                 break
+        rows = sum(1 for text in lines if not text.isspace())
+    if not joints or frames is None or not seen["FRAME"]:
+        missing = ("a ROOT joint in the HIERARCHY" if not joints else
+                   "Frames: line in the MOTION section" if frames is None else
+                   "Frame Time: line in the MOTION section")
+        raise InputError(f"not a BVH file: no {missing}", field="format")
+    frames = min(frames, rows)  # a header may declare any count: the rows present are read
+    limits.check_count("frames", frames, "MAX_FRAMES")
     return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
+
+
+def _bvh_number(parts: list[str], index: int, line: int, kind: type[int] | type[float]) -> Any:
+    try:
+        value = kind(parts[index])
+    except (ValueError, IndexError, OverflowError):
+        raise InputError(f"bad {parts[0]} line: {' '.join(parts)[:60]!r}", line=line,
+                         field=parts[0].rstrip(":")) from None
+    if kind is int and value < 0:
+        raise InputError(f"bad {parts[0]} line: a negative count", line=line,
+                         field=parts[0].rstrip(":"))
+    return value
+
+
+def _snippet(text: str, limit: int = 40) -> str:
+    text = text.strip()
+    return repr(text if len(text) <= limit else text[:limit] + "…")
 
 
 # --------------------------------------------------------------------------- writers
@@ -734,7 +815,9 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
 
 def translation_to_dict(result: TranslationResult, recording: KinematicsRecording | None = None,
                         *, decimals: int = 5) -> dict[str, Any]:
-    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings."""
+    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings; with
+    the recording, its frame times, the feet and toes used, the input's length unit (metres
+    per unit) and the reader's notes."""
 
     def rows(a: NDArray[np.float64]) -> list[list[float]]:
         return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
@@ -757,6 +840,10 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
     }
     if recording is not None:
         out["time"] = np.round(recording.time, 6).tolist()
+        out["feet"] = {"left": recording.left_foot, "right": recording.right_foot,
+                       "toes": dict(recording.toes)}
+        out["input_length_unit_m"] = recording.length_scale
+        out["notes"] = list(recording.notes)
     return out
 
 
