@@ -17,7 +17,7 @@ from ._lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
-    from .errors import BonefitError, EstimationError, InputError
+    from .errors import BonefitError, EstimationError, InputError, LimitError
     from .gaps import fill_gaps
     from .joints import JointFit, estimate_joint
     from .kinematics import KinematicsRecording
@@ -57,6 +57,7 @@ __all__ = [
     "JointQuality",
     "KinematicsRecording",
     "LimbFit",
+    "LimitError",
     "Progress",
     "SensorRecording",
     "SkeletonResult",
@@ -83,7 +84,7 @@ __all__ = [
 # names above are imported from their submodule on first use (see _lazy)
 __getattr__, __dir__ = lazy_attributes(__name__, {
     "bvh": ("BvhMotion", "forward_kinematics", "read_bvh", "write_bvh"),
-    "errors": ("BonefitError", "EstimationError", "InputError"),
+    "errors": ("BonefitError", "EstimationError", "InputError", "LimitError"),
     "gaps": ("fill_gaps",),
     "kinematics": ("KinematicsRecording",),
     "joints": ("JointFit", "estimate_joint"),
