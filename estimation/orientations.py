@@ -15,19 +15,15 @@ from scipy.spatial.transform import Rotation
 
 from . import quaternions as quat
 from .errors import EstimationError, InputError
-from .model import JOINTS, SEGMENTS
+from .model import JOINTS, LIMBS, SEGMENTS
 
 __all__ = ["estimate_orientations"]
 
 Float = NDArray[np.float64]
 
 # (upper segment, lower segment, distal segment, proximal, middle, distal joint, sign of x)
-_LIMBS = (
-    ("l_thigh", "l_shank", "l_foot", "l_hip", "l_knee", "l_ankle", 1.0),
-    ("r_thigh", "r_shank", "r_foot", "r_hip", "r_knee", "r_ankle", 1.0),
-    ("l_upperarm", "l_forearm", "l_hand", "l_shoulder", "l_elbow", "l_wrist", -1.0),
-    ("r_upperarm", "r_forearm", "r_hand", "r_shoulder", "r_elbow", "r_wrist", -1.0),
-)
+_LIMBS = tuple((*limb.segments, *limb.joints, -1.0 if limb.is_arm else 1.0)
+               for limb in sorted(LIMBS.values(), key=lambda limb: limb.is_arm))
 _ENDS = ("head", "l_hand", "r_hand", "l_foot", "r_foot")
 _EPS = 1e-12
 
