@@ -1,4 +1,4 @@
-"""Artifact storage for uploaded recordings and job results: in memory, local disk or S3."""
+"""Artifact storage for uploaded recordings and job results: local disk or S3."""
 
 from __future__ import annotations
 
@@ -43,46 +43,6 @@ class ArtifactStore(Protocol):
 
     def ping(self) -> None:
         """Raise if the storage is unreachable."""
-
-
-class MemoryArtifactStore:
-    """Blobs in a dict, for tests."""
-
-    def __init__(self) -> None:
-        self.blobs: dict[str, bytes] = {}
-
-    def put_file(self, key: str, path: Path) -> None:
-        """Read the file into memory."""
-        self.blobs[key] = Path(path).read_bytes()
-
-    def iter_bytes(self, key: str) -> Iterator[bytes]:
-        """Yield the blob."""
-        if key not in self.blobs:
-            raise FileNotFoundError(key)
-        data = self.blobs[key]
-        for start in range(0, len(data), CHUNK):
-            yield data[start:start + CHUNK]
-
-    @contextlib.contextmanager
-    def as_file(self, key: str) -> Iterator[Path]:
-        """Write the blob to a temporary file."""
-        if key not in self.blobs:
-            raise FileNotFoundError(key)
-        with tempfile.TemporaryDirectory(prefix="bonefit-") as tmp:
-            path = Path(tmp) / key.rsplit("/", 1)[-1]
-            path.write_bytes(self.blobs[key])
-            yield path
-
-    def delete(self, key: str) -> None:
-        """Forget the blob."""
-        self.blobs.pop(key, None)
-
-    def exists(self, key: str) -> bool:
-        """Whether the blob is there."""
-        return key in self.blobs
-
-    def ping(self) -> None:
-        """Always reachable."""
 
 
 class LocalArtifactStore:
@@ -202,8 +162,6 @@ def open_artifacts(settings: Settings) -> ArtifactStore:
     """The artifact store configured by ``BONEFIT_STORAGE_URL``."""
     url = settings.resolved_storage_url
     parts = urlsplit(url)
-    if parts.scheme == "memory":
-        return MemoryArtifactStore()
     if parts.scheme == "file":
         return LocalArtifactStore(Path(parts.path))
     if parts.scheme == "s3":
@@ -218,4 +176,4 @@ def open_artifacts(settings: Settings) -> ArtifactStore:
             config=Config(retries={"max_attempts": 3, "mode": "standard"},
                           s3={"addressing_style": "path"}))
         return S3ArtifactStore(parts.netloc, parts.path, client)
-    raise ValueError(f"unsupported storage URL {url!r} (use file://, s3:// or memory://)")
+    raise ValueError(f"unsupported storage URL {url!r} (use file:// or s3://)")

@@ -1,13 +1,12 @@
-"""The job store: recordings and jobs, behind a small Protocol (SQLAlchemy 2 or in memory)."""
+"""The job store: recordings and jobs, behind a small Protocol, in SQLite or PostgreSQL."""
 
 from __future__ import annotations
 
-import copy
 import os
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Final, Protocol
 
 import sqlalchemy as sa
@@ -155,152 +154,6 @@ class JobStore(Protocol):
 
     def live_workers(self, since: float) -> list[str]:
         """Ids of the workers seen alive at or after ``since``."""
-
-
-def _matches(obj: Any, expect: Expect) -> bool:
-    for name, wanted in expect.items():
-        value = getattr(obj, name)
-        if isinstance(wanted, tuple):
-            if value not in wanted:
-                return False
-        elif value != wanted:
-            return False
-    return True
-
-
-class MemoryJobStore:
-    """A job store in a dict, for tests and single-process use."""
-
-    def __init__(self) -> None:
-        self._recordings: dict[str, Recording] = {}
-        self._jobs: dict[str, Job] = {}
-        self._workers: dict[str, float] = {}
-        self._lock = threading.Lock()
-
-    def init(self) -> None:
-        """Nothing to create."""
-
-    def ping(self) -> None:
-        """Always reachable."""
-
-    def add_recording(self, recording: Recording) -> None:
-        """Insert a recording."""
-        with self._lock:
-            self._recordings[recording.id] = copy.deepcopy(recording)
-
-    def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
-        """The tenant's recording, or None."""
-        rec = self._recordings.get(recording_id)
-        return copy.deepcopy(rec) if rec and rec.tenant == tenant else None
-
-    def list_recordings(self, tenant: str, *, before: str | None, limit: int) -> list[Recording]:
-        """The tenant's recordings, newest first."""
-        recs = [r for r in self._recordings.values()
-                if r.tenant == tenant and (before is None or r.id < before)]
-        return copy.deepcopy(sorted(recs, key=lambda r: r.id, reverse=True)[:limit])
-
-    def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
-        """Delete and return the tenant's recording."""
-        with self._lock:
-            rec = self.get_recording(tenant, recording_id)
-            if rec:
-                del self._recordings[recording_id]
-            return rec
-
-    def add_job(self, job: Job) -> Job:
-        """Insert a job unless its idempotency key is taken."""
-        with self._lock:
-            if job.idempotency_key is not None:
-                for other in self._jobs.values():
-                    if (other.tenant, other.idempotency_key) == (job.tenant, job.idempotency_key):
-                        return copy.deepcopy(other)
-            self._jobs[job.id] = copy.deepcopy(job)
-            return copy.deepcopy(job)
-
-    def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
-        """The job, or None."""
-        job = self._jobs.get(job_id)
-        if job is None or (tenant is not None and job.tenant != tenant):
-            return None
-        return copy.deepcopy(job)
-
-    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
-                  before: str | None, limit: int) -> list[Job]:
-        """The tenant's jobs, newest first."""
-        jobs = [j for j in self._jobs.values() if j.tenant == tenant
-                and (status is None or j.status == status) and (kind is None or j.kind == kind)
-                and (before is None or j.id < before)]
-        return copy.deepcopy(sorted(jobs, key=lambda j: j.id, reverse=True)[:limit])
-
-    def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
-        """Compare and set."""
-        with self._lock:
-            job = self._jobs.get(job_id)
-            if job is None or not _matches(job, expect):
-                return None
-            job = replace(job, **changes, version=job.version + 1, updated_at=time.time())
-            self._jobs[job_id] = job
-            return copy.deepcopy(job)
-
-    def expired_leases(self, now: float) -> list[Job]:
-        """Running jobs whose lease ended."""
-        return [copy.deepcopy(j) for j in self._jobs.values()
-                if j.status == "running" and j.lease_until is not None and j.lease_until < now]
-
-    def stale_queued(self, before: float) -> list[Job]:
-        """Queued jobs not updated since ``before``."""
-        return [copy.deepcopy(j) for j in self._jobs.values()
-                if j.status == "queued" and j.updated_at < before]
-
-    def counts(self) -> dict[tuple[str, str], int]:
-        """Jobs per (kind, status)."""
-        out: dict[tuple[str, str], int] = {}
-        for j in self._jobs.values():
-            out[j.kind, j.status] = out.get((j.kind, j.status), 0) + 1
-        return out
-
-    def durations(self, buckets: tuple[float, ...]) -> dict[str, Histogram]:
-        """Run time of succeeded jobs."""
-        out: dict[str, Histogram] = {}
-        for j in self._jobs.values():
-            if j.status == "succeeded" and j.finished_at and j.started_at:
-                seconds = j.finished_at - j.started_at
-                h = out.setdefault(j.kind, Histogram([0] * len(buckets), 0, 0.0))
-                h.counts[:] = [c + (seconds <= b) for c, b in zip(h.counts, buckets, strict=True)]
-                h.count += 1
-                h.total += seconds
-        return out
-
-    def recording_totals(self) -> tuple[int, int]:
-        """Count and bytes of recordings."""
-        return len(self._recordings), sum(r.size for r in self._recordings.values())
-
-    def purge(self, before: float, limit: int = PURGE_BATCH) -> tuple[list[Recording], list[Job]]:
-        """Delete at most ``limit`` of each older than ``before``."""
-        with self._lock:
-            recs = [r for r in self._recordings.values() if r.created_at < before][:limit]
-            jobs = [j for j in self._jobs.values()
-                    if j.finished_at is not None and j.finished_at < before][:limit]
-            for r in recs:
-                del self._recordings[r.id]
-            for j in jobs:
-                del self._jobs[j.id]
-            return recs, jobs
-
-    def beat_worker(self, worker_id: str, now: float) -> None:
-        """Note the worker alive."""
-        with self._lock:
-            self._workers[worker_id] = now
-
-    def drop_worker(self, worker_id: str) -> None:
-        """Forget the worker."""
-        with self._lock:
-            self._workers.pop(worker_id, None)
-
-    def live_workers(self, since: float) -> list[str]:
-        """Workers seen since ``since``."""
-        with self._lock:
-            return sorted(w for w, seen in self._workers.items() if seen >= since)
 
 
 _metadata = sa.MetaData()
@@ -584,8 +437,10 @@ class SqlJobStore:
 
 
 def open_store(url: str) -> JobStore:
-    """The store for ``url``: ``memory://`` or any SQLAlchemy URL."""
-    if url == "memory://":
-        return MemoryJobStore()
+    """The store for ``url``, any SQLAlchemy URL (SQLite or PostgreSQL)."""
+    if url.startswith("memory:"):
+        # each worker process would have a store of its own, and never see the API's jobs
+        raise ValueError(f"unsupported database URL {url!r}: the job store is shared by "
+                         "processes; use sqlite:///path or postgresql://")
     return SqlJobStore.from_url(url)
 

@@ -6,9 +6,9 @@ import logging
 import time
 from dataclasses import dataclass
 
-from .artifacts import ArtifactStore, MemoryArtifactStore, open_artifacts
-from .jobs import JobStore, MemoryJobStore, open_store
-from .queue import JobQueue, MemoryQueue, open_queue
+from .artifacts import ArtifactStore, open_artifacts
+from .jobs import JobStore, open_store
+from .queue import JobQueue, open_queue
 from .settings import Settings
 
 log = logging.getLogger("bonefit.service")
@@ -44,9 +44,3 @@ def open_runtime(settings: Settings, *, wait_seconds: float = 30.0) -> Runtime:
             time.sleep(1.0)
     return Runtime(settings, store, open_queue(settings.resolved_queue_url),
                    open_artifacts(settings))
-
-
-def memory_runtime(settings: Settings | None = None) -> Runtime:
-    """Everything in memory, for tests."""
-    return Runtime(settings or Settings(), MemoryJobStore(), MemoryQueue(),
-                   MemoryArtifactStore())

@@ -24,7 +24,7 @@ from pydantic import ValidationError
 from estimation.errors import BonefitError
 
 from .artifacts import tenant_prefix
-from .jobs import PURGE_BATCH, Job, MemoryJobStore
+from .jobs import PURGE_BATCH, Job
 from .kinds import Input, Kind, default_kinds, preload
 from .leases import LeaseKeeper
 from .limits import MemoryLimitExceeded, memory_limit
@@ -536,9 +536,8 @@ def run_worker(settings: Settings, *, parent_pid: int | None = None,
     previous_tempdir, tempfile.tempdir = tempfile.tempdir, str(tmp)
     runtime = open_runtime(settings)
     worker = Worker(runtime, kinds)
-    if not isinstance(runtime.store, MemoryJobStore):  # in memory, nobody else could renew
-        worker.keeper = LeaseKeeper(settings, worker.id)
-        worker.keeper.start()
+    keeper = worker.keeper = LeaseKeeper(settings, worker.id)
+    keeper.start()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
         log.info("worker %s: signal %d, shutting down", worker.id, signum)
@@ -553,8 +552,7 @@ def run_worker(settings: Settings, *, parent_pid: int | None = None,
                      settings.resolved_queue_url.split("@")[-1])
         worker.serve(parent_pid=parent_pid)
     finally:
-        if worker.keeper is not None:
-            worker.keeper.close()
+        keeper.close()
         tempfile.tempdir = previous_tempdir  # the directory is going: callers must not use it
         shutil.rmtree(tmp, ignore_errors=True)
     return 0

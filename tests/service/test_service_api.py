@@ -10,7 +10,7 @@ import httpx
 import pytest
 
 from service.app import create_app
-from service.runtime import Runtime, memory_runtime
+from service.runtime import Runtime
 from service.settings import Settings
 from service.worker import Worker
 from tests.service.helpers import (
@@ -20,6 +20,7 @@ from tests.service.helpers import (
     KEYS,
     TestClient,
     drain,
+    local_runtime,
     sensor_csv,
     submit,
     upload,
@@ -81,7 +82,7 @@ def test_multipart_without_file_field(client: TestClient) -> None:
 
 
 def test_upload_limit_by_content_length_and_while_streaming(tmp_path: object) -> None:
-    runtime = memory_runtime(Settings(data_dir=tmp_path, max_upload_bytes=100,
+    runtime = local_runtime(Settings(data_dir=tmp_path, max_upload_bytes=100,
                                       api_keys={"k": "t"}))
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
     with TestClient(app, headers={"Authorization": "Bearer k"}) as c:
@@ -164,7 +165,7 @@ def test_missing_or_wrong_key(client: TestClient) -> None:
 
 @pytest.mark.anyio
 async def test_without_keys_only_loopback_is_served(tmp_path: object) -> None:
-    app = create_app(runtime=memory_runtime(Settings(data_dir=tmp_path)), kinds=FAKE_KINDS,
+    app = create_app(runtime=local_runtime(Settings(data_dir=tmp_path)), kinds=FAKE_KINDS,
                      housekeeping=False)
     for host, status in (("127.0.0.1", 200), ("::1", 200), ("10.1.2.3", 403)):
         transport = httpx.ASGITransport(app=app, client=(host, 1234))
@@ -177,7 +178,7 @@ async def test_without_keys_only_loopback_is_served(tmp_path: object) -> None:
 @pytest.mark.anyio
 async def test_metrics_access(tmp_path: object) -> None:
     async def scrape(settings: Settings, host: str, **headers: str) -> httpx.Response:
-        app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS,
+        app = create_app(runtime=local_runtime(settings), kinds=FAKE_KINDS,
                          housekeeping=False)
         transport = httpx.ASGITransport(app=app, client=(host, 1234))
         async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:

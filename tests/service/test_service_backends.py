@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from service.artifacts import ArtifactStore, LocalArtifactStore, MemoryArtifactStore
-from service.jobs import Job, JobStore, MemoryJobStore, Recording, SqlJobStore, new_id
-from service.queue import HueyQueue, JobQueue, MemoryQueue, open_queue
-from tests.service.helpers import require_services
+from service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
+from service.jobs import Job, JobStore, Recording, SqlJobStore, new_id, open_store
+from service.queue import HueyQueue, JobQueue, open_queue
+from service.settings import Settings
+from tests.service.helpers import local_queue, require_services
 
 POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]
                    if os.environ.get("BONEFIT_TEST_POSTGRES_URL") else
@@ -54,12 +55,9 @@ def postgres_url() -> Iterator[str]:
     admin.dispose()
 
 
-@pytest.fixture(params=["memory", "sqlite", "postgresql"])
+@pytest.fixture(params=["sqlite", "postgresql"])
 def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
-    """Each job-store implementation."""
-    if request.param == "memory":
-        yield MemoryJobStore()
-        return
+    """The job store on each database."""
     if request.param == "sqlite":
         sql = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'jobs.db'}")
     else:
@@ -181,10 +179,8 @@ def _expired_jobs(store: JobStore, n: int, finished_at: float) -> None:
 
 def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
                                                         tmp_path: Path) -> None:
-    from service.artifacts import MemoryArtifactStore
     from service.jobs import PURGE_BATCH
     from service.runtime import Runtime
-    from service.settings import Settings
     from service.worker import purge
 
     postgres = isinstance(store, SqlJobStore) and store.engine.dialect.name == "postgresql"
@@ -193,8 +189,8 @@ def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
     _expired_jobs(store, n, now - 100)
     kept = store.add_job(job(status="succeeded", finished_at=now))
     store.add_recording(recording(created_at=now - 100))
-    runtime = Runtime(Settings(data_dir=tmp_path, retention_seconds=50), store, MemoryQueue(),
-                      MemoryArtifactStore())
+    runtime = Runtime(Settings(data_dir=tmp_path, retention_seconds=50), store, local_queue(),
+                      LocalArtifactStore(tmp_path / "artifacts"))
     assert purge(runtime, now=now) == n + 1
     assert store.counts() == {("skeleton", "succeeded"): 1}
     assert store.get_job(kept.id) is not None
@@ -252,11 +248,11 @@ def test_listing_leases_counts_and_purge(store: JobStore) -> None:
 # ---------------------------------------------------------------------------------- queue
 
 
-@pytest.fixture(params=["memory", "sqlite", "redis"])
+@pytest.fixture(params=["memory-huey", "sqlite", "redis"])
 def queue(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobQueue]:
-    """Each queue implementation."""
-    if request.param == "memory":
-        yield MemoryQueue()
+    """The queue on each huey storage."""
+    if request.param == "memory-huey":
+        yield local_queue()
         return
     if request.param == "sqlite":
         yield open_queue(f"sqlite:///{tmp_path / 'queue.db'}")
@@ -304,14 +300,22 @@ def test_bad_urls_are_refused() -> None:
         open_queue("amqp://x")
 
 
+def test_in_memory_back_ends_are_refused(tmp_path: Path) -> None:
+    # several worker processes would each have a store and a queue of their own
+    with pytest.raises(ValueError, match="unsupported database URL 'memory://'"):
+        open_store("memory://")
+    with pytest.raises(ValueError, match="unsupported queue URL 'memory://'"):
+        open_queue("memory://")
+    with pytest.raises(ValueError, match="unsupported storage URL 'memory://'"):
+        open_artifacts(Settings(data_dir=tmp_path, storage_url="memory://"))
+
+
 # ------------------------------------------------------------------------------ artifacts
 
 
-@pytest.fixture(params=["memory", "local"])
-def artifacts(request: pytest.FixtureRequest, tmp_path: Path) -> ArtifactStore:
-    """Each artifact-store implementation (S3 runs in the distributed e2e tests)."""
-    if request.param == "memory":
-        return MemoryArtifactStore()
+@pytest.fixture
+def artifacts(tmp_path: Path) -> ArtifactStore:
+    """The local artifact store (S3 runs in the distributed e2e tests)."""
     return LocalArtifactStore(tmp_path / "artifacts")
 
 
