@@ -13,7 +13,7 @@ import pytest
 import sqlalchemy as sa
 
 from service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
-from service.jobs import Job, JobStore, Recording, SqlJobStore, new_id, open_store
+from service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
 from service.queue import HueyQueue, JobQueue, open_queue
 from service.settings import Settings
 from tests.service.helpers import local_queue, require_services
@@ -130,6 +130,128 @@ def test_jobs_compare_and_set(store: JobStore) -> None:
     assert done.version == 3
 
 
+def claimed(store: JobStore, worker: str = "w1", now: float = 100.0) -> Job:
+    """A new job, claimed by ``worker`` at ``now`` with a 30 s lease."""
+    j = store.add_job(job())
+    running = store.claim(j, worker, now, 30.0)
+    assert running is not None
+    return running
+
+
+def test_a_claim_is_won_once_and_counts_an_attempt(store: JobStore) -> None:
+    j = store.add_job(job())
+    running = store.claim(j, "w1", 100.0, 30.0)
+    assert running is not None
+    assert (running.status, running.worker, running.attempts) == (Status.RUNNING, "w1", 1)
+    assert (running.started_at, running.lease_until, running.stage) == (100.0, 130.0,
+                                                                         "starting")
+    assert store.claim(j, "w2", 101.0, 30.0) is None  # running: the second claim loses
+    back = store.requeue(j.id, "w1", "again")
+    assert back is not None
+    assert store.claim(j, "w2", 101.0, 30.0) is None  # read before the first attempt
+    assert store.claim(back, "w2", 101.0, 30.0) is not None
+
+
+def test_only_the_holder_renews_its_lease(store: JobStore) -> None:
+    j = claimed(store)
+    renewed = store.renew(j.id, "w1", 200.0, fraction=0.5, stage="solving")
+    assert renewed is not None
+    assert (renewed.lease_until, renewed.fraction, renewed.stage) == (200.0, 0.5, "solving")
+    kept = store.renew(j.id, "w1", 210.0)
+    assert kept is not None
+    assert (kept.lease_until, kept.fraction, kept.stage) == (210.0, 0.5, "solving")
+    assert store.renew(j.id, "w2", 300.0) is None
+
+
+def test_a_requeue_counts_the_attempt_and_a_hand_back_does_not(store: JobStore) -> None:
+    j = claimed(store)
+    again = store.requeue(j.id, "w1", "crashed")
+    assert again is not None
+    assert (again.status, again.attempts, again.worker, again.lease_until, again.message) == (
+        Status.QUEUED, 1, None, None, "crashed")
+    j = store.claim(again, "w1", 100.0, 30.0)
+    assert j is not None
+    assert store.hand_back(j, "w2", "shut down") is None  # not its job
+    back = store.hand_back(j, "w1", "shut down")
+    assert back is not None
+    assert (back.status, back.attempts, back.worker) == (Status.QUEUED, 1, None)
+
+
+def test_the_reaper_takes_a_job_only_under_the_expired_lease(store: JobStore) -> None:
+    j = claimed(store)
+    assert store.renew(j.id, "w1", 500.0) is not None  # renewed after the reaper read it
+    assert store.requeue(j.id, "w1", "lost", lease_until=130.0) is None
+    assert store.fail(j.id, "w1", {"status": 503}, 140.0, lease_until=130.0) is None
+    assert store.cancel(j.id, "w1", 140.0, lease_until=130.0) is None
+    assert store.requeue(j.id, "w1", "lost", lease_until=500.0) is not None
+
+
+def test_a_job_ends_once_and_only_by_its_worker(store: JobStore) -> None:
+    j = claimed(store)
+    assert store.succeed(j.id, "w2", {"json": "k"}, 150.0) is None
+    done = store.succeed(j.id, "w1", {"json": "k"}, 150.0)
+    assert done is not None
+    assert (done.status, done.stage, done.fraction, done.results) == (
+        Status.SUCCEEDED, "done", 1.0, {"json": "k"})
+    assert (done.finished_at, done.worker, done.lease_until) == (150.0, None, None)
+    assert store.fail(j.id, "w1", {"status": 500}, 151.0) is None
+    assert store.cancel(j.id, "w1", 151.0) is None
+    failed = store.fail(claimed(store).id, "w1", {"status": 422}, 150.0)
+    assert failed is not None
+    assert (failed.status, failed.stage, failed.error) == (Status.FAILED, "failed",
+                                                           {"status": 422})
+    cancelled = store.cancel(claimed(store).id, "w1", 150.0)
+    assert cancelled is not None
+    assert (cancelled.status, cancelled.stage, cancelled.finished_at) == (
+        Status.CANCELLED, "cancelled", 150.0)
+
+
+def test_cancelling_a_queued_job_ends_it_and_a_running_one_asks(store: JobStore) -> None:
+    queued = store.add_job(job())
+    assert store.request_cancel(queued.id) is None  # nothing runs it
+    cancelled = store.cancel_queued(queued.id, 150.0)
+    assert cancelled is not None
+    assert (cancelled.status, cancelled.finished_at) == (Status.CANCELLED, 150.0)
+    assert store.cancel_queued(queued.id, 151.0) is None
+    running = claimed(store)
+    assert store.cancel_queued(running.id, 150.0) is None
+    asked = store.request_cancel(running.id)
+    assert asked is not None
+    assert (asked.status, asked.cancel_requested, asked.message) == (Status.RUNNING, True,
+                                                                     "cancelling")
+
+
+def test_a_withdrawn_job_frees_its_idempotency_key(store: JobStore) -> None:
+    refused = store.add_job(job(idempotency_key="k", request_hash="h"))
+    assert store.withdraw(claimed(store).id, {"status": 503}, 150.0) is None  # not queued
+    withdrawn = store.withdraw(refused.id, {"status": 503}, 150.0)
+    assert withdrawn is not None
+    assert (withdrawn.status, withdrawn.idempotency_key, withdrawn.error) == (
+        Status.FAILED, None, {"status": 503})
+    assert store.add_job(job(idempotency_key="k", request_hash="h")).id != refused.id
+
+
+def test_a_resent_job_is_marked_once(store: JobStore) -> None:
+    j = store.add_job(job())
+    resent = store.mark_resent(j)
+    assert resent is not None
+    assert resent.version == j.version + 1
+    assert store.mark_resent(j) is None  # another process resent it meanwhile
+
+
+def test_statuses_are_stored_as_their_values(store: JobStore) -> None:
+    # the database holds the API's strings, whichever driver writes the enum
+    j = claimed(store)
+    assert isinstance(store, SqlJobStore)
+    with store.engine.connect() as conn:
+        stored = conn.execute(sa.text("SELECT status FROM bonefit_jobs WHERE id = :id"),
+                              {"id": j.id}).scalar_one()
+    assert stored == "running"
+    assert [x.id for x in store.list_jobs("t", status=Status.RUNNING, kind=None, before=None,
+                                          limit=10)] == [j.id]
+    assert store.counts() == {("skeleton", "running"): 1}
+
+
 def test_idempotency_keys_are_per_tenant(store: JobStore) -> None:
     a = store.add_job(job(idempotency_key="k", request_hash="h"))
     again = store.add_job(job(idempotency_key="k", request_hash="h2"))
@@ -180,8 +302,8 @@ def _expired_jobs(store: JobStore, n: int, finished_at: float) -> None:
 def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
                                                         tmp_path: Path) -> None:
     from service.jobs import PURGE_BATCH
+    from service.retention import purge
     from service.runtime import Runtime
-    from service.worker import purge
 
     postgres = isinstance(store, SqlJobStore) and store.engine.dialect.name == "postgresql"
     n = 70_000 if postgres else 2 * PURGE_BATCH + 5  # over PostgreSQL's 65,535 parameters

@@ -20,13 +20,15 @@ from huey import MemoryHuey
 
 from estimation.progress import Progress
 from service.app import API_STEPS, create_app
+from service.housekeeping import housekeeping
 from service.jobs import Job, Recording, new_id
 from service.kinds import Input, Kind, SkeletonParams
 from service.leases import LeaseKeeper
 from service.queue import HueyQueue
+from service.reaper import reap
 from service.runtime import Runtime, open_runtime
 from service.settings import Settings
-from service.worker import Worker, housekeeping, reap, run_worker
+from service.worker import Worker, run_worker
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,
@@ -174,7 +176,7 @@ REAPER = """
 import sys, time
 from service.runtime import open_runtime
 from service.settings import Settings
-from service.worker import reap
+from service.reaper import reap
 runtime = open_runtime(Settings())
 end = time.time() + float(sys.argv[1])
 reap(runtime)

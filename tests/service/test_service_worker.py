@@ -17,9 +17,12 @@ import pytest
 
 from estimation.progress import Progress
 from service.kinds import Input, Kind, SkeletonParams
+from service.reaper import reap
+from service.retention import purge
 from service.runtime import Runtime
 from service.settings import Settings
-from service.worker import Worker, private_tmp, purge, reap
+from service.tempdirs import private_tmp
+from service.worker import Worker
 from tests.service.helpers import TestClient, drain, sensor_csv, submit, upload
 
 
