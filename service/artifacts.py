@@ -6,11 +6,20 @@ import contextlib
 import os
 import re
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 from urllib.parse import urlsplit
+
+from .errors import (
+    ArtifactsUnavailable,
+    BackendError,
+    StorageFull,
+    says_disk_full,
+    translate_methods,
+)
 
 if TYPE_CHECKING:
     from .settings import Settings
@@ -45,6 +54,30 @@ class ArtifactStore(Protocol):
         """Raise if the storage is unreachable."""
 
 
+def artifact_error(exc: Exception) -> BackendError | None:
+    """The service's error for a storage error (a full disk, an outage); None for others,
+    among them FileNotFoundError, which says a key is absent."""
+    if isinstance(exc, FileNotFoundError):
+        return None
+    if says_disk_full(exc):
+        return StorageFull(f"the artifact storage is full ({type(exc).__name__})",
+                           storage=ArtifactsUnavailable.storage)
+    botocore = sys.modules.get("botocore.exceptions")  # not loaded: not an S3 error
+    if botocore is not None and isinstance(exc, botocore.ConnectionError
+                                           | botocore.HTTPClientError):
+        return ArtifactsUnavailable(f"the artifact storage is unreachable "
+                                    f"({type(exc).__name__})")
+    return None
+
+
+def _raise_translated(exc: Exception) -> None:
+    """Raise the service's error for ``exc`` if there is one (generators are not wrapped)."""
+    mapped = artifact_error(exc)
+    if mapped is not None:
+        raise mapped from exc
+
+
+@translate_methods(artifact_error)
 class LocalArtifactStore:
     """Blobs as files under a directory."""
 
@@ -94,6 +127,7 @@ class LocalArtifactStore:
             raise PermissionError(f"{self.root} is not writable")
 
 
+@translate_methods(artifact_error)
 class S3ArtifactStore:
     """Blobs in an S3-compatible bucket under a prefix."""
 
@@ -115,6 +149,9 @@ class S3ArtifactStore:
             body = self.client.get_object(Bucket=self.bucket, Key=self._key(key))["Body"]
         except self.client.exceptions.NoSuchKey:
             raise FileNotFoundError(key) from None
+        except Exception as exc:
+            _raise_translated(exc)
+            raise
         try:
             while chunk := body.read(CHUNK):
                 yield chunk
@@ -131,6 +168,7 @@ class S3ArtifactStore:
             except Exception as exc:
                 if _is_missing(exc):
                     raise FileNotFoundError(key) from exc
+                _raise_translated(exc)
                 raise
             yield path
 

@@ -13,6 +13,8 @@ from typing import Any, Final, Protocol
 import sqlalchemy as sa
 from sqlalchemy.engine import Engine
 
+from .errors import BackendError, StorageFull, StoreUnavailable, says_disk_full, translate_methods
+
 
 class Status(StrEnum):
     """A job's place in its life cycle; the values are the API's and the database's strings.
@@ -301,6 +303,18 @@ _QUEUED_AGAIN: Final = {"status": Status.QUEUED, "stage": "queued", "worker": No
 """The changes putting a running job back in the queue."""
 
 
+def sql_error(exc: Exception) -> BackendError | None:
+    """The service's error for a database error (a full disk, an outage); None for others."""
+    if says_disk_full(exc):
+        return StorageFull(f"the job database is full ({type(exc).__name__})",
+                           storage=StoreUnavailable.storage)
+    outages = (sa.exc.OperationalError, sa.exc.InterfaceError, sa.exc.TimeoutError,
+               ConnectionError, TimeoutError)
+    if isinstance(exc, outages):
+        return StoreUnavailable(f"the job database is unreachable ({type(exc).__name__})")
+    return None
+
+
 def create_engine(url: str) -> Engine:
     """An engine for ``url``; SQLite gets WAL mode and a long busy timeout for many processes."""
     if url.startswith("postgresql://"):
@@ -322,8 +336,10 @@ def create_engine(url: str) -> Engine:
     return engine
 
 
+@translate_methods(sql_error)
 class SqlJobStore:
-    """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core."""
+    """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core; its methods raise
+    :class:`~service.errors.StorageFull` and :class:`~service.errors.StoreUnavailable`."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine

@@ -14,6 +14,8 @@ from starlette.requests import ClientDisconnect
 
 from estimation.errors import BonefitError, EstimationError
 
+from .errors import BackendError
+
 log = logging.getLogger("bonefit.service")
 
 PROBLEM_TYPE = "urn:bonefit:problem:"
@@ -71,14 +73,10 @@ def _location(loc: tuple[int | str, ...], tags: set[str]) -> str:
 
 
 def _is_outage(exc: Exception) -> bool:
-    """Whether ``exc`` says a back-end is down (answered 503, not 500)."""
-    import redis.exceptions
-    import sqlalchemy.exc
-
-    outages = (sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError,
-               sqlalchemy.exc.TimeoutError, redis.exceptions.ConnectionError,
-               redis.exceptions.TimeoutError, ConnectionError, TimeoutError)
-    return isinstance(exc, outages)
+    """Whether ``exc`` says a back-end failed (answered 503, not 500): the adapters raise
+    :class:`~service.errors.BackendError` for their drivers' outages and full disks (the
+    routes that write answer a full disk with 507 themselves)."""
+    return isinstance(exc, BackendError | ConnectionError | TimeoutError)
 
 
 def install(app: FastAPI) -> None:

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import sqlite3
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
+
+from .errors import BackendError, QueueUnavailable, StorageFull, says_disk_full, translate_methods
 
 Handler = Callable[[str], None]
 TASK_NAME = "bonefit.run_job"
@@ -30,8 +34,26 @@ class JobQueue(Protocol):
         """Raise if the queue is unreachable."""
 
 
+def queue_error(exc: Exception) -> BackendError | None:
+    """The service's error for a huey storage error (a full disk, an outage); None for others."""
+    if says_disk_full(exc):
+        return StorageFull(f"the job queue is full ({type(exc).__name__})",
+                           storage=QueueUnavailable.storage)
+    outages: tuple[type[Exception], ...] = (sqlite3.OperationalError, ConnectionError,
+                                            TimeoutError)
+    redis = sys.modules.get("redis.exceptions")  # not loaded: not a redis error
+    if redis is not None:
+        outages += (redis.ConnectionError, redis.TimeoutError)
+    if isinstance(exc, outages):
+        return QueueUnavailable(f"the job queue is unreachable ({type(exc).__name__})")
+    return None
+
+
+@translate_methods(queue_error)
 class HueyQueue:
-    """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers."""
+    """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers;
+    its methods raise :class:`~service.errors.StorageFull` and
+    :class:`~service.errors.QueueUnavailable`."""
 
     def __init__(self, huey: Any) -> None:
         self.huey = huey

@@ -21,6 +21,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from .artifacts import tenant_prefix
 from .auth import metrics_guard, tenant
+from .errors import BackendError
 from .failures import queue_refused_problem
 from .jobs import TERMINAL, Job, Recording, Status, new_id
 from .kinds import MEDIA_TYPES
@@ -413,6 +414,8 @@ async def readyz(request: Request) -> JSONResponse:
             results[name] = "ok"
         except NotReady as exc:
             results[name] = str(exc)
+        except BackendError as exc:
+            results[name] = f"unavailable: {exc.cause_name}"  # the driver's error says more
         except Exception as exc:
             results[name] = f"unavailable: {type(exc).__name__}"
     failed = {k: v for k, v in results.items() if v != "ok"}

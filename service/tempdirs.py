@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import socket
 from pathlib import Path
+
+log = logging.getLogger("bonefit.worker")
 
 
 def private_tmp(data_dir: Path) -> Path:
@@ -17,9 +20,9 @@ def private_tmp(data_dir: Path) -> Path:
     for entry in root.iterdir():
         owner, _, pid = entry.name.rpartition("-")
         if owner == host and pid.isdigit() and not _alive(int(pid)):
-            shutil.rmtree(entry, ignore_errors=True)
+            _remove(entry)
     own = root / f"{host}-{os.getpid()}"
-    shutil.rmtree(own, ignore_errors=True)  # a recycled pid's leftovers
+    _remove(own)  # a recycled pid's leftovers
     own.mkdir()
     return own
 
@@ -32,3 +35,13 @@ def _alive(pid: int) -> bool:
     except PermissionError:  # someone else's process
         return True
     return True
+
+
+def _remove(path: Path) -> None:
+    """Delete the directory tree at ``path`` if there is one; log (not raise) a failure."""
+    try:
+        shutil.rmtree(path)
+    except FileNotFoundError:
+        pass
+    except OSError as exc:
+        log.warning("could not remove the temporary directory %s: %s", path, exc)

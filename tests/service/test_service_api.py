@@ -481,7 +481,7 @@ def test_a_database_outage_is_a_503(runtime: Runtime) -> None:
     def down(*args: object, **kwargs: object) -> None:
         raise sqlalchemy.exc.OperationalError("SELECT 1", {}, Exception("connection refused"))
 
-    runtime.store.get_job = down  # type: ignore[method-assign]
+    runtime.store.engine.connect = down  # type: ignore[attr-defined,method-assign]
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
     with TestClient(app, raise_server_exceptions=False,
                     headers={"Authorization": "Bearer key-a"}) as c:

@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import threading
 import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import sqlalchemy as sa
 
 from service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
+from service.errors import QueueUnavailable, StorageFull, StoreUnavailable
 from service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
 from service.queue import HueyQueue, JobQueue, open_queue
 from service.settings import Settings
@@ -250,6 +254,65 @@ def test_statuses_are_stored_as_their_values(store: JobStore) -> None:
     assert [x.id for x in store.list_jobs("t", status=Status.RUNNING, kind=None, before=None,
                                           limit=10)] == [j.id]
     assert store.counts() == {("skeleton", "running"): 1}
+
+
+def test_a_full_database_is_storage_full(tmp_path: Path) -> None:
+    # SQLite answers SQLITE_FULL ("database or disk is full") past max_page_count
+    store = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'jobs.db'}")
+    store.init()
+    with store.engine.connect() as conn:
+        pages = conn.execute(sa.text("PRAGMA page_count")).scalar_one()
+
+    @sa.event.listens_for(store.engine, "connect")
+    def _cap(dbapi_connection: Any, _record: Any) -> None:
+        dbapi_connection.execute(f"PRAGMA max_page_count = {pages}")
+
+    def fill() -> None:
+        for _ in range(100):
+            store.add_job(job(message="x" * 10_000))
+
+    store.engine.dispose()
+    with pytest.raises(StorageFull, match="job database is full") as caught:
+        fill()
+    assert (caught.value.storage, caught.value.cause_name) == ("job database",
+                                                               "OperationalError")
+    store.engine.dispose()
+
+
+def test_an_unreachable_database_is_unavailable(tmp_path: Path) -> None:
+    store = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'missing' / 'jobs.db'}")
+    with pytest.raises(StoreUnavailable) as caught:
+        store.ping()
+    assert caught.value.cause_name == "OperationalError"
+    with pytest.raises(StoreUnavailable):
+        store.get_job("x")
+    store.engine.dispose()
+
+
+def test_an_unreachable_queue_is_unavailable() -> None:
+    queue = open_queue("redis://127.0.0.1:1/0")  # nothing listens on port 1
+    with pytest.raises(QueueUnavailable) as caught:
+        queue.enqueue("x")
+    assert caught.value.cause_name == "ConnectionError"
+    with pytest.raises(QueueUnavailable):
+        queue.ping()
+
+
+def test_a_full_artifact_disk_is_storage_full(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    store = LocalArtifactStore(tmp_path / "artifacts")
+    src = tmp_path / "src.bin"
+    src.write_bytes(b"x")
+
+    def no_space(*args: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(shutil, "move", no_space)
+    with pytest.raises(StorageFull) as caught:
+        store.put_file("t/recordings/a.bin", src)
+    assert caught.value.storage == "artifact storage"
+    with pytest.raises(FileNotFoundError):  # absent keys stay FileNotFoundError
+        b"".join(store.iter_bytes("t/recordings/a.bin"))
 
 
 def test_idempotency_keys_are_per_tenant(store: JobStore) -> None:

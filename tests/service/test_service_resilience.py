@@ -20,8 +20,9 @@ from huey import MemoryHuey
 
 from estimation.progress import Progress
 from service.app import API_STEPS, create_app
+from service.errors import BackendError, StorageFull
 from service.housekeeping import housekeeping
-from service.jobs import Job, Recording, new_id
+from service.jobs import Job, Recording, new_id, sql_error
 from service.kinds import Input, Kind, SkeletonParams
 from service.leases import LeaseKeeper
 from service.queue import HueyQueue
@@ -267,17 +268,20 @@ def test_the_lease_keeper_stops_renewing_when_its_worker_dies(tmp_path: Path) ->
 
 
 class FlakyQueue(HueyQueue):
-    """A queue that refuses messages while ``down`` (Redis is unreachable)."""
+    """A queue whose storage refuses messages while ``down`` (Redis is unreachable)."""
 
     def __init__(self, error: Exception) -> None:
         super().__init__(MemoryHuey("bonefit-test", results=False))
         self.error = error
         self.down = True
+        send = self.huey.storage.enqueue
 
-    def enqueue(self, job_id: str) -> None:
-        if self.down:
-            raise self.error
-        super().enqueue(job_id)
+        def enqueue(data: bytes, priority: int | None = None) -> None:
+            if self.down:
+                raise self.error
+            send(data, priority)
+
+        self.huey.storage.enqueue = enqueue
 
 
 @pytest.fixture
@@ -320,11 +324,14 @@ def test_a_retry_after_a_queue_outage_runs_the_job(store_runtime: Runtime, attem
         assert client.get(f"/v1/jobs/{retried.json()['id']}").json()["status"] == "succeeded"
 
 
-def disk_full_error() -> sqlalchemy.exc.OperationalError:
+def disk_full_error() -> BackendError:
+    """What the job store raises when SQLite's disk is full (tests patch its methods)."""
     import sqlite3
 
-    return sqlalchemy.exc.OperationalError(
-        "UPDATE bonefit_jobs", {}, sqlite3.OperationalError("database or disk is full"))
+    error = sql_error(sqlalchemy.exc.OperationalError(
+        "UPDATE bonefit_jobs", {}, sqlite3.OperationalError("database or disk is full")))
+    assert isinstance(error, StorageFull)
+    return error
 
 
 def test_a_job_the_full_disk_kept_from_queueing_is_never_stuck(tmp_path: Path) -> None:
