@@ -141,6 +141,9 @@ class Worker:
         store = self.runtime.store
         try:
             results = self._supervise(job, lease)
+            # inside the try: a store that cannot record the success is an internal error
+            self._recorded(job, Status.SUCCEEDED,
+                           store.succeed(job.id, self.id, results, self.clock()))
         except Cancelled:
             self._recorded(job, Status.CANCELLED, store.cancel(job.id, self.id, self.clock()))
         except Requeue:
@@ -151,9 +154,6 @@ class Worker:
             log.warning("job %s: lease lost; another worker owns it", job.id)
         except Exception as exc:
             self._failed(job, exc)
-        else:
-            self._recorded(job, Status.SUCCEEDED,
-                           store.succeed(job.id, self.id, results, self.clock()))
 
     def _failed(self, job: Job, exc: Exception) -> None:
         """Fail the job for good when ``exc`` is the input's fault or a limit; else retry."""
