@@ -1,8 +1,7 @@
-"""How a job stops early, and the problem document each ending records in the job's ``error``.
+"""How a job fails: the problem document each failure records in the job's ``error``.
 
-The signals (:class:`Cancelled`, :class:`Requeue`, :class:`LeaseLost`, :class:`TimedOut`) are
-raised by a job's lease; :class:`InputFault` wraps a numerical error on the job's input. The
-problems are :class:`~service.problems.Problem` objects, the same type the API answers with.
+The problems are :class:`~service.problems.Problem` objects, the type the API answers with;
+:class:`InputFault` wraps a numerical error on the job's input.
 """
 
 from __future__ import annotations
@@ -13,26 +12,11 @@ from collections.abc import Collection
 
 from estimation.errors import BonefitError
 
+from .job_lease import TimedOut
 from .limits import MemoryLimitExceeded
 from .problems import Problem, from_bonefit_error
 
 log = logging.getLogger("bonefit.worker")
-
-
-class Cancelled(Exception):
-    """The client cancelled the job."""
-
-
-class Requeue(Exception):
-    """The worker is shutting down: hand the job back to the queue."""
-
-
-class LeaseLost(Exception):
-    """Another worker or the reaper took the job over."""
-
-
-class TimedOut(Exception):
-    """The job ran longer than ``job_timeout_seconds``."""
 
 
 class InputFault(Exception):

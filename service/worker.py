@@ -2,9 +2,10 @@
 
 A job's life: claimed (compare-and-set, so one worker wins), run in a thread of its own while
 its lease is renewed, then succeeded, failed (the input's fault or a limit), cancelled, handed
-back on shutdown, or re-queued after an internal error. The reaper (``reaper.py``) recovers the
-jobs of lost workers; ``housekeeping.py``, ``retention.py``, ``tempdirs.py`` and ``pool.py``
-hold the rest of a worker process's life.
+back on shutdown, or re-queued after an internal error. The lease is ``job_lease.py`` (and the
+keeper process ``leases.py``), the problems ``failures.py``; the reaper (``reaper.py``)
+recovers the jobs of lost workers; ``housekeeping.py``, ``retention.py``, ``tempdirs.py`` and
+``pool.py`` hold the rest of a worker process's life.
 """
 
 from __future__ import annotations
@@ -28,18 +29,9 @@ from pydantic import ValidationError
 from estimation.errors import BonefitError
 
 from .artifacts import tenant_prefix
-from .failures import (
-    Cancelled,
-    InputFault,
-    LeaseLost,
-    Requeue,
-    TimedOut,
-    internal_problem,
-    job_problem,
-    job_url,
-    log_error,
-)
+from .failures import InputFault, internal_problem, job_problem, job_url, log_error
 from .housekeeping import WORKER_STEPS, housekeeping
+from .job_lease import Cancelled, JobLease, LeaseLost, Requeue
 from .jobs import Job, Status
 from .kinds import Input, Kind, default_kinds, preload
 from .leases import LeaseKeeper
@@ -129,14 +121,14 @@ class Worker:
         if claimed is None:
             return
         log.info("job %s (%s): attempt %d on %s", job_id, job.kind, claimed.attempts, self.id)
-        lease = _Lease(self, claimed)
+        lease = JobLease(self, claimed)
         lease.start()
         try:
             self._run_claimed(claimed, lease)
         finally:
             lease.stop()
 
-    def _run_claimed(self, job: Job, lease: _Lease) -> None:
+    def _run_claimed(self, job: Job, lease: JobLease) -> None:
         """Run the job this worker claimed and record how it ended."""
         store = self.runtime.store
         try:
@@ -165,7 +157,7 @@ class Worker:
         else:
             self._fail(job, error.body(job_url(job.id)))
 
-    def _supervise(self, job: Job, lease: _Lease) -> dict[str, str]:
+    def _supervise(self, job: Job, lease: JobLease) -> dict[str, str]:
         """Run :meth:`_execute` in a thread of its own and watch it from this one.
 
         This thread keeps the worker's heartbeat and, once the shutdown grace is over, raises
@@ -195,7 +187,7 @@ class Worker:
         result: dict[str, str] = outcome["result"]
         return result
 
-    def _execute(self, job: Job, lease: _Lease) -> dict[str, str]:
+    def _execute(self, job: Job, lease: JobLease) -> dict[str, str]:
         store, artifacts = self.runtime.store, self.runtime.artifacts
         kind = self.kinds.get(job.kind)
         if kind is None:
@@ -230,7 +222,7 @@ class Worker:
                 results[fmt] = key
         return results
 
-    def _run(self, kind: Kind, inputs: Mapping[str, Input], params: Any, lease: _Lease,
+    def _run(self, kind: Kind, inputs: Mapping[str, Input], params: Any, lease: JobLease,
              outdir: Path) -> dict[str, Path]:
         """``kind.run`` under the job's memory limit; a numerical error is the input's."""
         try:
@@ -265,77 +257,6 @@ class Worker:
                 self.runtime.queue.enqueue(job.id)
             return
         self._fail(job, internal_problem(exc, job.attempts, error_id).body(job_url(job.id)))
-
-
-class _Lease:
-    """A running job's lease: a heartbeat thread and the throttled progress callback."""
-
-    def __init__(self, worker: Worker, job: Job) -> None:
-        self.worker = worker
-        self.job = job
-        self.lost = threading.Event()
-        self.cancelled = threading.Event()
-        self.done = threading.Event()
-        self.started = self.last_write = worker.clock()
-        self.fraction = 0.0
-        self.thread = threading.Thread(target=self._beat, name=f"lease-{job.id}", daemon=True)
-
-    def start(self) -> None:
-        """Start renewing the lease (here and, when there is one, in the lease keeper)."""
-        if self.worker.keeper is not None:
-            self.worker.keeper.hold(self.job.id)
-        self.thread.start()
-
-    def stop(self) -> None:
-        """Stop renewing it."""
-        self.done.set()
-        if self.worker.keeper is not None:
-            self.worker.keeper.drop()
-        self.thread.join()
-
-    def _renew(self, fraction: float | None = None, stage: str | None = None) -> None:
-        w = self.worker
-        job = w.runtime.store.renew(self.job.id, w.id,
-                                    w.clock() + w.runtime.settings.lease_seconds,
-                                    fraction=fraction, stage=stage)
-        if job is None:
-            self.lost.set()
-        elif job.cancel_requested:
-            self.cancelled.set()
-
-    def _beat(self) -> None:
-        interval = self.worker.runtime.settings.lease_seconds / 3
-        while not self.done.wait(interval):
-            try:
-                self._renew()
-            except Exception:
-                log.exception("job %s: heartbeat failed", self.job.id)
-
-    def check(self, *, timeout: bool = True) -> None:
-        """Raise if the job must stop: lease lost, cancelled, shutdown grace or (with
-        ``timeout``) the job's time limit over."""
-        w = self.worker
-        if self.lost.is_set():
-            raise LeaseLost
-        if self.cancelled.is_set():
-            raise Cancelled
-        now = w.clock()
-        if w.deadline is not None and now >= w.deadline:
-            raise Requeue
-        limit = w.runtime.settings.job_timeout_seconds
-        if timeout and limit > 0 and now - self.started >= limit:
-            raise TimedOut
-
-    def progress(self, fraction: float, stage: str) -> None:
-        """The estimation callback: store progress at most every interval; stop if asked."""
-        self.check()
-        self.fraction = max(self.fraction, min(max(float(fraction), 0.0), 1.0))
-        now = self.worker.clock()
-        if now - self.last_write < self.worker.runtime.settings.progress_interval_seconds:
-            return
-        self.last_write = now
-        self._renew(self.fraction, stage[:100])
-        self.check()
 
 
 def run_worker(settings: Settings, *, parent_pid: int | None = None,
