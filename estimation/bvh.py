@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import io
 import os
-import re
+import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +46,8 @@ class BvhMotion:
         Seconds per frame.
     values : ndarray, shape (F, C)
         Channel values per frame, in node then channel order; rotations in degrees.
+    notes : tuple of str
+        What the reader tolerated (a ``Frames:`` count that differs from the rows).
     """
 
     names: tuple[str, ...]
@@ -53,9 +56,12 @@ class BvhMotion:
     channels: tuple[tuple[str, ...], ...]
     frame_time: float
     values: NDArray[np.float64]
+    notes: tuple[str, ...] = ()
     _starts: tuple[int, ...] = field(init=False, repr=False)
+    _with_children: frozenset[int] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "_with_children", frozenset(self.parents))
         starts, total = [], 0
         for ch in self.channels:
             starts.append(total)
@@ -76,12 +82,22 @@ class BvhMotion:
         return 1.0 / self.frame_time
 
     def index(self, name: str) -> int:
-        """Index of node ``name``; raises InputError listing the nodes present."""
+        """Index of node ``name``; raises InputError listing the joints present."""
         try:
             return self.names.index(name)
         except ValueError:
-            raise InputError(f"joint {name!r} not in BVH; it has {', '.join(self.names)}",
+            raise InputError(f"joint {name!r} not in BVH; it has {', '.join(self.joints())}",
                              field=name) from None
+
+    def is_end_site(self, node: int) -> bool:
+        """Whether ``node`` is an End Site (``<parent>_end``: no channels, no children)."""
+        parent = self.parents[node]
+        return (parent >= 0 and not self.channels[node] and node not in self._with_children
+                and self.names[node].startswith(f"{self.names[parent]}_end"))
+
+    def joints(self) -> tuple[str, ...]:
+        """Names of the real joints (end sites left out), in file order."""
+        return tuple(n for j, n in enumerate(self.names) if not self.is_end_site(j))
 
     def channel_values(self, node: int) -> NDArray[np.float64]:
         """Values (F, n_channels) of one node's channels."""
@@ -146,11 +162,77 @@ def forward_kinematics(motion: BvhMotion) -> tuple[NDArray[np.float64], list[Rot
     return positions, rotations
 
 
-_TOKEN = re.compile(r"\S+")
+MAX_NODES: Final[int] = 10_000
+"""Most nodes (joints and end sites) a BVH may declare; real rigs have a few hundred."""
+MAX_CHANNELS: Final[int] = 6
+"""Most channels per joint: three positions and three rotations."""
+
+
+class _Tokens:
+    """Whitespace-separated tokens of the hierarchy, read one line at a time from an
+    iterator, so that nothing beyond the point of failure is split or kept."""
+
+    def __init__(self, lines: Iterator[str]) -> None:
+        self.lines = lines
+        self.buffer: list[str] = []  # tokens left on the current line
+        self.line = 0               # 1-based number of the current line
+
+    def _fill(self) -> bool:
+        while not self.buffer:
+            text = next(self.lines, None)
+            if text is None:
+                return False
+            self.line += 1
+            self.buffer = text.split()[::-1]
+        return True
+
+    def peek(self) -> str | None:
+        """The next token, or None at the end of the file."""
+        return self.buffer[-1] if self._fill() else None
+
+    def take(self, expected: str | None = None, what: str = "") -> tuple[str, int]:
+        """The next token and its line; InputError at the end or when it is not ``expected``
+        (compared without case)."""
+        if not self._fill():
+            wanted = f"; expected {expected or what}" if expected or what else ""
+            raise InputError(f"unexpected end of BVH file{wanted}", line=self.line)
+        tok = self.buffer.pop()
+        if expected is not None and tok.upper() != expected.upper():
+            raise InputError(f"expected {expected!r}, found {tok!r}", line=self.line)
+        return tok, self.line
+
+    def rest_of_line(self) -> list[str]:
+        """The tokens left on the current line (consumed)."""
+        rest = self.buffer[::-1]
+        self.buffer = []
+        return rest
+
+    def number(self, what: str) -> float:
+        """The next token as a finite number."""
+        tok, line = self.take(what=what)
+        try:
+            value = float(tok)
+        except ValueError:
+            raise InputError(f"expected a number ({what}), found {tok!r}", line=line) from None
+        if not np.isfinite(value):
+            raise InputError(f"{what} must be finite, found {tok!r}", line=line)
+        return value
+
+
+@dataclass
+class _Hierarchy:
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[list[float]] = field(default_factory=list)
+    channels: list[tuple[str, ...]] = field(default_factory=list)
 
 
 def read_bvh(source: str | os.PathLike[str] | io.TextIOBase) -> BvhMotion:
     """Read a BVH file.
+
+    Accepts what Blender's importer accepts: a UTF-8 byte-order mark, CRLF line ends, tabs,
+    joint names with spaces (3ds Max Biped's ``Bip01 L Thigh``) and a ``Frames:`` count larger
+    than the rows present (the rows are read; ``notes`` says so).
 
     Parameters
     ----------
@@ -159,137 +241,194 @@ def read_bvh(source: str | os.PathLike[str] | io.TextIOBase) -> BvhMotion:
     Returns
     -------
     BvhMotion
+        Offsets and position channels in the file's length unit.
 
     Raises
     ------
     InputError
-        On a malformed hierarchy or motion section, naming the line.
+        On a malformed hierarchy or motion section, naming the line; on more than
+        :data:`MAX_NODES` nodes or :data:`MAX_CHANNELS` channels per joint.
     """
     if isinstance(source, io.TextIOBase):
         text = source.read()
     else:
         text = Path(source).read_text(encoding="utf-8", errors="replace")
-    lines = text.splitlines()
-    tokens: list[tuple[str, int]] = [
-        (m.group(0), n) for n, line in enumerate(lines, 1) for m in _TOKEN.finditer(line)
-    ]
-    pos = 0
+    lines = iter(io.StringIO(text.removeprefix("\ufeff"), newline=None))
+    tokens = _Tokens(lines)
+    tokens.take("HIERARCHY")
+    tokens.take("ROOT")
+    tree = _Hierarchy()
+    _read_nodes(tokens, tree)
+    tokens.take("MOTION")
+    n_frames, frame_time, body_start = _read_motion_header(tokens)
+    values, notes = _read_motion_rows(lines, body_start, n_frames,
+                                      sum(len(c) for c in tree.channels))
+    return BvhMotion(tuple(tree.names), tuple(tree.parents), np.array(tree.offsets, dtype=float),
+                     tuple(tree.channels), frame_time, values, notes=notes)
 
-    def take(expected: str | None = None) -> tuple[str, int]:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise InputError("unexpected end of BVH file", line=len(lines))
-        tok, line = tokens[pos]
-        pos += 1
-        if expected is not None and tok.upper() != expected.upper():
-            raise InputError(f"expected {expected!r}, found {tok!r}", line=line)
-        return tok, line
 
-    def number() -> float:
-        tok, line = take()
-        try:
-            return float(tok)
-        except ValueError:
-            raise InputError(f"expected a number, found {tok!r}", line=line) from None
-
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[tuple[str, ...]] = []
-
-    take("HIERARCHY")
+def _read_nodes(tokens: _Tokens, tree: _Hierarchy) -> None:
+    """Read the ROOT node (its keyword already taken) and everything below it."""
     stack: list[int] = []
-    tok, line = take()
-    if tok.upper() != "ROOT":
-        raise InputError(f"expected ROOT, found {tok!r}", line=line)
     keyword = "ROOT"
     while True:
-        if keyword in ("ROOT", "JOINT"):
-            name, _ = take()
-            node_name = name
-        else:  # End Site
-            take("Site")
-            node_name = f"{names[stack[-1]]}_end"
-        take("{")
-        names.append(node_name)
-        parents.append(stack[-1] if stack else -1)
-        stack.append(len(names) - 1)
-        take("OFFSET")
-        offsets.append([number(), number(), number()])
+        line = tokens.line
+        if keyword == "END":
+            tokens.take("Site")
+            node_name = f"{tree.names[stack[-1]]}_end"
+            while node_name in tree.names:  # a second end site of the same joint
+                node_name += "_"
+        else:
+            node_name = _node_name(tokens, keyword, line)
+        tokens.take("{")
+        if len(tree.names) >= MAX_NODES:
+            raise InputError(f"more than {MAX_NODES} joints in the hierarchy; "
+                             "not a body's skeleton", line=line)
+        tree.names.append(node_name)
+        tree.parents.append(stack[-1] if stack else -1)
+        stack.append(len(tree.names) - 1)
+        tokens.take("OFFSET")
+        tree.offsets.append([tokens.number("OFFSET x"), tokens.number("OFFSET y"),
+                             tokens.number("OFFSET z")])
         chans: tuple[str, ...] = ()
-        if keyword != "End" and pos < len(tokens) and tokens[pos][0].upper() == "CHANNELS":
-            take()
-            count_tok, count_line = take()
-            if not count_tok.isdigit():
-                raise InputError(f"expected a channel count, found {count_tok!r}",
-                                 line=count_line)
-            items = [take() for _ in range(int(count_tok))]
-            for ch, ch_line in items:
-                if ch not in _AXES and ch not in _ROT_AXES:
-                    raise InputError(f"unknown channel {ch!r}", line=ch_line)
-            chans = tuple(ch for ch, _ in items)
-        channels.append(chans)
-        # children or closing braces
-        while True:
-            tok, line = take()
-            up = tok.upper()
-            if up in ("JOINT", "END"):
-                keyword = "JOINT" if up == "JOINT" else "End"
-                break
-            if tok == "}":
-                stack.pop()
-                if not stack:
-                    keyword = ""
-                    break
-                continue
-            raise InputError(f"unexpected {tok!r} in hierarchy", line=line)
+        nxt = tokens.peek()
+        if keyword != "END" and nxt is not None and nxt.upper() == "CHANNELS":
+            chans = _read_channels(tokens)
+        tree.channels.append(chans)
+        keyword = _close_nodes(tokens, stack)
         if not stack:
-            break
+            return
 
-    take("MOTION")
-    take("Frames:")
-    count_tok, count_line = take()
-    try:
-        n_frames = int(count_tok)
-    except ValueError:
-        raise InputError(f"bad frame count {count_tok!r}", line=count_line) from None
-    take("Frame")
-    take("Time:")
-    frame_time = number()
+
+def _node_name(tokens: _Tokens, keyword: str, line: int) -> str:
+    """A ROOT or JOINT name: the rest of its line (names may hold spaces), an opening brace
+    on the same line excepted."""
+    rest = tokens.rest_of_line()
+    if rest and rest[-1] == "{":
+        tokens.buffer = ["{"]
+        rest = rest[:-1]
+    elif rest and rest[-1].endswith("{"):
+        tokens.buffer = ["{"]
+        rest[-1] = rest[-1][:-1]
+    if not rest:
+        raise InputError(f"{keyword} without a name", line=line)
+    return " ".join(rest)
+
+
+def _read_channels(tokens: _Tokens) -> tuple[str, ...]:
+    tokens.take("CHANNELS")
+    count_tok, count_line = tokens.take(what="a channel count")
+    if not count_tok.isdigit():
+        raise InputError(f"expected a channel count, found {count_tok!r}", line=count_line)
+    count = int(count_tok)
+    if count > MAX_CHANNELS:
+        raise InputError(f"CHANNELS {count_tok}: a joint has at most {MAX_CHANNELS} channels "
+                         "(3 positions, 3 rotations)", line=count_line)
+    chans = []
+    for _ in range(count):
+        ch, ch_line = tokens.take(what="a channel name")
+        if ch not in _AXES and ch not in _ROT_AXES:
+            raise InputError(f"unknown channel {ch!r}; expected Xposition, Yposition, "
+                             "Zposition, Xrotation, Yrotation or Zrotation", line=ch_line)
+        chans.append(ch)
+    return tuple(chans)
+
+
+def _close_nodes(tokens: _Tokens, stack: list[int]) -> str:
+    """Consume closing braces up to the next JOINT / End Site; returns its keyword ("" when
+    the root closed)."""
+    while True:
+        tok, line = tokens.take(what="JOINT, End Site or '}'")
+        up = tok.upper()
+        if up in ("JOINT", "END"):
+            return up
+        if tok == "}":
+            stack.pop()
+            if not stack:
+                return ""
+            continue
+        raise InputError(f"unexpected {tok!r} in hierarchy; expected JOINT, End Site or '}}'",
+                         line=line)
+
+
+def _read_motion_header(tokens: _Tokens) -> tuple[int, float, int]:
+    """``Frames: N`` and ``Frame Time: dt``; returns N, dt and the number of the header's
+    last line."""
+    tok, line = tokens.take(what="Frames:")
+    if tok.upper() == "FRAMES:":
+        count_tok, line = tokens.take(what="a frame count")
+    elif tok.upper().startswith("FRAMES:"):
+        count_tok = tok[len("FRAMES:"):]
+    else:
+        raise InputError(f"expected 'Frames:', found {tok!r}", line=line)
+    if not count_tok.isdigit():
+        raise InputError(f"bad frame count {count_tok!r}", line=line)
+    tokens.take("Frame")
+    tokens.take("Time:")
+    frame_time = tokens.number("frame time")
     if not frame_time > 0:
-        raise InputError(f"frame time must be positive, got {frame_time}",
-                         line=tokens[pos - 1][1])
-    n_channels = sum(len(c) for c in channels)
-    first_line = tokens[pos][1] if pos < len(tokens) else len(lines) + 1
-    body = lines[first_line - 1:]
-    rows = [ln for ln in body if ln.strip()]
-    if len(rows) < n_frames:
-        raise InputError(f"header says {n_frames} frames, file has {len(rows)}",
-                         line=len(lines))
+        raise InputError(f"frame time must be positive, got {frame_time}", line=tokens.line)
+    if tokens.rest_of_line():
+        raise InputError("motion rows must start on the line after 'Frame Time:'",
+                         line=tokens.line)
+    return int(count_tok), frame_time, tokens.line
+
+
+def _read_motion_rows(lines: Iterator[str], start: int, n_frames: int, n_channels: int
+                      ) -> tuple[NDArray[np.float64], tuple[str, ...]]:
+    """Channel values (F, C) of the remaining non-blank lines, the first being line
+    ``start + 1``."""
+    if n_channels == 0:
+        raise InputError("the hierarchy declares no channels", line=start)
+    numbered = [(n, ln) for n, ln in enumerate(lines, start + 1) if ln.strip()]
+    notes: tuple[str, ...] = ()
+    if len(numbered) < n_frames:
+        notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
+                 f"read {len(numbered)}",)
+    elif len(numbered) > n_frames:
+        notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
+                 f"read the first {n_frames}",)
+        numbered = numbered[:n_frames]
+    if not numbered:
+        raise InputError("no motion rows after 'Frame Time:'", line=start)
+    values = _parse_rows([ln for _, ln in numbered], n_channels)
+    if values is None:
+        _raise_bad_row(numbered, n_channels)
+    assert values is not None
+    return values, notes
+
+
+def _parse_rows(rows: list[str], n_channels: int) -> NDArray[np.float64] | None:
+    """All rows as floats, or None when any row is malformed (wrong count, not a number,
+    not finite)."""
     try:
-        values = np.loadtxt(io.StringIO("\n".join(rows[:n_frames])), dtype=float, ndmin=2)
-    except ValueError as exc:
-        bad = _first_bad_row(rows[:n_frames], n_channels)
-        raise InputError(f"malformed motion row: {exc}",
-                         line=first_line + bad if bad is not None else None) from None
-    if values.shape != (n_frames, n_channels):
-        bad = _first_bad_row(rows[:n_frames], n_channels)
-        raise InputError(f"motion rows must have {n_channels} values",
-                         line=first_line + bad if bad is not None else None)
-    return BvhMotion(tuple(names), tuple(parents), np.array(offsets, dtype=float),
-                     tuple(channels), float(frame_time), values)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            values = np.loadtxt(rows, dtype=float, ndmin=2)
+    except (ValueError, UserWarning):
+        return None
+    if values.shape != (len(rows), n_channels) or not np.isfinite(values).all():
+        return None
+    return values
 
 
-def _first_bad_row(rows: list[str], n_channels: int) -> int | None:
-    for i, row in enumerate(rows):
+def _raise_bad_row(numbered: list[tuple[int, str]], n_channels: int) -> None:
+    for line, row in numbered:
         parts = row.split()
         if len(parts) != n_channels:
-            return i
-        try:
-            [float(p) for p in parts]
-        except ValueError:
-            return i
-    return None
+            cut = " (a truncated row?)" if len(parts) < n_channels else ""
+            raise InputError(f"motion row has {len(parts)} values, the hierarchy declares "
+                             f"{n_channels} channels{cut}", line=line)
+        for k, part in enumerate(parts, 1):
+            try:
+                value = float(part)
+            except ValueError:
+                raise InputError(f"not a number: {part[:40]!r} (value {k} of the row)",
+                                 line=line, column=k) from None
+            if not np.isfinite(value):
+                raise InputError(f"value {k} of the row is {part!r}; channel values must be "
+                                 "finite", line=line, column=k)
+    raise InputError("malformed motion rows", line=numbered[0][0])
 
 
 def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,
@@ -337,3 +476,408 @@ def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,
         target.write(text)
     else:
         Path(target).write_text(text, encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- writer helpers
+
+EULER_ORDERS: tuple[str, ...] = ("ZXY", "ZYX", "YXZ", "YZX", "XYZ", "XZY")
+"""Intrinsic Euler orders a writer may give a node, in order of preference on ties."""
+
+
+def continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Euler angles (F, ..., 3), degrees, without jumps between frames.
+
+    Every intrinsic Tait–Bryan triple (a, b, c) of three distinct axes has a twin
+    (a + 180, 180 − b, c + 180) describing the same rotation, and each angle is defined modulo
+    360; per frame take the candidate nearest the previous frame, so that players
+    interpolating channel values do not spin through wraps.
+
+    Parameters
+    ----------
+    angles : ndarray, shape (F, ..., 3)
+        Angles of any Tait–Bryan order, degrees, e.g. from ``Rotation.as_euler``.
+
+    Returns
+    -------
+    ndarray, shape (F, ..., 3)
+        The same rotations, each angle within 180 degrees of the previous frame's.
+    """
+    other = angles + np.array([180.0, 0.0, 180.0])
+    other[..., 1] = 180.0 - angles[..., 1]
+    out = np.empty_like(angles)
+    out[0] = angles[0]
+    for i in range(1, len(angles)):
+        prev = out[i - 1]
+        a = angles[i] - 360.0 * np.round((angles[i] - prev) / 360.0)
+        b = other[i] - 360.0 * np.round((other[i] - prev) / 360.0)
+        take_b = np.abs(b - prev).sum(axis=-1) < np.abs(a - prev).sum(axis=-1)
+        out[i] = np.where(take_b[..., None], b, a)
+    return out
+
+
+def half_frame_error(rotation: Rotation, angles: NDArray[np.float64], order: str
+                     ) -> NDArray[np.float64]:
+    """How far channels interpolated at half frames turn from the true halfway rotation.
+
+    A player that interpolates Euler channels linearly between keys (Blender's importer
+    keys them) poses the node at ``angles(t) + ½ (angles(t+1) − angles(t))``; the rotation
+    halfway along the shortest path from ``rotation[t]`` to ``rotation[t+1]`` is the one
+    meant. Near gimbal lock (middle angle ±90°) the two differ by tens of degrees.
+
+    Parameters
+    ----------
+    rotation : Rotation, length F
+    angles : ndarray, shape (F, 3)
+        ``rotation`` as continuous Euler angles of ``order``, degrees.
+    order : str
+        Intrinsic order such as ``"ZXY"``.
+
+    Returns
+    -------
+    ndarray, shape (F - 1,)
+        Angle between the interpolated and the halfway rotation, degrees.
+    """
+    from scipy.spatial.transform import Rotation
+
+    if len(angles) < 2:
+        return np.zeros(0)
+    step = (rotation[:-1].inv() * rotation[1:]).as_rotvec()
+    halfway = rotation[:-1] * Rotation.from_rotvec(step / 2)
+    interpolated = Rotation.from_euler(order, (angles[:-1] + angles[1:]) / 2, degrees=True)
+    return np.asarray(np.degrees((interpolated.inv() * halfway).magnitude()))
+
+
+def euler_channels(rotations: list[Rotation], order: str | None = None
+                   ) -> tuple[list[tuple[str, ...]], NDArray[np.float64]]:
+    """BVH rotation channels of several nodes' local rotations, an Euler order per node.
+
+    Each node gets the order of :data:`EULER_ORDERS` whose channels follow the motion best:
+    the least sum over frames of the squared :func:`half_frame_error` (channels
+    interpolated linearly, as players do, against the true halfway rotation) plus the
+    squared swing of a channel beyond the node's own turn between the frames (the first
+    listed wins ties within 0.1 %). That puts a knee's or elbow's flexion on an outer axis,
+    never on the middle one, whose ±90° is gimbal lock: there the outer channels swing by
+    up to 180° while the joint turns a few degrees, and players interpolating them go
+    astray.
+
+    Parameters
+    ----------
+    rotations : list of Rotation
+        Local rotations (parent node frame ← node frame) of N nodes, each of length F.
+    order : str, optional
+        One intrinsic order for every node (e.g. ``"ZXY"``) instead of the choice per node.
+
+    Returns
+    -------
+    channels : list of tuple of str
+        Per node, e.g. ``("Xrotation", "Zrotation", "Yrotation")``.
+    values : ndarray, shape (F, N, 3)
+        Degrees in channel order, continuous over frames (:func:`continuous_euler`).
+    """
+    if order is not None and order not in EULER_ORDERS:
+        raise InputError(f"Euler order must be one of {', '.join(EULER_ORDERS)}, got "
+                         f"{order!r}", field="euler_order")
+    orders = EULER_ORDERS if order is None else (order,)
+    raw = np.stack([np.stack([rot.as_euler(o, degrees=True) for o in orders], axis=1)
+                    for rot in rotations], axis=1)  # (F, N, orders, 3)
+    angles = continuous_euler(raw)
+    chosen = []
+    for n, rot in enumerate(rotations):
+        cost = np.array([_order_cost(rot, angles[:, n, k], o) for k, o in enumerate(orders)])
+        chosen.append(int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0]))
+    channels = [tuple(f"{axis}rotation" for axis in orders[k]) for k in chosen]
+    values = np.stack([angles[:, n, k] for n, k in enumerate(chosen)], axis=1)
+    return channels, values
+
+
+def _order_cost(rotation: Rotation, angles: NDArray[np.float64], order: str) -> float:
+    """Sum over frames of the squared half-frame error and the squared channel swing beyond
+    the node's own turn (degrees²): both grow near gimbal lock."""
+    if len(angles) < 2:
+        return 0.0
+    turn = np.degrees((rotation[:-1].inv() * rotation[1:]).magnitude())
+    swing = np.abs(np.diff(angles, axis=0)).max(axis=1) - turn
+    half = half_frame_error(rotation, angles, order)
+    return float(np.sum(half ** 2) + np.sum(np.maximum(swing, 0.0) ** 2))
+
+
+def euler_order_for(rotation: Rotation) -> str:
+    """The Euler order :func:`euler_channels` gives a node turning by ``rotation`` (F)."""
+    channels, _ = euler_channels([rotation])
+    return "".join(c[0] for c in channels[0])
+
+
+def rigid_tree(positions: NDArray[np.float64], root: int, *, max_frames: int = 2000
+               ) -> list[int]:
+    """A joint tree whose bones keep their length: parent index per joint.
+
+    Prim's spanning tree grown from ``root``: each step adds the joint whose distance to a
+    joint already in the tree varies least over the take, attached to the earliest joint
+    (in ``positions`` order) whose distance to it is as rigid. Joints of one rigid segment
+    (a pelvis with its hips, a chest with its shoulders and neck) hang from the segment's
+    first joint, as a suit's own skeleton lists them.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (F, J, 3)
+        Joint positions, any length unit.
+    root : int
+        Index of the root joint.
+    max_frames : int
+        Frames sampled evenly to measure distances (memory is F × J² values).
+
+    Returns
+    -------
+    list of int
+        Parent of each joint, -1 for ``root``.
+    """
+    n_frames, n_joints = positions.shape[:2]
+    sample = positions[np.unique(np.linspace(0, n_frames - 1, min(n_frames, max_frames))
+                                 .astype(int))]
+    dist = np.linalg.norm(sample[:, :, None] - sample[:, None], axis=-1)
+    spread = np.ptp(dist, axis=0)
+    # a variation below 1e-5 of the typical distance is rounding: call it rigid
+    spread[spread <= 1e-5 * max(float(np.median(dist.mean(axis=0))), 1e-12)] = 0.0
+    parents = [-1] * n_joints
+    inside = [root]
+    outside = [j for j in range(n_joints) if j != root]
+    while outside:
+        _, parent, child = min((float(spread[u, v]), u, v)
+                               for v in outside for u in inside)
+        parents[child] = parent
+        inside.append(child)
+        outside.remove(child)
+    return parents
+
+
+def aiming_rotations(vectors: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                            NDArray[np.float64]]:
+    """World rotations that carry fixed rest vectors onto moving bone vectors.
+
+    Each rotation starts at identity and each frame turns by the shortest arc from the
+    previous frame's direction to this frame's (parallel transport), so it has no flip
+    wherever the bone points and is continuous over the take.
+
+    Parameters
+    ----------
+    vectors : ndarray, shape (F, B, 3)
+        Bone vectors (child − parent) per frame, world frame.
+
+    Returns
+    -------
+    quaternions : ndarray, shape (F, B, 4)
+        Scalar-last unit quaternions; rotation ``[t, b]`` carries ``rest[b]`` along
+        ``vectors[t, b]``.
+    rest : ndarray, shape (B, 3)
+        Rest vectors: each bone's first non-zero direction scaled to its mean length.
+    """
+    length = np.linalg.norm(vectors, axis=-1)
+    valid = length > 1e-9 * max(float(length.max(initial=0.0)), 1.0)
+    unit = np.where(valid[..., None], vectors / np.where(valid, length, 1.0)[..., None], 0.0)
+    first = np.argmax(valid, axis=0)
+    bones = np.arange(vectors.shape[1])
+    direction = np.where(valid.any(axis=0)[:, None], unit[first, bones], [0.0, 1.0, 0.0])
+    out = np.empty((*vectors.shape[:2], 4))
+    current = np.tile([0.0, 0.0, 0.0, 1.0], (vectors.shape[1], 1))
+    prev = direction.copy()
+    for t in range(len(vectors)):
+        step = _shortest_arc(prev, unit[t])
+        step[~valid[t]] = [0.0, 0.0, 0.0, 1.0]
+        current = _quat_multiply(step, current)
+        current /= np.linalg.norm(current, axis=-1, keepdims=True)
+        prev = np.where(valid[t][:, None], unit[t], prev)
+        out[t] = current
+    return out, direction * length.mean(axis=0)[:, None]
+
+
+def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Scalar-last quaternions (N, 4) turning unit vectors a onto unit vectors b (N, 3)."""
+    cos = np.einsum("ij,ij->i", a, b)
+    q = np.concatenate([np.cross(a, b), (1.0 + cos)[:, None]], axis=1)
+    opposite = 1.0 + cos < 1e-12
+    if opposite.any():  # half turn about any axis perpendicular to a
+        helper = np.where(np.abs(a[opposite, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        q[opposite] = np.concatenate([np.cross(a[opposite], helper),
+                                      np.zeros((int(opposite.sum()), 1))], axis=1)
+    unit: NDArray[np.float64] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return unit
+
+
+def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Hamilton products p·q of scalar-last quaternions (N, 4)."""
+    pv, pw = p[:, :3], p[:, 3:]
+    qv, qw = q[:, :3], q[:, 3:]
+    out: NDArray[np.float64] = np.concatenate(
+        [pw * qv + qw * pv + np.cross(pv, qv),
+         pw * qw - np.einsum("ij,ij->i", pv, qv)[:, None]], axis=1)
+    return out
+
+
+def bone_waypoints(start: NDArray[np.float64], end: NDArray[np.float64], *,
+                   rigid_rtol: float = 1e-4) -> list[NDArray[np.float64]]:
+    """Points a chain of fixed-length links passes through from ``start`` to ``end``.
+
+    A rigid bone is one link; a bone whose length varies (a CSV holding only hips and
+    feet) is two equal links of ``0.525 × its longest length`` bent at a middle point on a
+    side chosen once for the take (the world axis the bone is least aligned with), so the
+    chain reaches every length with rotations alone.
+
+    Parameters
+    ----------
+    start, end : ndarray, shape (F, 3)
+        Positions of the parent and child joints.
+    rigid_rtol : float
+        Length range, relative to the mean length, below which the bone counts as rigid.
+
+    Returns
+    -------
+    list of ndarray, shape (F, 3)
+        ``[start, end]`` or ``[start, middle, end]``.
+    """
+    bone = end - start
+    length = np.linalg.norm(bone, axis=-1)
+    if float(np.ptp(length)) <= rigid_rtol * max(float(length.mean()), 1e-12):
+        return [start, end]
+    link = 0.525 * float(length.max())
+    unit = bone / np.maximum(length, 1e-12)[:, None]
+    side = np.eye(3)[int(np.argmin(np.abs(unit).max(axis=0)))]
+    normal = side - np.einsum("ij,j->i", unit, side)[:, None] * unit
+    normal /= np.maximum(np.linalg.norm(normal, axis=-1), 1e-12)[:, None]
+    height = np.sqrt(np.maximum(link ** 2 - (length / 2) ** 2, 0.0))
+    return [start, start + bone / 2 + height[:, None] * normal, end]
+
+
+def point_joint_bvh(names: tuple[str, ...], positions: NDArray[np.float64], root: int,
+                    frame_time: float) -> BvhMotion:
+    """A BVH of joints known only by their positions, with rotation channels only.
+
+    Every BVH reader agrees on a hierarchy whose root alone has position channels (OFFSET
+    zero) and whose other joints have rotation channels and constant OFFSETs; readers
+    disagree on position channels below the root (three.js adds them to OFFSET, Blender
+    replaces OFFSET by them; pybvh and bvhtoolbox reject them). So the joints are put in a
+    tree of near-rigid distances (:func:`rigid_tree`) and turned: a joint with one child
+    turns to point at it; a joint with several children keeps its parent's orientation and
+    holds one pivot node ``<joint>_to_<child>`` per child (OFFSET zero) that points at that
+    child; a leaf joint has an ``End Site`` at zero OFFSET. OFFSETs are the first frame's
+    bone vectors; a bone whose length varies gets a middle node ``<child>_bend``
+    (:func:`bone_waypoints`). Every joint lands on its given position (to the file's
+    rounding) whatever the data.
+
+    Parameters
+    ----------
+    names : tuple of str
+        Joint names, length J.
+    positions : ndarray, shape (F, J, 3)
+        Joint positions in the file's length unit, world frame.
+    root : int
+        Index of the root joint (its position channels carry its path).
+    frame_time : float
+        Seconds per frame.
+
+    Returns
+    -------
+    BvhMotion
+        Root first with ``X/Y/Zposition`` and three rotation channels; every joint named as
+        in ``names``, pivots, bends and end sites added. Rotation orders per node by
+        :func:`euler_order_for`, channels continuous.
+    """
+    from scipy.spatial.transform import Rotation
+
+    n_frames = positions.shape[0]
+    tree = rigid_tree(positions, root)
+    kids: dict[int, list[int]] = {j: [] for j in range(len(names))}
+    for j, p in enumerate(tree):
+        if p >= 0:
+            kids[p].append(j)
+    out_names: list[str] = []
+    out_parents: list[int] = []
+    offsets: list[NDArray[np.float64]] = []
+    world: list[Rotation] = []
+    locals_: list[Rotation] = []
+    end_sites: set[int] = set()
+
+    def add(name: str, parent: int, offset: NDArray[np.float64], rot: Rotation) -> int:
+        out_names.append(name)
+        out_parents.append(parent)
+        offsets.append(offset)
+        locals_.append(rot if parent < 0 else world[parent].inv() * rot)
+        world.append(rot)
+        return len(out_names) - 1
+
+    edges = [(j, k) for j in range(len(names)) for k in kids[j]]
+    points = {edge: bone_waypoints(positions[:, edge[0]], positions[:, edge[1]])
+              for edge in edges}
+    legs = [(edge, i) for edge in edges for i in range(len(points[edge]) - 1)]
+    quats, rests = aiming_rotations(np.stack([points[e][i + 1] - points[e][i]
+                                              for e, i in legs], axis=1))
+    aims = {leg: (Rotation.from_quat(quats[:, n]), rests[n]) for n, leg in enumerate(legs)}
+
+    def visit(j: int, node: int) -> None:
+        for k in kids[j]:
+            aim, rest = aims[((j, k), 0)]
+            holder = node
+            if len(kids[j]) > 1:
+                holder = add(f"{names[j]}_to_{names[k]}", node, np.zeros(3), aim)
+            else:
+                world[node] = aim
+                parent = out_parents[node]
+                locals_[node] = aim if parent < 0 else world[parent].inv() * aim
+            if len(points[(j, k)]) == 3:
+                bend, rest_bend = aims[((j, k), 1)]
+                holder, rest = add(f"{names[k]}_bend", holder, rest, bend), rest_bend
+            visit(k, add(names[k], holder, rest, world[holder]))
+        if not kids[j]:
+            end_sites.add(add(f"{names[j]}_end", node, np.zeros(3), world[node]))
+
+    visit(root, add(names[root], -1, np.zeros(3), Rotation.identity(n_frames)))
+    turning = [i for i in range(len(out_names)) if i not in end_sites]
+    rot_channels, angles = euler_channels([locals_[i] for i in turning])
+    channels: list[tuple[str, ...]] = [()] * len(out_names)
+    for i, chans in zip(turning, rot_channels, strict=True):
+        channels[i] = chans
+    channels[0] = ("Xposition", "Yposition", "Zposition", *channels[0])
+    values = [positions[:, root], angles.reshape(n_frames, -1)]
+    return BvhMotion(tuple(out_names), tuple(out_parents), np.asarray(offsets, dtype=float),
+                     tuple(channels), float(frame_time), np.concatenate(values, axis=1))
+
+
+def fold_position_channels(motion: BvhMotion, *, atol: float = 1e-6) -> BvhMotion:
+    """The same motion written so that every BVH reader places the joints alike.
+
+    Readers disagree on a joint that has both an OFFSET and position channels: Blender and
+    bonefit replace the OFFSET by the channels, three.js adds them, pybvh and bvhtoolbox
+    reject position channels below the root. Position channels that stay constant over the
+    take are folded into the OFFSET (Bandai files carry them on every joint, equal to the
+    OFFSET); a joint whose position channels move, and the root, keep them with a zero
+    OFFSET, where replacing and adding agree. Positions under the replacing reading are
+    unchanged.
+
+    Parameters
+    ----------
+    motion : BvhMotion
+    atol : float
+        Largest change over the take, in file units, of a position channel called constant.
+
+    Returns
+    -------
+    BvhMotion
+    """
+    offsets = motion.offsets.copy()
+    channels: list[tuple[str, ...]] = []
+    keep: list[int] = []
+    for j, chans in enumerate(motion.channels):
+        start = motion._starts[j]
+        vals = motion.channel_values(j)
+        pos = [k for k, c in enumerate(chans) if c in _AXES]
+        constant = bool(pos) and motion.parents[j] >= 0 and \
+            float(np.ptp(vals[:, pos], axis=0).max()) <= atol
+        for k, c in enumerate(chans):
+            if c in _AXES and constant:
+                offsets[j, _AXES[c]] = vals[0, k]
+            else:
+                keep.append(start + k)
+        if pos and not constant:
+            offsets[j, [_AXES[chans[k]] for k in pos]] = 0.0
+        channels.append(tuple(c for c in chans if not (constant and c in _AXES)))
+    return BvhMotion(motion.names, motion.parents, offsets, tuple(channels),
+                     motion.frame_time, motion.values[:, keep])

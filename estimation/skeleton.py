@@ -195,12 +195,35 @@ def _check_units(bone_lengths: Mapping[str, float], warnings: list[str]) -> None
                             f"human range {low}–{high} m; its joints are poorly located")
 
 
+SMOOTH_GATE: Final[float] = 6.0
+"""A smoothed sample is kept only while it moved less than this many noise sds (3-D) from
+the measured one; beyond, the filter is smearing a jump of the data, not removing noise."""
+
+
 def _smooth(x: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
-    """Zero-phase Savitzky–Golay smoothing over ~0.1 s (cubic), for white sensor noise."""
+    """Zero-phase Savitzky–Golay smoothing over ~0.1 s (cubic), for white sensor noise.
+
+    Samples that the filter would move by more than ``SMOOTH_GATE`` white-noise sds keep
+    their measured value: there the path jumps (a take starting from a T-pose frame, a
+    glitch) and a window spanning the jump would drag each joint of a rigid bone along its
+    own polynomial, stretching the bone by up to tens of centimetres.
+    """
     window = round(0.1 * fps) | 1
     if window < 5 or x.shape[0] <= window:
         return x
-    return np.asarray(savgol_filter(x, window, 3, axis=0, mode="interp"))
+    smoothed = np.asarray(savgol_filter(x, window, 3, axis=0, mode="interp"))
+    dd = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    noise = float(np.sqrt(np.sum(np.median(dd ** 2, axis=0)) / 0.4549 / 6.0))
+    jumps = np.linalg.norm(smoothed - x, axis=-1) > SMOOTH_GATE * noise
+    if not jumps.any():
+        return smoothed
+    out = x.copy()
+    # smooth each stretch between jumps on its own, so no window reaches across one
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], jumps.astype(int), [1]])))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        if stop - start > window:
+            out[start:stop] = savgol_filter(x[start:stop], window, 3, axis=0, mode="interp")
+    return out
 
 
 def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -13,6 +13,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PositiveFloat,
     StrictBool,
     TypeAdapter,
     ValidationInfo,
@@ -194,8 +195,12 @@ class TranslationParams(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     method: Literal["contact", "hachaj2018"] = "contact"
-    left_foot: str = Field("LeftFoot", min_length=1, max_length=100)
-    right_foot: str = Field("RightFoot", min_length=1, max_length=100)
+    left_foot: str | None = Field(None, min_length=1, max_length=100,
+                                  description="Default: found by name or topology.")
+    right_foot: str | None = Field(None, min_length=1, max_length=100)
+    units: Literal["auto", "m", "cm", "mm", "in", "ft", "cmu"] | PositiveFloat = Field(
+        "auto", description="Length unit of a BVH or kinematics CSV: auto (from the legs' "
+                            "length), a name, or metres per unit (> 0).")
     acceleration_units: Literal["g", "m/s2", "free-g", "free-m/s2",
                                 "second-differences"] | None = None
     subject: str | None = Field(
@@ -262,10 +267,11 @@ def run_translation(inputs: Mapping[str, Input], params: TranslationParams, prog
         source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
         accelerations=accelerations.path if accelerations else None,
         left_foot=params.left_foot, right_foot=params.right_foot,
-        acceleration_units=params.acceleration_units, subject=params.subject)
+        acceleration_units=params.acceleration_units, units=params.units,
+        subject=params.subject)
     read_s = time.perf_counter() - started
-    result = estimate_translation(recording, method=params.method, left_foot=params.left_foot,
-                                  right_foot=params.right_foot,
+    result = estimate_translation(recording, method=params.method,
+                                  left_foot=recording.left_foot, right_foot=recording.right_foot,
                                   progress=scaled(progress, 0.02, 0.95),
                                   **params.options.model_dump())
     progress(0.95, "writing")

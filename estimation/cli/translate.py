@@ -16,13 +16,17 @@ EXAMPLES = """\
 examples:
   bonefit translate heian_shodan.csv -o heian_translated.csv --json heian.json
   bonefit translate kata.csv --method hachaj2018 -o kata_paper.csv
-  bonefit translate walk.bvh --accelerations walk_feet.csv --acceleration-units g \\
-      --left-foot Foot_L --right-foot Foot_R -o walk_translated.bvh
+  bonefit translate walk.bvh --accelerations walk_feet.csv -o walk_translated.bvh
+  bonefit translate 131_01.bvh --accelerations feet.csv --units cmu -o 131_translated.bvh
+  bonefit translate take.bvh --accelerations feet.csv --left-foot "Bip01 L Foot" \\
+      --right-foot "Bip01 R Foot" --acceleration-units g -o take_translated.bvh
   bonefit translate take.mvnx -o take_translated.mvnx --bvh take.bvh
 
 OUT is written in the input's own format (a kinematics CSV keeps every column and its
 order, with corrected positions); --bvh adds a BVH with the root path, --json the root path,
-per-frame contacts and quality figures. Bad input exits with code 2 and a one-line reason.
+per-frame contacts and quality figures. The feet (by name or, in a BVH, by topology) and the
+length unit (from the legs' length) are found without flags and printed; --left-foot,
+--right-foot and --units override them. Bad input exits with code 2 and a one-line reason.
 """
 
 
@@ -49,10 +53,15 @@ def register(sub: Any) -> None:
     parser.add_argument("--method", default="contact", choices=("contact", "hachaj2018"),
                         help="contact (default): stance model; hachaj2018: the paper's "
                              "method exactly")
-    parser.add_argument("--left-foot", default="LeftFoot", metavar="NAME",
-                        help="left foot joint (default LeftFoot)")
-    parser.add_argument("--right-foot", default="RightFoot", metavar="NAME",
-                        help="right foot joint (default RightFoot)")
+    parser.add_argument("--left-foot", default=None, metavar="NAME",
+                        help="left foot joint (default: found by name, e.g. LeftFoot, "
+                             "LeftAnkle, Foot_L, or by the hierarchy's legs)")
+    parser.add_argument("--right-foot", default=None, metavar="NAME",
+                        help="right foot joint (default: found like the left one)")
+    parser.add_argument("--units", default="auto", metavar="UNIT",
+                        help="length unit of a BVH or kinematics CSV: auto (default, from the "
+                             "legs' length), m, cm, mm, in, ft, cmu (CMU's 0.05644 m) or "
+                             "metres per unit")
     parser.add_argument("--subject", default=None, metavar="LABEL|N",
                         help="MVNX subject to read, by label or 1-based number (default: "
                              "the first, with a warning when there are several)")
@@ -76,12 +85,11 @@ def run(args: argparse.Namespace) -> int:
     recording = read_kinematics(args.input, format=args.format,
                                 accelerations=args.accelerations,
                                 left_foot=args.left_foot, right_foot=args.right_foot,
-                                acceleration_units=args.acceleration_units,
+                                acceleration_units=args.acceleration_units, units=args.units,
                                 subject=args.subject)
     read_s = time.perf_counter() - started
     for note in recording.notes:
-        if note.startswith("warning:"):
-            print(note, file=sys.stderr)
+        print(note if note.startswith("warning:") else f"bonefit: {note}", file=sys.stderr)
     bar = None if args.quiet else ProgressBar(sys.stderr)
     try:
         result = estimate_translation(recording, method=args.method, progress=bar)

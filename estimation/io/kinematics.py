@@ -32,9 +32,28 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 from numpy.typing import NDArray
 
-from ..bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+from ..bvh import (
+    MAX_NODES,
+    BvhMotion,
+    fold_position_channels,
+    forward_kinematics,
+    point_joint_bvh,
+    read_bvh,
+    write_bvh,
+)
 from ..errors import InputError
 from ..results import timings_document
+from .body import (
+    Feet,
+    classify,
+    find_bvh_feet,
+    find_column_feet,
+    is_end_site_name,
+    leg_length,
+    match_sensor,
+    parse_length_unit,
+    resolve_length_unit,
+)
 
 if TYPE_CHECKING:
     from ..translation import TranslationResult
@@ -142,7 +161,7 @@ class KinematicsRecording:
         for foot in (self.left_foot, self.right_foot):
             if foot not in self.joints:
                 raise InputError(f"foot joint {foot!r} not found; joints: "
-                                 f"{', '.join(self.joints)}", field=foot)
+                                 f"{', '.join(self.real_joints())}", field=foot)
             acc = self.accelerations.get(foot)
             if acc is None or acc.shape != (pos.shape[0], 3):
                 raise InputError(f"no (F, 3) accelerations for foot {foot!r}", sensor=foot)
@@ -159,8 +178,12 @@ class KinematicsRecording:
         try:
             return self.joints.index(joint)
         except ValueError:
-            raise InputError(f"joint {joint!r} not found; joints: {', '.join(self.joints)}",
-                             field=joint) from None
+            raise InputError(f"joint {joint!r} not found; joints: "
+                             f"{', '.join(self.real_joints())}", field=joint) from None
+
+    def real_joints(self) -> tuple[str, ...]:
+        """Joint names without end sites (``<joint>_end``, ``EndSite4``), for messages."""
+        return tuple(j for j in self.joints if not is_end_site_name(j))
 
 
 # --------------------------------------------------------------------------- helpers
@@ -245,22 +268,16 @@ def _resolve_acceleration_units(
         f"{names}); declare acceleration_units", field="acceleration_units")
 
 
-def _foot_not_found(foot: str, joints: tuple[str, ...], what: str) -> InputError:
-    return InputError(f"foot joint {foot!r} not found in the {what}; joints: "
-                      f"{', '.join(joints)}", field=foot)
-
-
 def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]) -> str | None:
-    """Toe joint of ``foot``: a joint named like the foot's side with 'toe' in it
-    (``LeftToe``, ``LeftToeBase``, ``Toes_L``). Anonymous end sites (Shadow's ``EndSite4``)
-    are not taken: where they sit on the foot is not known."""
-    low_foot = foot.lower()
-    side = "left" if "left" in low_foot or low_foot.startswith("l") or low_foot.endswith("_l") \
-        else "right"
-    marks = {"left": ("left", "_l", "l_"), "right": ("right", "_r", "r_")}[side]
+    """Toe joint of ``foot`` (positions in metres): a joint named like a toe of the foot's
+    side (``LeftToe``, ``LeftToeBase``, ``Toes_L``, ``lToe``) 2–35 cm from the foot.
+    Anonymous end sites (Shadow's ``EndSite4``) are not taken: where they sit on the foot is
+    not known."""
+    side = classify(foot)[0]
+    if side is None:
+        return None
     i = joints.index(foot)
-    candidates = [name for name in joints if "toe" in name.lower()
-                  and any(m in name.lower() for m in marks)]
+    candidates = [name for name in joints if classify(name) == (side, "toe")]
     if not candidates:
         return None
     gaps = [float(np.median(np.linalg.norm(positions[:, joints.index(c)] - positions[:, i],
@@ -336,24 +353,29 @@ def _position_joints(header: list[str]) -> tuple[str, ...]:
 def read_kinematics_csv(
     path: PathLike,
     *,
-    left_foot: str = "LeftFoot",
-    right_foot: str = "RightFoot",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
     acceleration_units: str | None = None,
-    length_units_m: float = 0.01,
+    units: str | float | None = "auto",
 ) -> KinematicsRecording:
     """Read a kinematics CSV (the layout of Hachaj & Ogiela's Shadow exports).
 
     Parameters
     ----------
     path : path
-    left_foot, right_foot : str
-        Foot joints; ``<Foot>.Dx/.Dy/.Dz`` and ``<Foot>.ax/.ay/.az`` must exist.
+    left_foot, right_foot : str, optional
+        Foot joints (overrides); by default the columns named like a left and a right foot
+        (:func:`estimation.io.body.find_column_feet`). ``<Foot>.Dx/.Dy/.Dz`` and
+        ``<Foot>.ax/.ay/.az`` must exist.
     acceleration_units : str, optional
         One of :data:`ACCELERATION_UNITS`. By default the columns must look like g with
         gravity (median |a| ≈ 1); m/s², gravity-free data and second differences of positions
         are reported as InputError rather than guessed.
-    length_units_m : float
-        Metres per position unit (0.01: cm).
+    units : str or float, optional
+        Length unit of the positions: ``"auto"`` (default: inferred from the hips–feet
+        distance, cm for the paper's layout), a name of
+        :data:`~estimation.io.body.LENGTH_UNITS` or metres per unit; a unit giving legs
+        outside a person's range is refused naming the likely one.
 
     Returns
     -------
@@ -368,28 +390,49 @@ def read_kinematics_csv(
     declared = _check_units(acceleration_units)
     header, table = _read_table(path)
     col = {h: i for i, h in enumerate(header)}
-    time_key = next((h for h in header if h.lower() == "time"), None)
     joints = _position_joints(header)
     if not joints:
         raise InputError("no <Joint>.Dx/.Dy/.Dz position columns", field="header", line=1)
-    for foot in (left_foot, right_foot):
-        if foot not in joints:
-            raise _foot_not_found(foot, joints, "position columns")
     if np.isnan(table).any():
         r, c = np.argwhere(np.isnan(table))[0]
         raise InputError(f"missing value in column {header[c]!r}", line=int(r) + 2,
                          column=int(c) + 1, field=header[c])
-    positions = np.stack([np.stack([table[:, col[f"{j}.D{a}"]] for a in "xyz"], axis=-1)
-                          for j in joints], axis=1) * length_units_m
-    n = table.shape[0]
-    if time_key is not None:
-        time = table[:, col[time_key]].copy()
-        fps = _fps_from_time(time)
-    else:
+    raw_pos = np.stack([np.stack([table[:, col[f"{j}.D{a}"]] for a in "xyz"], axis=-1)
+                        for j in joints], axis=1)
+    feet = find_column_feet(joints, np.median(raw_pos[:, :, 1], axis=0), left_foot, right_foot)
+    root = _guess_root(joints)
+    scale, unit_note = _csv_length_unit(raw_pos, joints, root, feet, units)
+    positions = raw_pos * scale
+    time_key = next((h for h in header if h.lower() == "time"), None)
+    if time_key is None:
         raise InputError("no Time column", field="Time", line=1)
+    time = table[:, col[time_key]].copy()
+    fps = _fps_from_time(time)
+    raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
+    unit, note = _resolve_acceleration_units(
+        raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name)
+    acc_scale, frame = ACCELERATION_UNITS[unit]
+    if unit == "second-differences":
+        acc_scale = scale * fps * fps
+    accelerations = {f: a * acc_scale for f, a in raw.items()}
+    notes = [feet.note(), unit_note, note]
+    toes, contacts = _csv_toes_and_contacts(header, table, joints, positions,
+                                            (feet.left, feet.right), notes)
+    return KinematicsRecording(
+        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
+        acceleration_frame=frame, left_foot=feet.left, right_foot=feet.right, toes=toes,
+        contacts=contacts, source_format="kinematics-csv", length_scale=scale,
+        columns=tuple(header), table=table, root=root, source_path=str(path),
+        notes=tuple(notes))
+
+
+def _csv_foot_accelerations(header: list[str], table: NDArray[np.float64],
+                            feet: tuple[str, str]) -> dict[str, NDArray[np.float64]]:
+    """Raw ``<Foot>.ax/.ay/.az`` columns (F, 3) of each foot."""
+    col = {h: i for i, h in enumerate(header)}
     sensors = tuple(h[:-3] for h in header if h.endswith(".ax"))
     raw: dict[str, NDArray[np.float64]] = {}
-    for foot in (left_foot, right_foot):
+    for foot in feet:
         keys = [f"{foot}.a{a}" for a in "xyz"]
         missing = [k for k in keys if k not in col]
         if missing:
@@ -397,17 +440,19 @@ def read_kinematics_csv(
                              f"sensors with accelerations: {', '.join(sensors) or 'none'}",
                              field=missing[0], sensor=foot)
         raw[foot] = np.stack([table[:, col[k]] for k in keys], axis=-1)
-    unit, note = _resolve_acceleration_units(
-        raw, {f: positions[:, joints.index(f)] / length_units_m for f in raw}, declared,
-        Path(path).name)
-    scale, frame = ACCELERATION_UNITS[unit]
-    if unit == "second-differences":
-        scale = length_units_m * fps * fps
-    accelerations = {f: a * scale for f, a in raw.items()}
-    notes = [note]
+    return raw
+
+
+def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
+                           joints: tuple[str, ...], positions: NDArray[np.float64],
+                           feet: tuple[str, str], notes: list[str]
+                           ) -> tuple[dict[str, str], dict[str, NDArray[np.bool_]]]:
+    """Toe of each foot (by name) and contact flags from ``<Foot>.c``/``<Toe>.c`` columns;
+    appends what was found to ``notes``."""
+    col = {h: i for i, h in enumerate(header)}
     contacts: dict[str, NDArray[np.bool_]] = {}
     toes: dict[str, str] = {}
-    for foot in (left_foot, right_foot):
+    for foot in feet:
         toe = _auto_toe(foot, joints, positions)
         if toe is not None:
             toes[foot] = toe
@@ -416,13 +461,17 @@ def read_kinematics_csv(
         if flags:
             contacts[foot] = np.any(np.stack([table[:, col[k]] for k in flags]) > 0.5, axis=0)
             notes.append(f"contacts of {foot} from {', '.join(flags)}")
-    del n
-    return KinematicsRecording(
-        joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
-        acceleration_frame=frame, left_foot=left_foot, right_foot=right_foot, toes=toes,
-        contacts=contacts, source_format="kinematics-csv", length_scale=length_units_m,
-        columns=tuple(header), table=table, root=_guess_root(joints), source_path=str(path),
-        notes=tuple(notes))
+    return toes, contacts
+
+
+def _csv_length_unit(raw_pos: NDArray[np.float64], joints: tuple[str, ...], root: str,
+                     feet: Feet, units: str | float | None) -> tuple[float, str]:
+    """Metres per unit of position columns, from the median root–foot distance."""
+    r = joints.index(root)
+    legs = [float(np.median(np.linalg.norm(raw_pos[:, joints.index(f)] - raw_pos[:, r],
+                                           axis=1))) for f in (feet.left, feet.right)]
+    return resolve_length_unit(float(np.mean(legs)), parse_length_unit(units),
+                               f"{root} to {feet.left}/{feet.right}, median distance")
 
 
 def _guess_root(joints: tuple[str, ...]) -> str:
@@ -513,10 +562,10 @@ def read_bvh_kinematics(
     path: PathLike,
     accelerations: PathLike,
     *,
-    left_foot: str = "LeftFoot",
-    right_foot: str = "RightFoot",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
     acceleration_units: str | None = None,
-    length_units_m: float = 0.01,
+    units: str | float | None = "auto",
 ) -> KinematicsRecording:
     """Read a BVH motion plus a CSV of foot accelerations.
 
@@ -527,62 +576,70 @@ def read_bvh_kinematics(
     accelerations : path
         ``time,<Foot>.ax,<Foot>.ay,<Foot>.az,...``; resampled onto the BVH frame times when
         the times differ.
-    left_foot, right_foot : str
-        Foot joints of the BVH hierarchy (and sensor names in the accelerations file).
+    left_foot, right_foot : str, optional
+        Foot joints of the BVH hierarchy (overrides); by default found by name or topology
+        (:func:`estimation.io.body.find_bvh_feet`). The accelerations file names the sensors
+        by these joints, or by the only foot-named sensor of each side.
     acceleration_units : str, optional
         As in :func:`read_kinematics_csv`; a unit in the header cells counts as declared.
-    length_units_m : float
-        Metres per BVH length unit (0.01: cm).
+    units : str or float, optional
+        BVH length unit: ``"auto"`` (default: inferred from the legs' bone lengths), a name
+        of :data:`~estimation.io.body.LENGTH_UNITS` (``m``, ``cm``, ``mm``, ``in``, ``ft``,
+        ``cmu``) or metres per unit; a unit giving legs outside a person's range is refused
+        naming the likely one.
 
     Returns
     -------
     KinematicsRecording
+        ``notes`` say which feet, toes and unit were used and how they were found.
     """
     declared = _check_units(acceleration_units)
     motion = read_bvh(path)
-    for foot in (left_foot, right_foot):
-        if foot not in motion.names:
-            raise _foot_not_found(foot, motion.names, "BVH")
+    feet = find_bvh_feet(motion, left_foot, right_foot)
+    names = motion.names
+    scale, unit_note = resolve_length_unit(
+        leg_length(motion, names.index(feet.left), names.index(feet.right)),
+        parse_length_unit(units), f"hips to {feet.left}/{feet.right} along the bones")
     raw_pos, root = bvh_positions_without_root_translation(motion)
-    positions = raw_pos * length_units_m
     n = motion.n_frames
     time = np.arange(n, dtype=np.float64) * float(motion.frame_time)
     a_time, a_raw, header_unit = read_acceleration_csv(accelerations)
     if declared is None:
         declared = header_unit
     raw: dict[str, NDArray[np.float64]] = {}
-    for foot in (left_foot, right_foot):
-        if foot not in a_raw:
+    notes = [feet.note(), unit_note, *motion.notes]
+    for foot in (feet.left, feet.right):
+        sensor = match_sensor(foot, list(a_raw))
+        if sensor is None:
             raise InputError(f"no accelerations for foot {foot!r} in "
                              f"{Path(accelerations).name}; sensors: {', '.join(a_raw) or 'none'}",
                              sensor=foot)
-        a = a_raw[foot]
-        if a.shape[0] != n or not np.allclose(a_time - a_time[0], time, atol=0.25 / motion.fps):
-            if a_time[0] > time[0] + 1.0 / motion.fps or a_time[-1] < time[-1] - 1.0 / motion.fps:
-                raise InputError(
-                    f"accelerations cover {a_time[0]:.3f}–{a_time[-1]:.3f} s, the BVH "
-                    f"0–{time[-1]:.3f} s", field="time")
-            a = np.stack([np.interp(time, a_time, a[:, k]) for k in range(3)], axis=-1)
-        raw[foot] = a
-    names = motion.names
+        if sensor != foot:
+            notes.append(f"accelerations of {foot} from sensor {sensor}")
+        raw[foot] = _on_bvh_frames(a_raw[sensor], a_time, time, motion.fps)
     unit, note = _resolve_acceleration_units(
         raw, {f: raw_pos[:, names.index(f)] for f in raw}, declared, Path(accelerations).name)
-    scale, frame = ACCELERATION_UNITS[unit]
+    acc_scale, frame = ACCELERATION_UNITS[unit]
     if unit == "second-differences":
-        scale = length_units_m * motion.fps ** 2
-    toes: dict[str, str] = {}
-    notes = [note, f"root translation of {names[root]} ignored"]
-    for foot in (left_foot, right_foot):
-        child = _child(motion, names.index(foot))
-        if child is not None:
-            toes[foot] = names[child]
-            notes.append(f"{names[child]} is the toe of {foot}")
+        acc_scale = scale * motion.fps ** 2
+    notes += [note, f"root translation of {names[root]} ignored"]
     return KinematicsRecording(
-        joints=names, positions=positions, fps=motion.fps, time=time,
-        accelerations={f: a * scale for f, a in raw.items()}, acceleration_frame=frame,
-        left_foot=left_foot, right_foot=right_foot, toes=toes, source_format="bvh",
-        length_scale=length_units_m, bvh=motion, root=names[root], source_path=str(path),
-        notes=tuple(notes))
+        joints=names, positions=raw_pos * scale, fps=motion.fps, time=time,
+        accelerations={f: a * acc_scale for f, a in raw.items()}, acceleration_frame=frame,
+        left_foot=feet.left, right_foot=feet.right, toes=dict(feet.toes),
+        source_format="bvh", length_scale=scale, bvh=motion, root=names[root],
+        source_path=str(path), notes=tuple(notes))
+
+
+def _on_bvh_frames(a: NDArray[np.float64], a_time: NDArray[np.float64],
+                   time: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
+    """Accelerations resampled onto the BVH frame times when their times differ."""
+    if a.shape[0] == time.shape[0] and np.allclose(a_time - a_time[0], time, atol=0.25 / fps):
+        return a
+    if a_time[0] > time[0] + 1.0 / fps or a_time[-1] < time[-1] - 1.0 / fps:
+        raise InputError(f"accelerations cover {a_time[0]:.3f}–{a_time[-1]:.3f} s, the BVH "
+                         f"0–{time[-1]:.3f} s", field="time")
+    return np.stack([np.interp(time, a_time, a[:, k]) for k in range(3)], axis=-1)
 
 
 # --------------------------------------------------------------------------- dispatch
@@ -619,9 +676,10 @@ def read_kinematics(
     *,
     format: str = "auto",
     accelerations: PathLike | None = None,
-    left_foot: str = "LeftFoot",
-    right_foot: str = "RightFoot",
+    left_foot: str | None = None,
+    right_foot: str | None = None,
     acceleration_units: str | None = None,
+    units: str | float | None = "auto",
     subject: str | None = None,
 ) -> KinematicsRecording:
     """Read an inertial-suit recording for root-translation estimation.
@@ -633,10 +691,14 @@ def read_kinematics(
     format : {"auto", "kinematics-csv", "bvh", "mvnx"}
     accelerations : path, optional
         Foot accelerations CSV; required with a BVH.
-    left_foot, right_foot : str
-        Foot joint names (MVNX: segment names, default ``LeftFoot``/``RightFoot``).
+    left_foot, right_foot : str, optional
+        Foot joint names, overriding the ones found by name (and, in a BVH, topology); MVNX:
+        segment names, default ``LeftFoot``/``RightFoot``.
     acceleration_units : str, optional
         See :data:`ACCELERATION_UNITS`.
+    units : str or float, optional
+        Length unit of a BVH or kinematics CSV: ``"auto"`` (inferred from the legs), ``m``,
+        ``cm``, ``mm``, ``in``, ``ft``, ``cmu`` or metres per unit. MVNX is in metres.
     subject : str, optional
         MVNX: label or 1-based number of the subject to read (default the first).
 
@@ -647,21 +709,27 @@ def read_kinematics(
     Raises
     ------
     InputError
-        Unreadable file, missing foot (listing the joints present), unrecognised units.
+        Unreadable file, missing foot (listing the joints present), unrecognised units, a
+        length unit that does not give a person's legs.
     """
     fmt = _resolve_format(path, format)
     if fmt == "kinematics-csv":
         return read_kinematics_csv(path, left_foot=left_foot, right_foot=right_foot,
-                                   acceleration_units=acceleration_units)
+                                   acceleration_units=acceleration_units, units=units)
     if fmt == "bvh":
         if accelerations is None:
             raise InputError("a BVH input needs an accelerations CSV "
                              "(time,<Foot>.ax,<Foot>.ay,<Foot>.az,...)", field="accelerations")
         return read_bvh_kinematics(path, accelerations, left_foot=left_foot,
-                                   right_foot=right_foot, acceleration_units=acceleration_units)
+                                   right_foot=right_foot, acceleration_units=acceleration_units,
+                                   units=units)
     from .mvnx import read_mvnx
 
-    return read_mvnx(path, left_foot=left_foot, right_foot=right_foot, subject=subject)
+    if parse_length_unit(units) not in (None, 1.0):
+        raise InputError(f"MVNX positions are in metres; units {units!r} does not apply",
+                         field="units")
+    return read_mvnx(path, left_foot=left_foot or "LeftFoot",
+                     right_foot=right_foot or "RightFoot", subject=subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
@@ -703,23 +771,32 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
 
 
 def _sniff_bvh(path: PathLike) -> dict[str, Any]:
+    """Joints, fps and frames (the rows present, at most the header's count) of a BVH."""
     joints: list[str] = []
     frames = 0
     fps: float | None = None
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        for line in handle:
+    with open(path, encoding="utf-8-sig", errors="replace") as handle:
+        for lineno, line in enumerate(handle, 1):
             parts = line.split()
             if not parts:
                 continue
             key = parts[0].upper()
-            if key in ("ROOT", "JOINT") and len(parts) > 1:
-                joints.append(parts[1])
-            elif key == "FRAMES:" and len(parts) > 1:
-                frames = int(parts[1])
-            elif key == "FRAME" and len(parts) > 2:
-                fps = 1.0 / float(parts[2])
-                break
-    return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
+            try:
+                if key in ("ROOT", "JOINT") and len(parts) > 1:
+                    joints.append(" ".join(p for p in parts[1:] if p != "{"))
+                elif key == "FRAMES:" and len(parts) > 1:
+                    frames = int(parts[1])
+                elif key == "FRAME" and len(parts) > 2:
+                    step = float(parts[2])
+                    fps = 1.0 / step if step > 0 and math.isfinite(step) else None
+                    break
+            except ValueError:
+                raise InputError(f"bad {parts[0]} line: {line.strip()[:60]!r}",
+                                 line=lineno) from None
+            if len(joints) > MAX_NODES:
+                raise InputError(f"more than {MAX_NODES} joints in the hierarchy", line=lineno)
+        rows = sum(1 for line in handle if not line.isspace())
+    return {"format": "bvh", "frames": min(frames, rows), "joints": joints, "fps": fps}
 
 
 # --------------------------------------------------------------------------- writers
@@ -727,7 +804,9 @@ def _sniff_bvh(path: PathLike) -> dict[str, Any]:
 
 def translation_to_dict(result: TranslationResult, recording: KinematicsRecording | None = None,
                         *, decimals: int = 5) -> dict[str, Any]:
-    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings."""
+    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings; with
+    the recording, its frame times, the feet and toes used, the input's length unit (metres
+    per unit) and the reader's notes."""
 
     def rows(a: NDArray[np.float64]) -> list[list[float]]:
         return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
@@ -750,38 +829,40 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
     }
     if recording is not None:
         out["time"] = np.round(recording.time, 6).tolist()
+        out["feet"] = {"left": recording.left_foot, "right": recording.right_foot,
+                       "toes": dict(recording.toes)}
+        out["input_length_unit_m"] = recording.length_scale
+        out["notes"] = list(recording.notes)
     return out
 
 
-def _flat_bvh(result: TranslationResult, recording: KinematicsRecording,
-              scale: float) -> BvhMotion:
-    """A BVH of point joints: the root with the root path, every other joint a child with
-    position channels (for inputs without a rotation hierarchy)."""
-    r = recording.index(recording.root)
-    pos = result.positions / scale
-    order = [r] + [j for j in range(len(recording.joints)) if j != r]
-    names = tuple(recording.joints[j] for j in order)
-    parents = (-1,) + (0,) * (len(order) - 1)
-    offsets = np.zeros((len(order), 3))
-    offsets[1:] = pos[0, order[1:]] - pos[0, r]
-    chans = tuple(("Xposition", "Yposition", "Zposition") for _ in order)
-    values = np.concatenate([pos[:, r]] + [pos[:, j] - pos[:, r] for j in order[1:]], axis=1)
-    return BvhMotion(names, parents, offsets, chans, 1.0 / result.fps, values)
+def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
+                     scale: float) -> BvhMotion:
+    """The corrected positions as a BVH of rotation channels under a moving root (see
+    :func:`estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
+    return point_joint_bvh(recording.joints, result.positions / scale,
+                           recording.index(recording.root), 1.0 / result.fps)
 
 
 def translated_bvh(result: TranslationResult, recording: KinematicsRecording) -> BvhMotion:
-    """The input BVH with the estimated root path in the root's position channels; for other
-    inputs a point-joint BVH (cm) of the corrected positions."""
+    """The BVH of a translation result, written so that every BVH reader agrees.
+
+    A BVH input comes back with the estimated root path in the root's position channels and
+    its position channels folded (:func:`estimation.bvh.fold_position_channels`: constant
+    ones into OFFSETs, moving ones over a zero OFFSET). Other inputs (and a BVH whose root
+    has no position channels) become a point-joint BVH in centimetres (the BVH's unit) of
+    the corrected positions.
+    """
     motion = recording.bvh
     if motion is None:
-        return _flat_bvh(result, recording, 0.01)
+        return _point_joint_bvh(result, recording, 0.01)
     j = motion.names.index(recording.root)
     values = motion.values.copy()
     start = sum(len(c) for c in motion.channels[:j])
     axes = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
     chans = motion.channels[j]
     if not any(c in axes for c in chans):
-        return _flat_bvh(result, recording, recording.length_scale)
+        return _point_joint_bvh(result, recording, recording.length_scale)
     shift = result.translation / recording.length_scale
     # The root's world position is its parents' transform applied to its channels; parents
     # here are static dummies at most (Bandai's joint_Root), so shifting the channels by the
@@ -793,7 +874,7 @@ def translated_bvh(result: TranslationResult, recording: KinematicsRecording) ->
     for k, ch in enumerate(chans):
         if ch in axes:
             values[:, start + k] = values[0, start + k] + shift[:, axes[ch]]
-    return motion.with_values(values)
+    return fold_position_channels(motion.with_values(values))
 
 
 def write_translation(result: TranslationResult, recording: KinematicsRecording,
@@ -822,11 +903,7 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
             document["timings"]["write_s"] = time.perf_counter() - started
         _emit(path, json.dumps(document, separators=(",", ":")))
     elif format == "bvh":
-        motion = translated_bvh(result, recording)
-        if isinstance(path, io.TextIOBase):
-            write_bvh(motion, path)
-        else:
-            write_bvh(motion, path)
+        write_bvh(translated_bvh(result, recording), path)
     elif format == "kinematics-csv":
         if recording.table is None:
             raise InputError(f"cannot write a kinematics CSV for a {recording.source_format} "

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from ..bvh import BvhMotion, write_bvh
+from ..bvh import BvhMotion, euler_channels, write_bvh
 from ..errors import InputError
 from ..model import JOINTS
 from ..results import JointOffset, SkeletonResult, timings_document
@@ -61,9 +61,7 @@ END_SITES: Final[dict[str, tuple[str, tuple[float, float, float], float]]] = {
 """End sites (head top, hand, toe) as node → (segment, direction in the segment frame,
 default length in metres). The length is ``bone_lengths[segment]`` when the result has it."""
 
-ROOT_CHANNELS: Final[tuple[str, ...]] = ("Xposition", "Yposition", "Zposition",
-                                         "Zrotation", "Xrotation", "Yrotation")
-JOINT_CHANNELS: Final[tuple[str, ...]] = ("Zrotation", "Xrotation", "Yrotation")
+ROOT_POSITION_CHANNELS: Final[tuple[str, ...]] = ("Xposition", "Yposition", "Zposition")
 
 
 # --------------------------------------------------------------------------- JSON
@@ -376,27 +374,8 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
     return p
 
 
-def _continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Intrinsic Z-X-Y angles (F, ..., 3), degrees, without jumps between frames.
-
-    Each rotation has two Z-X-Y triples, (z, x, y) and (z + 180, 180 − x, y + 180), and each
-    angle is defined modulo 360; per frame take the candidate nearest the previous frame, so
-    that BVH players interpolating channel values do not spin through wraps.
-    """
-    other = angles + np.array([180.0, 0.0, 180.0])
-    other[..., 1] = 180.0 - angles[..., 1]
-    out = np.empty_like(angles)
-    out[0] = angles[0]
-    for i in range(1, len(angles)):
-        prev = out[i - 1]
-        a = angles[i] - 360.0 * np.round((angles[i] - prev) / 360.0)
-        b = other[i] - 360.0 * np.round((other[i] - prev) / 360.0)
-        take_b = np.abs(b - prev).sum(axis=-1) < np.abs(a - prev).sum(axis=-1)
-        out[i] = np.where(take_b[..., None], b, a)
-    return out
-
-
-def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
+def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
+                    euler_order: str | None = None) -> BvhMotion:
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
@@ -406,8 +385,11 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
     knee: shank, ankle: foot). In the rest pose every segment frame equals the world frame;
     a node's OFFSET is the frame mean of ``R_seg(t)ᵀ (child(t) − joint(t))``, in the parent
     node's segment frame. Rotation channels hold ``R_parent(t)⁻¹ R_seg(t)`` as intrinsic
-    Z-X-Y Euler angles (degrees, unwrapped over time); the root's position channels hold the
-    ``root`` joint.
+    Euler angles in degrees, in an order per node that keeps its channels off gimbal lock
+    (``estimation.bvh.euler_channels``: a knee or elbow flexing about x gets x first or
+    last, never in the middle), unwrapped over time; the root's position channels hold the
+    ``root`` joint and its OFFSET is zero, so readers that add position channels to the
+    OFFSET (three.js) and readers that replace it (Blender) agree.
 
     Parameters
     ----------
@@ -416,6 +398,9 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
         segments, including ``spine``.
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
+    euler_order : str, optional
+        One intrinsic rotation order for every node (``"ZXY"`` was the only one before
+        per-node orders) for tools that need a single order; by default per node.
 
     Returns
     -------
@@ -425,60 +410,57 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm") -> BvhMotion:
     Raises
     ------
     InputError
-        If a joint or orientation the hierarchy needs is missing or not finite.
+        If a joint or orientation the hierarchy needs is missing or not finite, or
+        ``euler_order`` is not one of ``estimation.bvh.EULER_ORDERS``.
     """
     per_m = 1.0 / unit_scale(units)
     rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}
     positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
-
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[NDArray[np.float64]] = []
-    channels: list[tuple[str, ...]] = []
-    eulers: list[NDArray[np.float64]] = []
-    index: dict[str, int] = {}
-
-    def add(name: str, parent: str | None, offset: NDArray[np.float64],
-            chans: tuple[str, ...]) -> None:
-        index[name] = len(names)
-        names.append(name)
-        parents.append(index[parent] if parent is not None else -1)
-        offsets.append(offset * per_m)
-        channels.append(chans)
-
     children: dict[str, list[str]] = {node: [] for node, _, _ in BVH_NODES}
     for node, parent, _ in BVH_NODES:
         if parent is not None:
             children[parent].append(node)
 
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[NDArray[np.float64]] = []
+    local: dict[str, Rotation] = {}
+
+    def add(name: str, parent: str | None, offset: NDArray[np.float64]) -> None:
+        parents.append(names.index(parent) if parent is not None else -1)
+        names.append(name)
+        offsets.append(offset * per_m)
+
     def visit(node: str, parent: str | None) -> None:
-        rot = rotations[node]
         if parent is None:
-            add(node, None, np.zeros(3), ROOT_CHANNELS)
-            local = rot
+            add(node, None, np.zeros(3))
+            local[node] = rotations[node]
         else:
             delta = positions[node] - positions[parent]
-            offset = rotations[parent].inv().apply(delta).mean(axis=0)
-            add(node, parent, offset, JOINT_CHANNELS)
-            local = rotations[parent].inv() * rot
-        eulers.append(local.as_euler("ZXY", degrees=True))
+            add(node, parent, rotations[parent].inv().apply(delta).mean(axis=0))
+            local[node] = rotations[parent].inv() * rotations[node]
         for child in children[node]:
             visit(child, node)
         if node in END_SITES:
             segment, direction, default = END_SITES[node]
             length = float(result.bone_lengths.get(segment, default))
-            add(f"{node}_end", node, np.asarray(direction, dtype=float) * length, ())
+            add(f"{node}_end", node, np.asarray(direction, dtype=float) * length)
 
     visit("root", None)
-    angles = _continuous_euler(np.stack(eulers, axis=1))  # (F, nodes, 3)
+    turning = [name for name in names if name in local]
+    rot_channels, angles = euler_channels([local[name] for name in turning], euler_order)
+    by_node = dict(zip(turning, rot_channels, strict=True))
+    channels = tuple(by_node.get(name, ()) for name in names)
+    channels = ((*ROOT_POSITION_CHANNELS, *channels[0]), *channels[1:])
     values = np.concatenate([positions["root"] * per_m,
                              angles.reshape(len(angles), -1)], axis=1)
     return BvhMotion(tuple(names), tuple(parents), np.asarray(offsets, dtype=float),
-                     tuple(channels), 1.0 / float(result.fps), values)
+                     channels, 1.0 / float(result.fps), values)
 
 
 def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
-                       units: str = "cm", precision: int = 6) -> None:
+                       units: str = "cm", precision: int = 6,
+                       euler_order: str | None = None) -> None:
     """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
 
     Parameters
@@ -489,5 +471,8 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
         Length unit of the file (centimetres by default, as most BVH tools expect).
     precision : int
         Decimal places of offsets and channel values.
+    euler_order : str, optional
+        One rotation order for every node instead of per-node orders.
     """
-    write_bvh(skeleton_to_bvh(result, units=units), path, precision=precision)
+    write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order), path,
+              precision=precision)

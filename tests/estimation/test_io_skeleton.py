@@ -173,13 +173,14 @@ def test_bvh_hierarchy_channels_units_and_end_sites() -> None:
     result = rigid_result(n_frames=5)
     motion = skeleton_to_bvh(result)
     assert motion.names[0] == "root"
-    assert motion.channels[0] == ("Xposition", "Yposition", "Zposition",
-                                  "Zrotation", "Xrotation", "Yrotation")
+    assert motion.channels[0][:3] == ("Xposition", "Yposition", "Zposition")
+    assert sorted(motion.channels[0][3:]) == ["Xrotation", "Yrotation", "Zrotation"]
+    np.testing.assert_array_equal(motion.offsets[0], 0.0)  # three.js adds OFFSET to channels
     for j, name in enumerate(motion.names[1:], 1):
         if name.endswith("_end"):
             assert motion.channels[j] == ()
         else:
-            assert motion.channels[j] == ("Zrotation", "Xrotation", "Yrotation")
+            assert sorted(motion.channels[j]) == ["Xrotation", "Yrotation", "Zrotation"]
             assert motion.names[motion.parents[j]] == PARENT[name]
     ends = {n for n in motion.names if n.endswith("_end")}
     assert ends == {"neck_end", "l_wrist_end", "r_wrist_end", "l_ankle_end", "r_ankle_end"}
