@@ -10,6 +10,7 @@ import httpx
 import pytest
 
 from service.app import create_app
+from service.queue import open_queue
 from service.runtime import Runtime
 from service.settings import Settings
 from service.worker import Worker
@@ -442,6 +443,15 @@ def test_readyz_reports_what_is_down(client: TestClient, runtime: Runtime,
     body = assert_problem(client.get("/readyz"), 503)
     assert body["checks"] == {"database": "ok", "queue": "unavailable: ConnectionError",
                               "storage": "ok", "disk": "ok", "workers": "ok"}
+    assert body["failed"] == ["queue"]
+
+
+def test_readyz_names_the_drivers_error_of_an_unreachable_back_end(
+        client: TestClient, runtime: Runtime, worker: Worker) -> None:
+    worker.beat()
+    runtime.queue = open_queue("redis://127.0.0.1:1/0")  # nothing listens on port 1
+    body = assert_problem(client.get("/readyz"), 503)
+    assert body["checks"]["queue"] == "unavailable: ConnectionError"  # redis's, not ours
     assert body["failed"] == ["queue"]
 
 
