@@ -29,13 +29,9 @@ class Status(StrEnum):
     FAILED = "failed"
     CANCELLED = "cancelled"
 
-    @property
-    def terminal(self) -> bool:
-        """Whether the job has ended (nothing changes it any more)."""
-        return self in TERMINAL
-
 
 TERMINAL: Final = frozenset({Status.SUCCEEDED, Status.FAILED, Status.CANCELLED})
+"""The statuses of a job that has ended: nothing changes it any more."""
 _CROCKFORD = "0123456789abcdefghjkmnpqrstvwxyz"
 
 
