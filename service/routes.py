@@ -37,7 +37,7 @@ from .schemas import (
     UploadFormat,
 )
 from .storage import free_bytes, is_storage_full, refuse_when_full, storage_full
-from .uploads import UploadSink, receive_multipart, receive_raw, sniff, too_large
+from .uploads import UploadSink, cap_summary, receive_multipart, receive_raw, sniff, too_large
 
 log = logging.getLogger("bonefit.service")
 
@@ -155,7 +155,7 @@ async def upload_recording(
         rec = Recording(id=rec_id, tenant=who, key=key,
                         filename=filename, content_type=content_type, format=fmt,
                         size=sink.size, sha256=sink.sha256.hexdigest(), created_at=time.time(),
-                        summary=_plain(summary))
+                        summary=cap_summary(_plain(summary)))
         storage = "artifact storage"
         await run_in_threadpool(runtime.artifacts.put_file, rec.key, path)
         try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import mmap
 import os
 import queue
@@ -17,7 +18,8 @@ import anyio.to_thread
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 
 from estimation.errors import BonefitError, InputError
-from estimation.io.kinematics import sniff_kinematics
+from estimation.io import limits
+from estimation.io.kinematics import acceleration_header, acceleration_sensors, sniff_kinematics
 from estimation.io.sensors import RowCounter, sniff_recording
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
@@ -27,6 +29,10 @@ BLOCK_BYTES = 2 * 1024 * 1024
 POOL_BLOCKS = 6
 DIRECT_ALIGN = 4096  # O_DIRECT writes: whole blocks of the file system at aligned offsets
 _DONE = None
+SUMMARY_BYTES = 16 * 1024
+"""Hard cap on a recording's stored summary, as JSON (documented in docs/service.md)."""
+SUMMARY_ITEMS = 256
+SUMMARY_STRING = 256
 
 
 def _open_direct(path: Path) -> int | None:
@@ -290,36 +296,97 @@ def clean_spool(spool: Path, max_age: float = 3600.0) -> int:
 
 
 def _sniff_accelerations(path: Path) -> dict[str, Any]:
+    """Columns, sensors and rows of an accelerations CSV, reading one bounded line at a
+    time; InputError unless the header has a time column and a ``.ax/.ay/.az`` sensor."""
     header: list[str] | None = None
+    header_line = 0
     frames = 0
-    with path.open(encoding="utf-8-sig", errors="strict") as fh:
-        for text in fh:
-            line = text.strip()
-            if not line or line.startswith("#"):
+    with path.open(encoding="utf-8-sig", errors="replace", newline="") as fh:
+        for line, text in enumerate(limits.bounded_lines(fh), 1):
+            stripped = text.strip()
+            if not stripped or stripped.startswith("#"):
                 continue
             if header is None:
-                header = [c.strip() for c in line.split(",")]
-                if len(header) < 2 or not any(c[:1].isalpha() for c in header):
-                    raise InputError("expected a header line of column names", line=1,
-                                     field="header")
+                header, header_line = _acceleration_columns(stripped, line), line
                 continue
             frames += 1
     if header is None:
         raise InputError("empty file: no header line", line=1, field="header")
-    return {"format": "accelerations-csv", "frames": frames, "columns": header}
+    limits.check_rows(frames, len(header))
+    names, _ = acceleration_header(header)
+    if not any(n.lower() in ("time", "t") for n in names):
+        raise InputError("not an accelerations CSV: the header has no time column",
+                         line=header_line, field="time")
+    sensors = acceleration_sensors(names)
+    if not sensors:
+        raise InputError("not an accelerations CSV: the header has no <Sensor>.ax,.ay,.az "
+                         "columns", line=header_line, field="header")
+    return {"format": "accelerations-csv", "frames": frames, "columns": header,
+            "sensors": sensors}
+
+
+def _acceleration_columns(line_text: str, line: int) -> list[str]:
+    header = [c.strip() for c in line_text.split(",")]
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
+    if len(header) < 2 or not any(c[:1].isalpha() for c in header):
+        raise InputError("expected a header line of column names", line=line, field="header")
+    for name in header:
+        limits.check_count("characters in a column name", len(name), "MAX_NAME_CHARS",
+                           line=line, field="header")
+    return header
 
 
 def sniff(path: Path, fmt: str, filename: str | None,
           counted_rows: int | None = None) -> tuple[str, dict[str, Any]]:
     """The API format name and quick summary of the file (``counted_rows``: its rows, counted
-    while it was received); InputError when it is unreadable."""
+    while it was received); InputError when it is unreadable or is not the declared ``fmt``
+    (its detail then names the format)."""
     try:
         return _sniff(path, fmt, filename, counted_rows)
-    except BonefitError:
+    except BonefitError as exc:
+        if fmt != "auto" and not exc.detail.startswith("format="):
+            exc.detail = f"format={fmt}: {exc.detail}"
+            exc.args = (exc.detail,)
         raise
     except Exception as exc:  # whatever a reader trips on in a client's file, the file is bad
         raise InputError(f"cannot read the file as {fmt}: {type(exc).__name__}",
                          field="file") from None
+
+
+def cap_summary(summary: dict[str, Any], limit: int = SUMMARY_BYTES) -> dict[str, Any]:
+    """``summary`` cut to at most ``limit`` bytes of JSON, so that a listing never re-serves
+    bulk data whatever a file declares: strings keep their first ``SUMMARY_STRING``
+    characters and lists their first ``SUMMARY_ITEMS`` items, then fewer until it fits; a cut
+    list's ``<key>_total`` member gives its length."""
+    if _json_size(summary) <= limit:
+        return summary
+    items = SUMMARY_ITEMS
+    while True:
+        out: dict[str, Any] = {}
+        for key, value in summary.items():
+            if isinstance(value, list):
+                out[key] = [_cap_scalar(v) for v in value[:items]]
+                if len(value) > items:
+                    out[f"{key}_total"] = len(value)
+            else:
+                out[key] = _cap_scalar(value)
+        if _json_size(out) <= limit:
+            return out
+        if items == 0:
+            return {"truncated": True}
+        items //= 4
+
+
+def _cap_scalar(value: Any) -> Any:
+    if isinstance(value, str) and len(value) > SUMMARY_STRING:
+        return value[:SUMMARY_STRING] + "…"
+    if isinstance(value, dict | list):
+        return None if _json_size(value) > SUMMARY_STRING else value
+    return value
+
+
+def _json_size(value: Any) -> int:
+    return len(json.dumps(value, separators=(",", ":"), default=str).encode())
 
 
 def _sniff(path: Path, fmt: str, filename: str | None,
