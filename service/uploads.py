@@ -86,12 +86,11 @@ class UploadSink:
         self._buf: mmap.mmap | None = None
         self._fill = 0
         self._free: queue.SimpleQueue[mmap.mmap] = queue.SimpleQueue()
-        for _ in range(POOL_BLOCKS):
-            self._free.put(mmap.mmap(-1, BLOCK_BYTES))  # page-aligned, as O_DIRECT needs
+        self._blocks = 0
         self._error: BaseException | None = None
         self._stopped = False
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        self._direct = _open_direct(path)
+        self._fd = -1
+        self._direct: int | None = None
         self._offset = 0
         stages = [self._hash, *([self._count] if count_rows else []), self._write]
         self._queues: list[queue.SimpleQueue[tuple[mmap.mmap, int] | None]] = [
@@ -100,6 +99,14 @@ class UploadSink:
             threading.Thread(target=self._run_stage, args=(i, stage), daemon=True,
                              name=f"upload{stage.__name__}")
             for i, stage in enumerate(stages)]
+
+    def _start(self) -> None:
+        """Open the file and start the threads, once there is a block to hand on (an upload
+        still waiting for its first ``BLOCK_BYTES``, e.g. a slow client, holds neither)."""
+        if self._fd >= 0 or self._threads[0].is_alive():
+            return
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._direct = _open_direct(self.path)
         for thread in self._threads:
             thread.start()
 
@@ -157,13 +164,18 @@ class UploadSink:
     async def _take(self) -> mmap.mmap:
         try:
             return self._free.get_nowait()
-        except queue.Empty:  # backpressure: the disk is behind the network
+        except queue.Empty:
+            if self._blocks < POOL_BLOCKS:  # the pool grows as the upload does
+                self._blocks += 1
+                return mmap.mmap(-1, BLOCK_BYTES)  # page-aligned, as O_DIRECT needs
+            # backpressure: the disk is behind the network
             return await anyio.to_thread.run_sync(self._free.get)
 
     def _hand_over(self) -> None:
         if self._error is not None:
             raise self._error
         if self._buf is not None and self._fill:
+            self._start()
             self._queues[0].put((self._buf, self._fill))
             self._buf, self._fill = None, 0
 
@@ -188,6 +200,7 @@ class UploadSink:
     async def close(self) -> None:
         """Flush, wait for the threads, and close the file."""
         await self.drain(force=True)
+        self._start()  # an empty upload still makes an (empty) file
         self._queues[0].put(_DONE)
         for thread in self._threads:
             await anyio.to_thread.run_sync(thread.join)
@@ -201,7 +214,8 @@ class UploadSink:
             self._stopped = True  # the threads skip what is still queued
             self._queues[0].put(_DONE)
         for thread in self._threads:
-            thread.join()
+            if thread.ident is not None:  # started
+                thread.join()
         self._close_files()
         self.path.unlink(missing_ok=True)
 
@@ -229,7 +243,7 @@ async def receive_multipart(chunks: AsyncIterator[bytes], content_type: str,
         state["in_file"] = False
 
     def on_header_field(data: bytes, start: int, end: int) -> None:
-        state["field"] += data[start:end]
+        state["field"] += data[start:end]  # bounded by the parser (max_header_size)
 
     def on_header_value(data: bytes, start: int, end: int) -> None:
         state["value"] += data[start:end]
