@@ -228,7 +228,7 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
     from estimation.io.sensors import read_recording
     from estimation.io.skeleton import offsets_from_dict, write_skeleton_files
-    from estimation.skeleton import estimate_skeleton
+    from estimation.skeleton import estimate_skeleton, estimate_skeleton_from_offsets
 
     source = inputs["recording"]
     progress(0.0, "reading")
@@ -237,13 +237,18 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
                                units=params.units, fps=params.fps, stations=params.stations,
                                tracker_layout=params.tracker_layout)
     read_s = time.perf_counter() - started
-    result = estimate_skeleton(
-        recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
-        up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
-        w_l=params.w_l, smooth=params.smooth,
-        offsets=None if params.offsets is None else offsets_from_dict(
-            {k: v.model_dump() for k, v in params.offsets.items()}),
-        progress=scaled(progress, 0.02, 0.95))
+    stage = scaled(progress, 0.02, 0.95)
+    if params.offsets is None:
+        result = estimate_skeleton(
+            recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
+            up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
+            w_l=params.w_l, smooth=params.smooth, progress=stage)
+    else:
+        # a calibration's offsets leave nothing to fit: the method's options do not apply
+        offsets = offsets_from_dict({k: v.model_dump() for k, v in params.offsets.items()})
+        result = estimate_skeleton_from_offsets(recording, offsets, up=params.up,
+                                                i0=params.i0, smooth=bool(params.smooth),
+                                                progress=stage)
     progress(0.95, "writing")
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
            "csv": outdir / "skeleton.csv"}

@@ -6,7 +6,8 @@ import argparse
 import dataclasses
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from ..io.tracker import (
 from ..model import JOINTS
 from ..params import check_fps
 from ..recording import SensorRecording
-from ..results import SkeletonResult
+from ..results import JointOffset, SkeletonResult
 from .progress import ProgressBar
 
 METHODS = ("auto", "llsf", "gdke", "reduced")
@@ -132,6 +133,13 @@ def _estimator() -> Callable[..., SkeletonResult]:
     return estimate_skeleton
 
 
+def _offsets_estimator(offsets: Mapping[str, JointOffset]) -> Callable[..., SkeletonResult]:
+    """``estimate_skeleton_from_offsets`` with the calibration's ``offsets``."""
+    from ..skeleton import estimate_skeleton_from_offsets
+
+    return partial(estimate_skeleton_from_offsets, offsets=offsets)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``bonefit skeleton``; returns the exit code (bad input raises InputError)."""
     fmt = _choice(args.format, ["auto", *FORMATS], "--format")
@@ -173,12 +181,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--i0 {i0} is past the last frame ({recording.n_frames - 1})",
                          field="--i0")
 
-    estimate = _estimator()
+    # a calibration's offsets leave nothing to fit: no method, no optimizer
+    estimate, fitting = ((_estimator(), {"method": method, "optimizer": optimizer})
+                         if offsets is None else (_offsets_estimator(offsets), {}))
     bar = None if args.quiet else ProgressBar()
     start = time.perf_counter()
     try:
-        result = estimate(recording, method=method, optimizer=optimizer, up=up, i0=i0,
-                          offsets=offsets, progress=bar)
+        result = estimate(recording, **fitting, up=up, i0=i0, progress=bar)
     finally:
         if bar is not None:
             bar.close()

@@ -194,7 +194,7 @@ def test_options_reach_the_estimator_and_outputs_are_written(
                          "--bvh", str(tmp_path / "r.bvh"), "--csv", str(tmp_path / "r.csv"))
     assert (code, out, err) == (0, "", "")
     assert calls == [{"method": "reduced", "optimizer": "nelder-mead", "up": (0.0, 0.0, -1.0),
-                      "i0": 7, "offsets": None, "progress": None}]
+                      "i0": 7, "progress": None}]
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["method"] == "fake"
     assert doc["frames"] == 300
