@@ -15,14 +15,16 @@ from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from . import problems, studio
+from .housekeeping import housekeeping
 from .kinds import Kind, default_kinds
 from .metrics import build_registry
 from .problems import Problem
+from .reaper import reap
+from .retention import purge
 from .routes import ops, v1
 from .runtime import Runtime, open_runtime
 from .settings import Settings
 from .uploads import clean_spool
-from .worker import housekeeping, purge, reap
 
 log = logging.getLogger("bonefit.service")
 

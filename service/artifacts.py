@@ -1,4 +1,4 @@
-"""Artifact storage for uploaded recordings and job results: in memory, local disk or S3."""
+"""Artifact storage for uploaded recordings and job results: local disk or S3."""
 
 from __future__ import annotations
 
@@ -6,11 +6,20 @@ import contextlib
 import os
 import re
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 from urllib.parse import urlsplit
+
+from .errors import (
+    ArtifactsUnavailable,
+    BackendError,
+    StorageFull,
+    says_disk_full,
+    translate_methods,
+)
 
 if TYPE_CHECKING:
     from .settings import Settings
@@ -45,46 +54,30 @@ class ArtifactStore(Protocol):
         """Raise if the storage is unreachable."""
 
 
-class MemoryArtifactStore:
-    """Blobs in a dict, for tests."""
-
-    def __init__(self) -> None:
-        self.blobs: dict[str, bytes] = {}
-
-    def put_file(self, key: str, path: Path) -> None:
-        """Read the file into memory."""
-        self.blobs[key] = Path(path).read_bytes()
-
-    def iter_bytes(self, key: str) -> Iterator[bytes]:
-        """Yield the blob."""
-        if key not in self.blobs:
-            raise FileNotFoundError(key)
-        data = self.blobs[key]
-        for start in range(0, len(data), CHUNK):
-            yield data[start:start + CHUNK]
-
-    @contextlib.contextmanager
-    def as_file(self, key: str) -> Iterator[Path]:
-        """Write the blob to a temporary file."""
-        if key not in self.blobs:
-            raise FileNotFoundError(key)
-        with tempfile.TemporaryDirectory(prefix="bonefit-") as tmp:
-            path = Path(tmp) / key.rsplit("/", 1)[-1]
-            path.write_bytes(self.blobs[key])
-            yield path
-
-    def delete(self, key: str) -> None:
-        """Forget the blob."""
-        self.blobs.pop(key, None)
-
-    def exists(self, key: str) -> bool:
-        """Whether the blob is there."""
-        return key in self.blobs
-
-    def ping(self) -> None:
-        """Always reachable."""
+def artifact_error(exc: Exception) -> BackendError | None:
+    """The service's error for a storage error (a full disk, an outage); None for others,
+    among them FileNotFoundError, which says a key is absent."""
+    if isinstance(exc, FileNotFoundError):
+        return None
+    if says_disk_full(exc):
+        return StorageFull(f"the artifact storage is full ({type(exc).__name__})",
+                           storage=ArtifactsUnavailable.storage)
+    botocore = sys.modules.get("botocore.exceptions")  # not loaded: not an S3 error
+    if botocore is not None and isinstance(exc, botocore.ConnectionError
+                                           | botocore.HTTPClientError):
+        return ArtifactsUnavailable(f"the artifact storage is unreachable "
+                                    f"({type(exc).__name__})")
+    return None
 
 
+def _raise_translated(exc: Exception) -> None:
+    """Raise the service's error for ``exc`` if there is one (generators are not wrapped)."""
+    mapped = artifact_error(exc)
+    if mapped is not None:
+        raise mapped from exc
+
+
+@translate_methods(artifact_error)
 class LocalArtifactStore:
     """Blobs as files under a directory."""
 
@@ -134,6 +127,7 @@ class LocalArtifactStore:
             raise PermissionError(f"{self.root} is not writable")
 
 
+@translate_methods(artifact_error)
 class S3ArtifactStore:
     """Blobs in an S3-compatible bucket under a prefix."""
 
@@ -155,6 +149,9 @@ class S3ArtifactStore:
             body = self.client.get_object(Bucket=self.bucket, Key=self._key(key))["Body"]
         except self.client.exceptions.NoSuchKey:
             raise FileNotFoundError(key) from None
+        except Exception as exc:
+            _raise_translated(exc)
+            raise
         try:
             while chunk := body.read(CHUNK):
                 yield chunk
@@ -171,6 +168,7 @@ class S3ArtifactStore:
             except Exception as exc:
                 if _is_missing(exc):
                     raise FileNotFoundError(key) from exc
+                _raise_translated(exc)
                 raise
             yield path
 
@@ -202,8 +200,6 @@ def open_artifacts(settings: Settings) -> ArtifactStore:
     """The artifact store configured by ``BONEFIT_STORAGE_URL``."""
     url = settings.resolved_storage_url
     parts = urlsplit(url)
-    if parts.scheme == "memory":
-        return MemoryArtifactStore()
     if parts.scheme == "file":
         return LocalArtifactStore(Path(parts.path))
     if parts.scheme == "s3":
@@ -218,4 +214,4 @@ def open_artifacts(settings: Settings) -> ArtifactStore:
             config=Config(retries={"max_attempts": 3, "mode": "standard"},
                           s3={"addressing_style": "path"}))
         return S3ArtifactStore(parts.netloc, parts.path, client)
-    raise ValueError(f"unsupported storage URL {url!r} (use file://, s3:// or memory://)")
+    raise ValueError(f"unsupported storage URL {url!r} (use file:// or s3://)")

@@ -65,7 +65,7 @@ def serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from .app import create_app
-    from .worker import WorkerPool
+    from .pool import WorkerPool
 
     settings = _settings(args, host=args.host, port=args.port, workers=args.workers)
     _logging(settings.log_level)
@@ -98,7 +98,8 @@ def _ignore(signum: int, frame: FrameType | None) -> None:
 
 def worker(args: argparse.Namespace) -> int:
     """Run worker processes that take jobs from the queue."""
-    from .worker import WorkerPool, run_worker
+    from .pool import WorkerPool
+    from .worker import run_worker
 
     settings = _settings(args)
     _logging(settings.log_level)

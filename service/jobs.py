@@ -1,20 +1,37 @@
-"""The job store: recordings and jobs, behind a small Protocol (SQLAlchemy 2 or in memory)."""
+"""The job store: recordings and jobs, behind a small Protocol, in SQLite or PostgreSQL."""
 
 from __future__ import annotations
 
-import copy
 import os
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
+from enum import StrEnum
 from typing import Any, Final, Protocol
 
 import sqlalchemy as sa
 from sqlalchemy.engine import Engine
 
-STATUSES: Final = ("queued", "running", "succeeded", "failed", "cancelled")
-TERMINAL: Final = frozenset({"succeeded", "failed", "cancelled"})
+from .errors import BackendError, StorageFull, StoreUnavailable, says_disk_full, translate_methods
+
+
+class Status(StrEnum):
+    """A job's place in its life cycle; the values are the API's and the database's strings.
+
+    ``queued`` → (``claim``) ``running`` → ``succeeded`` | ``failed`` | ``cancelled``, and back
+    to ``queued`` when a worker hands the job back or is lost; a queued job can be cancelled.
+    """
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+
+TERMINAL: Final = frozenset({Status.SUCCEEDED, Status.FAILED, Status.CANCELLED})
+"""The statuses of a job that has ended: nothing changes it any more."""
 _CROCKFORD = "0123456789abcdefghjkmnpqrstvwxyz"
 
 
@@ -60,7 +77,7 @@ class Job:
     inputs: dict[str, str]
     created_at: float
     updated_at: float
-    status: str = "queued"
+    status: Status = Status.QUEUED
     started_at: float | None = None
     finished_at: float | None = None
     attempts: int = 0
@@ -121,12 +138,55 @@ class JobStore(Protocol):
     def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
         """The job (of ``tenant`` when given), or None."""
 
-    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
+    def list_jobs(self, tenant: str, *, status: Status | str | None, kind: str | None,
                   before: str | None, limit: int) -> list[Job]:
         """The tenant's jobs, newest first, filtered."""
 
     def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
-        """Apply ``changes`` if every ``expect`` condition holds; the updated job or None."""
+        """Apply ``changes`` if every ``expect`` condition holds; the updated job or None.
+
+        The compare-and-set primitive under the transitions below; the service changes jobs
+        only through those, which own their preconditions.
+        """
+
+    def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:
+        """Run ``job`` (queued, as read) on ``worker`` under a lease, counting an attempt."""
+
+    def renew(self, job_id: str, worker: str, lease_until: float, *,
+              fraction: float | None = None, stage: str | None = None) -> Job | None:
+        """Extend ``worker``'s lease, storing its progress; None once the job is not its own."""
+
+    def requeue(self, job_id: str, worker: str | None, message: str, *,
+                lease_until: float | None = None) -> Job | None:
+        """Queue again the job ``worker`` ran, its attempt counted (a crash, a lost worker);
+        with ``lease_until``, only while the lease is still that one."""
+
+    def hand_back(self, job: Job, worker: str, message: str) -> Job | None:
+        """Queue again the job ``worker`` runs without counting its attempt (a shutdown)."""
+
+    def succeed(self, job_id: str, worker: str, results: Mapping[str, str],
+                now: float) -> Job | None:
+        """End the job ``worker`` runs with its result keys (format → artifact key)."""
+
+    def fail(self, job_id: str, worker: str | None, error: Mapping[str, Any], now: float, *,
+             lease_until: float | None = None) -> Job | None:
+        """End the job ``worker`` runs with the problem document ``error``."""
+
+    def cancel(self, job_id: str, worker: str | None, now: float, *,
+               lease_until: float | None = None) -> Job | None:
+        """End as cancelled the job ``worker`` runs (its client asked)."""
+
+    def cancel_queued(self, job_id: str, now: float) -> Job | None:
+        """End as cancelled a job still waiting in the queue."""
+
+    def request_cancel(self, job_id: str) -> Job | None:
+        """Ask the worker running the job to stop at its next progress report."""
+
+    def withdraw(self, job_id: str, error: Mapping[str, Any], now: float) -> Job | None:
+        """Fail a queued job the queue refused and free its idempotency key."""
+
+    def mark_resent(self, job: Job) -> Job | None:
+        """Note that the queued ``job`` (as read) was sent again; None if it changed since."""
 
     def expired_leases(self, now: float) -> list[Job]:
         """Running jobs whose lease ended before ``now``."""
@@ -155,152 +215,6 @@ class JobStore(Protocol):
 
     def live_workers(self, since: float) -> list[str]:
         """Ids of the workers seen alive at or after ``since``."""
-
-
-def _matches(obj: Any, expect: Expect) -> bool:
-    for name, wanted in expect.items():
-        value = getattr(obj, name)
-        if isinstance(wanted, tuple):
-            if value not in wanted:
-                return False
-        elif value != wanted:
-            return False
-    return True
-
-
-class MemoryJobStore:
-    """A job store in a dict, for tests and single-process use."""
-
-    def __init__(self) -> None:
-        self._recordings: dict[str, Recording] = {}
-        self._jobs: dict[str, Job] = {}
-        self._workers: dict[str, float] = {}
-        self._lock = threading.Lock()
-
-    def init(self) -> None:
-        """Nothing to create."""
-
-    def ping(self) -> None:
-        """Always reachable."""
-
-    def add_recording(self, recording: Recording) -> None:
-        """Insert a recording."""
-        with self._lock:
-            self._recordings[recording.id] = copy.deepcopy(recording)
-
-    def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
-        """The tenant's recording, or None."""
-        rec = self._recordings.get(recording_id)
-        return copy.deepcopy(rec) if rec and rec.tenant == tenant else None
-
-    def list_recordings(self, tenant: str, *, before: str | None, limit: int) -> list[Recording]:
-        """The tenant's recordings, newest first."""
-        recs = [r for r in self._recordings.values()
-                if r.tenant == tenant and (before is None or r.id < before)]
-        return copy.deepcopy(sorted(recs, key=lambda r: r.id, reverse=True)[:limit])
-
-    def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
-        """Delete and return the tenant's recording."""
-        with self._lock:
-            rec = self.get_recording(tenant, recording_id)
-            if rec:
-                del self._recordings[recording_id]
-            return rec
-
-    def add_job(self, job: Job) -> Job:
-        """Insert a job unless its idempotency key is taken."""
-        with self._lock:
-            if job.idempotency_key is not None:
-                for other in self._jobs.values():
-                    if (other.tenant, other.idempotency_key) == (job.tenant, job.idempotency_key):
-                        return copy.deepcopy(other)
-            self._jobs[job.id] = copy.deepcopy(job)
-            return copy.deepcopy(job)
-
-    def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
-        """The job, or None."""
-        job = self._jobs.get(job_id)
-        if job is None or (tenant is not None and job.tenant != tenant):
-            return None
-        return copy.deepcopy(job)
-
-    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
-                  before: str | None, limit: int) -> list[Job]:
-        """The tenant's jobs, newest first."""
-        jobs = [j for j in self._jobs.values() if j.tenant == tenant
-                and (status is None or j.status == status) and (kind is None or j.kind == kind)
-                and (before is None or j.id < before)]
-        return copy.deepcopy(sorted(jobs, key=lambda j: j.id, reverse=True)[:limit])
-
-    def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
-        """Compare and set."""
-        with self._lock:
-            job = self._jobs.get(job_id)
-            if job is None or not _matches(job, expect):
-                return None
-            job = replace(job, **changes, version=job.version + 1, updated_at=time.time())
-            self._jobs[job_id] = job
-            return copy.deepcopy(job)
-
-    def expired_leases(self, now: float) -> list[Job]:
-        """Running jobs whose lease ended."""
-        return [copy.deepcopy(j) for j in self._jobs.values()
-                if j.status == "running" and j.lease_until is not None and j.lease_until < now]
-
-    def stale_queued(self, before: float) -> list[Job]:
-        """Queued jobs not updated since ``before``."""
-        return [copy.deepcopy(j) for j in self._jobs.values()
-                if j.status == "queued" and j.updated_at < before]
-
-    def counts(self) -> dict[tuple[str, str], int]:
-        """Jobs per (kind, status)."""
-        out: dict[tuple[str, str], int] = {}
-        for j in self._jobs.values():
-            out[j.kind, j.status] = out.get((j.kind, j.status), 0) + 1
-        return out
-
-    def durations(self, buckets: tuple[float, ...]) -> dict[str, Histogram]:
-        """Run time of succeeded jobs."""
-        out: dict[str, Histogram] = {}
-        for j in self._jobs.values():
-            if j.status == "succeeded" and j.finished_at and j.started_at:
-                seconds = j.finished_at - j.started_at
-                h = out.setdefault(j.kind, Histogram([0] * len(buckets), 0, 0.0))
-                h.counts[:] = [c + (seconds <= b) for c, b in zip(h.counts, buckets, strict=True)]
-                h.count += 1
-                h.total += seconds
-        return out
-
-    def recording_totals(self) -> tuple[int, int]:
-        """Count and bytes of recordings."""
-        return len(self._recordings), sum(r.size for r in self._recordings.values())
-
-    def purge(self, before: float, limit: int = PURGE_BATCH) -> tuple[list[Recording], list[Job]]:
-        """Delete at most ``limit`` of each older than ``before``."""
-        with self._lock:
-            recs = [r for r in self._recordings.values() if r.created_at < before][:limit]
-            jobs = [j for j in self._jobs.values()
-                    if j.finished_at is not None and j.finished_at < before][:limit]
-            for r in recs:
-                del self._recordings[r.id]
-            for j in jobs:
-                del self._jobs[j.id]
-            return recs, jobs
-
-    def beat_worker(self, worker_id: str, now: float) -> None:
-        """Note the worker alive."""
-        with self._lock:
-            self._workers[worker_id] = now
-
-    def drop_worker(self, worker_id: str) -> None:
-        """Forget the worker."""
-        with self._lock:
-            self._workers.pop(worker_id, None)
-
-    def live_workers(self, since: float) -> list[str]:
-        """Workers seen since ``since``."""
-        with self._lock:
-            return sorted(w for w, seen in self._workers.items() if seen >= since)
 
 
 _metadata = sa.MetaData()
@@ -362,12 +276,39 @@ def _recording(row: sa.Row[Any]) -> Recording:
 
 
 def _job(row: sa.Row[Any]) -> Job:
-    return Job(**{name: getattr(row, name) for name in _JOB_FIELDS})
+    job = Job(**{name: getattr(row, name) for name in _JOB_FIELDS})
+    job.status = Status(job.status)
+    return job
 
 
 def _conditions(table: sa.Table, expect: Expect) -> list[sa.ColumnElement[bool]]:
     return [table.c[name].in_(value) if isinstance(value, tuple) else table.c[name] == value
             for name, value in expect.items()]
+
+
+def _held(worker: str | None, lease_until: float | None = None) -> dict[str, Any]:
+    """The condition that the job is running on ``worker`` (under that lease, when given)."""
+    expect: dict[str, Any] = {"status": Status.RUNNING, "worker": worker}
+    if lease_until is not None:
+        expect["lease_until"] = lease_until
+    return expect
+
+
+_QUEUED_AGAIN: Final = {"status": Status.QUEUED, "stage": "queued", "worker": None,
+                        "lease_until": None}
+"""The changes putting a running job back in the queue."""
+
+
+def sql_error(exc: Exception) -> BackendError | None:
+    """The service's error for a database error (a full disk, an outage); None for others."""
+    if says_disk_full(exc):
+        return StorageFull(f"the job database is full ({type(exc).__name__})",
+                           storage=StoreUnavailable.storage)
+    outages = (sa.exc.OperationalError, sa.exc.InterfaceError, sa.exc.TimeoutError,
+               ConnectionError, TimeoutError)
+    if isinstance(exc, outages):
+        return StoreUnavailable(f"the job database is unreachable ({type(exc).__name__})")
+    return None
 
 
 def create_engine(url: str) -> Engine:
@@ -391,8 +332,10 @@ def create_engine(url: str) -> Engine:
     return engine
 
 
+@translate_methods(sql_error)
 class SqlJobStore:
-    """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core."""
+    """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core; its methods raise
+    :class:`~service.errors.StorageFull` and :class:`~service.errors.StoreUnavailable`."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
@@ -472,13 +415,13 @@ class SqlJobStore:
             row = conn.execute(query).first()
         return _job(row) if row else None
 
-    def list_jobs(self, tenant: str, *, status: str | None, kind: str | None,
+    def list_jobs(self, tenant: str, *, status: Status | str | None, kind: str | None,
                   before: str | None, limit: int) -> list[Job]:
         """The tenant's jobs, newest first."""
         t = jobs_table
         query = sa.select(t).where(t.c.tenant == tenant).order_by(t.c.id.desc()).limit(limit)
         if status is not None:
-            query = query.where(t.c.status == status)
+            query = query.where(t.c.status == Status(status).value)
         if kind is not None:
             query = query.where(t.c.kind == kind)
         if before is not None:
@@ -498,11 +441,82 @@ class SqlJobStore:
             row = conn.execute(sa.select(t).where(t.c.id == job_id)).first()
         return _job(row) if row else None
 
+    def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:
+        """Queued, with the attempts read → running on ``worker``, one more attempt."""
+        return self.update_job(job.id, {
+            "status": Status.RUNNING, "worker": worker, "attempts": job.attempts + 1,
+            "started_at": now, "lease_until": now + lease_seconds, "stage": "starting",
+            "message": None, "fraction": 0.0,
+        }, expect={"status": Status.QUEUED, "attempts": job.attempts})
+
+    def renew(self, job_id: str, worker: str, lease_until: float, *,
+              fraction: float | None = None, stage: str | None = None) -> Job | None:
+        """Running on ``worker`` → a new lease end (and progress)."""
+        changes: dict[str, Any] = {"lease_until": lease_until}
+        if fraction is not None:
+            changes["fraction"] = fraction
+        if stage is not None:
+            changes["stage"] = stage
+        return self.update_job(job_id, changes, expect=_held(worker))
+
+    def requeue(self, job_id: str, worker: str | None, message: str, *,
+                lease_until: float | None = None) -> Job | None:
+        """Running on ``worker`` (with that lease) → queued, the attempt counted."""
+        return self.update_job(job_id, {**_QUEUED_AGAIN, "message": message},
+                               expect=_held(worker, lease_until))
+
+    def hand_back(self, job: Job, worker: str, message: str) -> Job | None:
+        """Running on ``worker`` → queued, the attempt not counted."""
+        return self.update_job(job.id, {**_QUEUED_AGAIN, "message": message,
+                                        "attempts": job.attempts - 1}, expect=_held(worker))
+
+    def succeed(self, job_id: str, worker: str, results: Mapping[str, str],
+                now: float) -> Job | None:
+        """Running on ``worker`` → succeeded with ``results``."""
+        return self._end(job_id, Status.SUCCEEDED, now, _held(worker), stage="done",
+                         fraction=1.0, results=dict(results))
+
+    def fail(self, job_id: str, worker: str | None, error: Mapping[str, Any], now: float, *,
+             lease_until: float | None = None) -> Job | None:
+        """Running on ``worker`` (with that lease) → failed with ``error``."""
+        return self._end(job_id, Status.FAILED, now, _held(worker, lease_until),
+                         error=dict(error))
+
+    def cancel(self, job_id: str, worker: str | None, now: float, *,
+               lease_until: float | None = None) -> Job | None:
+        """Running on ``worker`` (with that lease) → cancelled."""
+        return self._end(job_id, Status.CANCELLED, now, _held(worker, lease_until))
+
+    def cancel_queued(self, job_id: str, now: float) -> Job | None:
+        """Queued → cancelled."""
+        return self._end(job_id, Status.CANCELLED, now, {"status": Status.QUEUED})
+
+    def request_cancel(self, job_id: str) -> Job | None:
+        """Running → cancel requested."""
+        return self.update_job(job_id, {"cancel_requested": True, "message": "cancelling"},
+                               expect={"status": Status.RUNNING})
+
+    def withdraw(self, job_id: str, error: Mapping[str, Any], now: float) -> Job | None:
+        """Queued → failed with ``error``, its idempotency key freed for the client's retry."""
+        return self._end(job_id, Status.FAILED, now, {"status": Status.QUEUED},
+                         error=dict(error), idempotency_key=None)
+
+    def mark_resent(self, job: Job) -> Job | None:
+        """Queued and unchanged since read → a new ``updated_at`` (and version)."""
+        return self.update_job(job.id, {}, expect={"status": Status.QUEUED,
+                                                   "version": job.version})
+
+    def _end(self, job_id: str, status: Status, now: float, expect: Expect,
+             **changes: Any) -> Job | None:
+        return self.update_job(job_id, {"status": status, "stage": status.value,
+                                        "finished_at": now, "worker": None,
+                                        "lease_until": None, **changes}, expect=expect)
+
     def expired_leases(self, now: float) -> list[Job]:
         """Running jobs whose lease ended."""
         t = jobs_table
         with self.engine.connect() as conn:
-            rows = conn.execute(sa.select(t).where(t.c.status == "running",
+            rows = conn.execute(sa.select(t).where(t.c.status == Status.RUNNING.value,
                                                    t.c.lease_until < now))
             return [_job(row) for row in rows]
 
@@ -510,7 +524,7 @@ class SqlJobStore:
         """Queued jobs not updated since ``before``."""
         t = jobs_table
         with self.engine.connect() as conn:
-            rows = conn.execute(sa.select(t).where(t.c.status == "queued",
+            rows = conn.execute(sa.select(t).where(t.c.status == Status.QUEUED.value,
                                                    t.c.updated_at < before))
             return [_job(row) for row in rows]
 
@@ -528,7 +542,7 @@ class SqlJobStore:
         seconds = t.c.finished_at - t.c.started_at
         columns = [sa.func.sum(sa.case((seconds <= b, 1), else_=0)) for b in buckets]
         query = (sa.select(t.c.kind, sa.func.count(), sa.func.sum(seconds), *columns)
-                 .where(t.c.status == "succeeded", t.c.started_at.is_not(None),
+                 .where(t.c.status == Status.SUCCEEDED.value, t.c.started_at.is_not(None),
                         t.c.finished_at.is_not(None)).group_by(t.c.kind))
         with self.engine.connect() as conn:
             return {row[0]: Histogram([int(c or 0) for c in row[3:]], int(row[1]),
@@ -584,8 +598,10 @@ class SqlJobStore:
 
 
 def open_store(url: str) -> JobStore:
-    """The store for ``url``: ``memory://`` or any SQLAlchemy URL."""
-    if url == "memory://":
-        return MemoryJobStore()
+    """The store for ``url``, any SQLAlchemy URL (SQLite or PostgreSQL)."""
+    if url.startswith("memory:"):
+        # each worker process would have a store of its own, and never see the API's jobs
+        raise ValueError(f"unsupported database URL {url!r}: the job store is shared by "
+                         "processes; use sqlite:///path or postgresql://")
     return SqlJobStore.from_url(url)
 

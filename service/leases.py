@@ -124,9 +124,7 @@ def keep(settings: Settings, worker_id: str, parent_pid: int) -> int:
 def _renew(store: JobStore, job_id: str, worker_id: str, lease: float) -> str | None:
     """Extend the lease; the job id while it is still this worker's, else None."""
     try:
-        job = store.update_job(
-            job_id, {"lease_until": time.time() + lease},
-            expect={"status": "running", "worker": worker_id})
+        job = store.renew(job_id, worker_id, time.time() + lease)
     except Exception:
         log.exception("job %s: the lease keeper could not renew the lease", job_id)
         return job_id

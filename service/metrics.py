@@ -9,7 +9,7 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Counter
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
 
-from .jobs import STATUSES, Histogram
+from .jobs import Histogram, Status
 from .runtime import Runtime
 
 log = logging.getLogger("bonefit.service")
@@ -35,8 +35,8 @@ class StoreCollector:
         jobs = GaugeMetricFamily("bonefit_jobs", "Jobs in the store by kind and status.",
                                  labels=["kind", "status"])
         for kind in sorted({k for k, _ in counts} | set(self.kinds)):
-            for status in STATUSES:
-                jobs.add_metric([kind, status], counts.get((kind, status), 0))
+            for status in Status:
+                jobs.add_metric([kind, status.value], counts.get((kind, status.value), 0))
         yield jobs
         hist = HistogramMetricFamily("bonefit_job_duration_seconds",
                                      "Run time of succeeded jobs (start to finish).",

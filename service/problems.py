@@ -16,6 +16,8 @@ from starlette.routing import Match
 
 from estimation.errors import BonefitError, EstimationError
 
+from .errors import BackendError
+
 log = logging.getLogger("bonefit.service")
 
 PROBLEM_TYPE = "urn:bonefit:problem:"
@@ -75,16 +77,13 @@ def _location(loc: tuple[int | str, ...], tags: set[str]) -> str:
 
 
 def outage_types() -> tuple[type[Exception], ...]:
-    """The exceptions that say a back-end (database, queue, storage) is down: 503, not 500."""
-    import botocore.exceptions
-    import redis.exceptions
-    import sqlalchemy.exc
+    """The exceptions that say a back-end (database, queue, storage) failed: 503, not 500.
 
-    return (sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError,
-            sqlalchemy.exc.TimeoutError, redis.exceptions.ConnectionError,
-            redis.exceptions.TimeoutError, botocore.exceptions.ConnectionError,
-            botocore.exceptions.ConnectTimeoutError, botocore.exceptions.ReadTimeoutError,
-            ConnectionError, TimeoutError)
+    The adapters raise :class:`~service.errors.BackendError` for their drivers' outages
+    (SQLAlchemy, redis, huey's SQLite, botocore) and full disks; the routes that write answer
+    a full disk with 507 themselves.
+    """
+    return (BackendError, ConnectionError, TimeoutError)
 
 
 def is_outage(exc: BaseException) -> bool:

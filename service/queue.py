@@ -1,13 +1,15 @@
-"""The job queue: job ids travel through huey (SQLite embedded, Redis distributed) or a deque."""
+"""The job queue: job ids travel through huey (SQLite embedded, Redis distributed)."""
 
 from __future__ import annotations
 
-import collections
-import threading
+import sqlite3
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
+
+from .errors import BackendError, QueueUnavailable, StorageFull, says_disk_full, translate_methods
 
 Handler = Callable[[str], None]
 TASK_NAME = "bonefit.run_job"
@@ -32,42 +34,26 @@ class JobQueue(Protocol):
         """Raise if the queue is unreachable."""
 
 
-class MemoryQueue:
-    """A thread-safe deque, for tests."""
-
-    def __init__(self) -> None:
-        self._items: collections.deque[str] = collections.deque()
-        self._lock = threading.Lock()
-
-    def enqueue(self, job_id: str) -> None:
-        """Append the id."""
-        with self._lock:
-            self._items.append(job_id)
-
-    def run_next(self, handler: Handler) -> bool:
-        """Pop one id and handle it."""
-        with self._lock:
-            if not self._items:
-                return False
-            job_id = self._items.popleft()
-        handler(job_id)
-        return True
-
-    def depth(self) -> int:
-        """Ids waiting."""
-        return len(self._items)
-
-    def pending(self) -> set[str]:
-        """Ids waiting."""
-        with self._lock:
-            return set(self._items)
-
-    def ping(self) -> None:
-        """Always reachable."""
+def queue_error(exc: Exception) -> BackendError | None:
+    """The service's error for a huey storage error (a full disk, an outage); None for others."""
+    if says_disk_full(exc):
+        return StorageFull(f"the job queue is full ({type(exc).__name__})",
+                           storage=QueueUnavailable.storage)
+    outages: tuple[type[Exception], ...] = (sqlite3.OperationalError, ConnectionError,
+                                            TimeoutError)
+    redis = sys.modules.get("redis.exceptions")  # not loaded: not a redis error
+    if redis is not None:
+        outages += (redis.ConnectionError, redis.TimeoutError)
+    if isinstance(exc, outages):
+        return QueueUnavailable(f"the job queue is unreachable ({type(exc).__name__})")
+    return None
 
 
+@translate_methods(queue_error)
 class HueyQueue:
-    """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers."""
+    """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers;
+    its methods raise :class:`~service.errors.StorageFull` and
+    :class:`~service.errors.QueueUnavailable`."""
 
     def __init__(self, huey: Any) -> None:
         self.huey = huey
@@ -109,12 +95,10 @@ class HueyQueue:
 
 
 def open_queue(url: str) -> JobQueue:
-    """The queue for ``url``: ``sqlite:///path``, ``redis://...`` or ``memory://``."""
+    """The queue for ``url``: ``sqlite:///path`` or ``redis://...``."""
     from huey import RedisHuey, SqliteHuey  # keep importing this module free of side effects
 
     scheme = urlsplit(url).scheme
-    if scheme == "memory":
-        return MemoryQueue()
     if scheme == "sqlite":
         path = Path(url.removeprefix("sqlite:///"))  # SQLAlchemy style: 4 slashes = absolute
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -122,4 +106,4 @@ def open_queue(url: str) -> JobQueue:
     if scheme in ("redis", "rediss", "unix"):
         return HueyQueue(RedisHuey("bonefit", url=url, results=False, blocking=True,
                                    read_timeout=1))
-    raise ValueError(f"unsupported queue URL {url!r} (use sqlite:///, redis:// or memory://)")
+    raise ValueError(f"unsupported queue URL {url!r} (use sqlite:/// or redis://)")

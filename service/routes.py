@@ -21,7 +21,9 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from .artifacts import tenant_prefix
 from .auth import metrics_guard, tenant
-from .jobs import TERMINAL, Job, Recording, new_id
+from .errors import BackendError
+from .failures import queue_refused_problem
+from .jobs import TERMINAL, Job, Recording, Status, new_id
 from .kinds import MEDIA_TYPES
 from .problems import (
     MEDIA_TYPE,
@@ -39,7 +41,6 @@ from .schemas import (
     RecordingOut,
     RecordingPage,
     ResultFormat,
-    Status,
     UploadFormat,
 )
 from .storage import free_bytes, is_storage_full, refuse_when_full, storage_full
@@ -302,12 +303,8 @@ async def _not_queued(runtime: Runtime, job_id: str) -> None:
     written, the job stays queued with its key: the reaper sends it once the queue is back,
     and the retry gets it."""
     try:
-        await run_in_threadpool(runtime.store.update_job, job_id, {
-            "status": "failed", "finished_at": time.time(), "stage": "failed",
-            "idempotency_key": None,
-            "error": {"type": "urn:bonefit:problem:queue-unavailable", "title": "Queue "
-                      "unavailable", "status": 503, "detail": "the job could not be queued"}},
-            expect={"status": "queued"})
+        await run_in_threadpool(runtime.store.withdraw, job_id,
+                                queue_refused_problem().body(), time.time())
     except Exception:
         log.exception("job %s: not queued, and could not be marked failed; the reaper will "
                       "send it", job_id)
@@ -357,19 +354,16 @@ async def cancel_job(request: Request, who: Tenant, job_id: str) -> JSONResponse
     """Cancel a queued job now; a running one stops at its next progress report."""
     store = runtime_of(request).store
     job = await _job(request, who, job_id)
-    if job.status == "queued":
-        done = await run_in_threadpool(store.update_job, job_id, {
-            "status": "cancelled", "finished_at": time.time(), "stage": "cancelled"},
-            expect={"status": "queued"})
+    if job.status is Status.QUEUED:
+        done = await run_in_threadpool(store.cancel_queued, job_id, time.time())
         if done:
             return _job_response(done, 202)
-    elif job.status == "running":
-        done = await run_in_threadpool(store.update_job, job_id, {
-            "cancel_requested": True, "message": "cancelling"}, expect={"status": "running"})
+    elif job.status is Status.RUNNING:
+        done = await run_in_threadpool(store.request_cancel, job_id)
         if done:
             return _job_response(done, 202)
     job = await _job(request, who, job_id)
-    if job.status == "cancelled":
+    if job.status is Status.CANCELLED:
         return _job_response(job, 202)
     raise Problem(409, "Job already finished", f"the job is {job.status}; nothing to cancel",
                   slug="job-finished", job_status=job.status)
@@ -435,7 +429,7 @@ async def job_result(request: Request, who: Tenant, job_id: str,
     """The result file in ``format``; 409 while the job has not succeeded."""
     runtime = runtime_of(request)
     job = await _job(request, who, job_id)
-    if job.status != "succeeded":
+    if job.status is not Status.SUCCEEDED:
         raise Problem(409, "No result", f"the job is {job.status}; results exist once it has "
                       "succeeded", slug="job-not-finished", job_status=job.status)
     key = job.results.get(format)
@@ -471,6 +465,8 @@ async def readyz(request: Request) -> JSONResponse:
             results[name] = "ok"
         except NotReady as exc:
             results[name] = str(exc)
+        except BackendError as exc:
+            results[name] = f"unavailable: {exc.cause_name}"  # the driver's error says more
         except Exception as exc:
             results[name] = f"unavailable: {type(exc).__name__}"
     failed = {k: v for k, v in results.items() if v != "ok"}

@@ -6,9 +6,10 @@ import logging
 import time
 from dataclasses import dataclass
 
-from .artifacts import ArtifactStore, MemoryArtifactStore, open_artifacts
-from .jobs import JobStore, MemoryJobStore, open_store
-from .queue import JobQueue, MemoryQueue, open_queue
+from .artifacts import ArtifactStore, open_artifacts
+from .errors import BackendError
+from .jobs import JobStore, open_store
+from .queue import JobQueue, open_queue
 from .settings import Settings
 
 log = logging.getLogger("bonefit.service")
@@ -40,13 +41,8 @@ def open_runtime(settings: Settings, *, wait_seconds: float = 30.0) -> Runtime:
         except Exception as exc:
             if time.monotonic() >= deadline:
                 raise
-            log.warning("job store not reachable yet (%s); retrying", type(exc).__name__)
+            cause = exc.cause_name if isinstance(exc, BackendError) else type(exc).__name__
+            log.warning("job store not reachable yet (%s); retrying", cause)
             time.sleep(1.0)
     return Runtime(settings, store, open_queue(settings.resolved_queue_url),
                    open_artifacts(settings))
-
-
-def memory_runtime(settings: Settings | None = None) -> Runtime:
-    """Everything in memory, for tests."""
-    return Runtime(settings or Settings(), MemoryJobStore(), MemoryQueue(),
-                   MemoryArtifactStore())

@@ -7,13 +7,12 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from .jobs import Job, Recording
+from .jobs import Job, Recording, Status
 from .kinds import SkeletonParams, TranslationParams
 from .uploads import cap_summary
 
 UploadFormat = Literal["auto", "sensor-csv", "tracker", "npz", "kinematics-csv", "bvh", "mvnx",
                        "accelerations-csv"]
-Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 ResultFormat = Literal["json", "bvh", "csv"]
 RecordingId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[0-9a-z]+$")]
 
@@ -128,7 +127,7 @@ class JobOut(BaseModel):
             progress=ProgressOut(fraction=job.fraction, stage=job.stage, message=job.message),
             created_at=datetime.fromtimestamp(job.created_at, UTC),
             started_at=timestamp(job.started_at), finished_at=timestamp(job.finished_at),
-            attempts=job.attempts, worker=job.worker if job.status == "running" else None,
+            attempts=job.attempts, worker=job.worker if job.status is Status.RUNNING else None,
             error=job.error,
             results={fmt: f"/v1/jobs/{job.id}/result?format={fmt}" for fmt in job.results})
 

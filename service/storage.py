@@ -3,32 +3,19 @@
 from __future__ import annotations
 
 import contextlib
-import errno
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
+from .errors import FULL_ERRNOS, StorageFull, chain
 from .problems import Problem
-
-FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
-SQLITE_FULL = "database or disk is full"
-POSTGRES_DISK_FULL = "53100"
 
 
 def is_storage_full(exc: BaseException) -> bool:
-    """Whether ``exc`` (or what it wraps) says a disk or quota is full."""
-    seen: set[int] = set()
-    current: BaseException | None = exc
-    while current is not None and id(current) not in seen:
-        seen.add(id(current))
-        if isinstance(current, OSError) and current.errno in FULL_ERRNOS:
-            return True
-        if SQLITE_FULL in str(current):
-            return True
-        if getattr(current, "sqlstate", None) == POSTGRES_DISK_FULL:
-            return True
-        current = getattr(current, "orig", None) or current.__cause__ or current.__context__
-    return False
+    """Whether ``exc`` (or what it wraps) says a back-end (:class:`StorageFull`, raised by
+    the adapters) or the local file system (the upload spool: ENOSPC, EDQUOT) is full."""
+    return any(isinstance(e, StorageFull) or (isinstance(e, OSError) and e.errno in FULL_ERRNOS)
+               for e in chain(exc))
 
 
 def storage_full(storage: str) -> Problem:

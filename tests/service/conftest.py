@@ -1,4 +1,4 @@
-"""Fixtures: the app on in-memory back-ends and a worker running fake job kinds."""
+"""Fixtures: the app on private local back-ends and a worker running fake job kinds."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from service.app import create_app
-from service.runtime import Runtime, memory_runtime
+from service.runtime import Runtime
 from service.settings import Settings
 from service.worker import Worker
-from tests.service.helpers import AUTH_A, FAKE_KINDS, KEYS, TestClient
+from tests.service.helpers import AUTH_A, FAKE_KINDS, KEYS, TestClient, local_runtime
 
 
 @pytest.fixture
@@ -23,8 +23,8 @@ def settings(tmp_path: Path) -> Settings:
 
 @pytest.fixture
 def runtime(settings: Settings) -> Runtime:
-    """Every back-end in memory."""
-    return memory_runtime(settings)
+    """The production back-ends on private files under ``tmp_path``."""
+    return local_runtime(settings)
 
 
 @pytest.fixture

@@ -8,10 +8,16 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from huey import MemoryHuey
+
 from estimation.errors import InputError
 from estimation.progress import Progress
+from service.artifacts import LocalArtifactStore
+from service.jobs import SqlJobStore
 from service.kinds import Input, Kind, SkeletonParams, TranslationParams
+from service.queue import HueyQueue
 from service.runtime import Runtime
+from service.settings import Settings
 from service.worker import Worker
 
 with warnings.catch_warnings():
@@ -30,6 +36,22 @@ SEGMENTS = ("pelvis", "chest", "head")
 def require_services() -> bool:
     """Whether CI demands the external servers (fail instead of skip)."""
     return os.environ.get("BONEFIT_TEST_REQUIRE_SERVICES") == "1"
+
+
+def local_queue() -> HueyQueue:
+    """The production queue on huey's in-memory storage: private to this process."""
+    return HueyQueue(MemoryHuey("bonefit-test", results=False))
+
+
+def local_runtime(settings: Settings | None = None) -> Runtime:
+    """The production back-ends on private local state, for tests: the SQL job store on a
+    SQLite file, huey on its in-memory storage, artifacts as files, all under ``data_dir``."""
+    settings = settings or Settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    store = SqlJobStore.from_url(f"sqlite:///{settings.data_dir.resolve() / 'jobs.db'}")
+    store.init()
+    return Runtime(settings, store, local_queue(),
+                   LocalArtifactStore(settings.data_dir / "artifacts"))
 
 
 def sensor_csv(frames: int = 5, segments: tuple[str, ...] = SEGMENTS) -> bytes:

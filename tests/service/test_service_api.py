@@ -11,7 +11,8 @@ import httpx
 import pytest
 
 from service.app import create_app
-from service.runtime import Runtime, memory_runtime
+from service.queue import open_queue
+from service.runtime import Runtime
 from service.settings import Settings
 from service.worker import Worker
 from tests.service.helpers import (
@@ -21,6 +22,7 @@ from tests.service.helpers import (
     KEYS,
     TestClient,
     drain,
+    local_runtime,
     sensor_csv,
     submit,
     upload,
@@ -82,7 +84,7 @@ def test_multipart_without_file_field(client: TestClient) -> None:
 
 
 def test_upload_limit_by_content_length_and_while_streaming(tmp_path: object) -> None:
-    runtime = memory_runtime(Settings(data_dir=tmp_path, max_upload_bytes=100,
+    runtime = local_runtime(Settings(data_dir=tmp_path, max_upload_bytes=100,
                                       api_keys={"k": "t"}))
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
     with TestClient(app, headers={"Authorization": "Bearer k"}) as c:
@@ -165,7 +167,7 @@ def test_missing_or_wrong_key(client: TestClient) -> None:
 
 @pytest.mark.anyio
 async def test_without_keys_only_loopback_is_served(tmp_path: object) -> None:
-    app = create_app(runtime=memory_runtime(Settings(data_dir=tmp_path)), kinds=FAKE_KINDS,
+    app = create_app(runtime=local_runtime(Settings(data_dir=tmp_path)), kinds=FAKE_KINDS,
                      housekeeping=False)
     for host, status in (("127.0.0.1", 200), ("::1", 200), ("10.1.2.3", 403)):
         transport = httpx.ASGITransport(app=app, client=(host, 1234))
@@ -178,7 +180,7 @@ async def test_without_keys_only_loopback_is_served(tmp_path: object) -> None:
 @pytest.mark.anyio
 async def test_metrics_access(tmp_path: object) -> None:
     async def scrape(settings: Settings, host: str, **headers: str) -> httpx.Response:
-        app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS,
+        app = create_app(runtime=local_runtime(settings), kinds=FAKE_KINDS,
                          housekeeping=False)
         transport = httpx.ASGITransport(app=app, client=(host, 1234))
         async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
@@ -453,6 +455,15 @@ def test_readyz_reports_what_is_down(client: TestClient, runtime: Runtime,
     assert body["failed"] == ["queue"]
 
 
+def test_readyz_names_the_drivers_error_of_an_unreachable_back_end(
+        client: TestClient, runtime: Runtime, worker: Worker) -> None:
+    worker.beat()
+    runtime.queue = open_queue("redis://127.0.0.1:1/0")  # nothing listens on port 1
+    body = assert_problem(client.get("/readyz"), 503)
+    assert body["checks"]["queue"] == "unavailable: ConnectionError"  # redis's, not ours
+    assert body["failed"] == ["queue"]
+
+
 def test_openapi_documents_the_kinds(client: TestClient) -> None:
     schema = client.get("/openapi.json").json()
     names = set(schema["components"]["schemas"])
@@ -489,7 +500,7 @@ def test_a_database_outage_is_a_503(runtime: Runtime) -> None:
     def down(*args: object, **kwargs: object) -> None:
         raise sqlalchemy.exc.OperationalError("SELECT 1", {}, Exception("connection refused"))
 
-    runtime.store.get_job = down  # type: ignore[method-assign]
+    runtime.store.engine.connect = down  # type: ignore[attr-defined,method-assign]
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
     with TestClient(app, raise_server_exceptions=False,
                     headers={"Authorization": "Bearer key-a"}) as c:

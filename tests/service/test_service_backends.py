@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import threading
 import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import sqlalchemy as sa
 
-from service.artifacts import ArtifactStore, LocalArtifactStore, MemoryArtifactStore
-from service.jobs import Job, JobStore, MemoryJobStore, Recording, SqlJobStore, new_id
-from service.queue import HueyQueue, JobQueue, MemoryQueue, open_queue
-from tests.service.helpers import require_services
+from service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
+from service.errors import QueueUnavailable, StorageFull, StoreUnavailable
+from service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
+from service.queue import HueyQueue, JobQueue, open_queue
+from service.settings import Settings
+from tests.service.helpers import local_queue, require_services
 
 POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]
                    if os.environ.get("BONEFIT_TEST_POSTGRES_URL") else
@@ -54,12 +59,9 @@ def postgres_url() -> Iterator[str]:
     admin.dispose()
 
 
-@pytest.fixture(params=["memory", "sqlite", "postgresql"])
+@pytest.fixture(params=["sqlite", "postgresql"])
 def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
-    """Each job-store implementation."""
-    if request.param == "memory":
-        yield MemoryJobStore()
-        return
+    """The job store on each database."""
     if request.param == "sqlite":
         sql = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'jobs.db'}")
     else:
@@ -132,6 +134,187 @@ def test_jobs_compare_and_set(store: JobStore) -> None:
     assert done.version == 3
 
 
+def claimed(store: JobStore, worker: str = "w1", now: float = 100.0) -> Job:
+    """A new job, claimed by ``worker`` at ``now`` with a 30 s lease."""
+    j = store.add_job(job())
+    running = store.claim(j, worker, now, 30.0)
+    assert running is not None
+    return running
+
+
+def test_a_claim_is_won_once_and_counts_an_attempt(store: JobStore) -> None:
+    j = store.add_job(job())
+    running = store.claim(j, "w1", 100.0, 30.0)
+    assert running is not None
+    assert (running.status, running.worker, running.attempts) == (Status.RUNNING, "w1", 1)
+    assert (running.started_at, running.lease_until, running.stage) == (100.0, 130.0,
+                                                                         "starting")
+    assert store.claim(j, "w2", 101.0, 30.0) is None  # running: the second claim loses
+    back = store.requeue(j.id, "w1", "again")
+    assert back is not None
+    assert store.claim(j, "w2", 101.0, 30.0) is None  # read before the first attempt
+    assert store.claim(back, "w2", 101.0, 30.0) is not None
+
+
+def test_only_the_holder_renews_its_lease(store: JobStore) -> None:
+    j = claimed(store)
+    renewed = store.renew(j.id, "w1", 200.0, fraction=0.5, stage="solving")
+    assert renewed is not None
+    assert (renewed.lease_until, renewed.fraction, renewed.stage) == (200.0, 0.5, "solving")
+    kept = store.renew(j.id, "w1", 210.0)
+    assert kept is not None
+    assert (kept.lease_until, kept.fraction, kept.stage) == (210.0, 0.5, "solving")
+    assert store.renew(j.id, "w2", 300.0) is None
+
+
+def test_a_requeue_counts_the_attempt_and_a_hand_back_does_not(store: JobStore) -> None:
+    j = claimed(store)
+    again = store.requeue(j.id, "w1", "crashed")
+    assert again is not None
+    assert (again.status, again.attempts, again.worker, again.lease_until, again.message) == (
+        Status.QUEUED, 1, None, None, "crashed")
+    j = store.claim(again, "w1", 100.0, 30.0)
+    assert j is not None
+    assert store.hand_back(j, "w2", "shut down") is None  # not its job
+    back = store.hand_back(j, "w1", "shut down")
+    assert back is not None
+    assert (back.status, back.attempts, back.worker) == (Status.QUEUED, 1, None)
+
+
+def test_the_reaper_takes_a_job_only_under_the_expired_lease(store: JobStore) -> None:
+    j = claimed(store)
+    assert store.renew(j.id, "w1", 500.0) is not None  # renewed after the reaper read it
+    assert store.requeue(j.id, "w1", "lost", lease_until=130.0) is None
+    assert store.fail(j.id, "w1", {"status": 503}, 140.0, lease_until=130.0) is None
+    assert store.cancel(j.id, "w1", 140.0, lease_until=130.0) is None
+    assert store.requeue(j.id, "w1", "lost", lease_until=500.0) is not None
+
+
+def test_a_job_ends_once_and_only_by_its_worker(store: JobStore) -> None:
+    j = claimed(store)
+    assert store.succeed(j.id, "w2", {"json": "k"}, 150.0) is None
+    done = store.succeed(j.id, "w1", {"json": "k"}, 150.0)
+    assert done is not None
+    assert (done.status, done.stage, done.fraction, done.results) == (
+        Status.SUCCEEDED, "done", 1.0, {"json": "k"})
+    assert (done.finished_at, done.worker, done.lease_until) == (150.0, None, None)
+    assert store.fail(j.id, "w1", {"status": 500}, 151.0) is None
+    assert store.cancel(j.id, "w1", 151.0) is None
+    failed = store.fail(claimed(store).id, "w1", {"status": 422}, 150.0)
+    assert failed is not None
+    assert (failed.status, failed.stage, failed.error) == (Status.FAILED, "failed",
+                                                           {"status": 422})
+    cancelled = store.cancel(claimed(store).id, "w1", 150.0)
+    assert cancelled is not None
+    assert (cancelled.status, cancelled.stage, cancelled.finished_at) == (
+        Status.CANCELLED, "cancelled", 150.0)
+
+
+def test_cancelling_a_queued_job_ends_it_and_a_running_one_asks(store: JobStore) -> None:
+    queued = store.add_job(job())
+    assert store.request_cancel(queued.id) is None  # nothing runs it
+    cancelled = store.cancel_queued(queued.id, 150.0)
+    assert cancelled is not None
+    assert (cancelled.status, cancelled.finished_at) == (Status.CANCELLED, 150.0)
+    assert store.cancel_queued(queued.id, 151.0) is None
+    running = claimed(store)
+    assert store.cancel_queued(running.id, 150.0) is None
+    asked = store.request_cancel(running.id)
+    assert asked is not None
+    assert (asked.status, asked.cancel_requested, asked.message) == (Status.RUNNING, True,
+                                                                     "cancelling")
+
+
+def test_a_withdrawn_job_frees_its_idempotency_key(store: JobStore) -> None:
+    refused = store.add_job(job(idempotency_key="k", request_hash="h"))
+    assert store.withdraw(claimed(store).id, {"status": 503}, 150.0) is None  # not queued
+    withdrawn = store.withdraw(refused.id, {"status": 503}, 150.0)
+    assert withdrawn is not None
+    assert (withdrawn.status, withdrawn.idempotency_key, withdrawn.error) == (
+        Status.FAILED, None, {"status": 503})
+    assert store.add_job(job(idempotency_key="k", request_hash="h")).id != refused.id
+
+
+def test_a_resent_job_is_marked_once(store: JobStore) -> None:
+    j = store.add_job(job())
+    resent = store.mark_resent(j)
+    assert resent is not None
+    assert resent.version == j.version + 1
+    assert store.mark_resent(j) is None  # another process resent it meanwhile
+
+
+def test_statuses_are_stored_as_their_values(store: JobStore) -> None:
+    # the database holds the API's strings, whichever driver writes the enum
+    j = claimed(store)
+    assert isinstance(store, SqlJobStore)
+    with store.engine.connect() as conn:
+        stored = conn.execute(sa.text("SELECT status FROM bonefit_jobs WHERE id = :id"),
+                              {"id": j.id}).scalar_one()
+    assert stored == "running"
+    assert [x.id for x in store.list_jobs("t", status=Status.RUNNING, kind=None, before=None,
+                                          limit=10)] == [j.id]
+    assert store.counts() == {("skeleton", "running"): 1}
+
+
+def test_a_full_database_is_storage_full(tmp_path: Path) -> None:
+    # SQLite answers SQLITE_FULL ("database or disk is full") past max_page_count
+    store = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'jobs.db'}")
+    store.init()
+    with store.engine.connect() as conn:
+        pages = conn.execute(sa.text("PRAGMA page_count")).scalar_one()
+
+    @sa.event.listens_for(store.engine, "connect")
+    def _cap(dbapi_connection: Any, _record: Any) -> None:
+        dbapi_connection.execute(f"PRAGMA max_page_count = {pages}")
+
+    def fill() -> None:
+        for _ in range(100):
+            store.add_job(job(message="x" * 10_000))
+
+    store.engine.dispose()
+    with pytest.raises(StorageFull, match="job database is full") as caught:
+        fill()
+    assert (caught.value.storage, caught.value.cause_name) == ("job database",
+                                                               "OperationalError")
+    store.engine.dispose()
+
+
+def test_an_unreachable_database_is_unavailable(tmp_path: Path) -> None:
+    store = SqlJobStore.from_url(f"sqlite:///{tmp_path / 'missing' / 'jobs.db'}")
+    with pytest.raises(StoreUnavailable) as caught:
+        store.ping()
+    assert caught.value.cause_name == "OperationalError"
+    with pytest.raises(StoreUnavailable):
+        store.get_job("x")
+    store.engine.dispose()
+
+
+def test_an_unreachable_queue_is_unavailable() -> None:
+    queue = open_queue("redis://127.0.0.1:1/0")  # nothing listens on port 1
+    with pytest.raises(QueueUnavailable) as caught:
+        queue.enqueue("x")
+    assert caught.value.cause_name == "ConnectionError"
+    with pytest.raises(QueueUnavailable):
+        queue.ping()
+
+
+def test_a_full_artifact_disk_is_storage_full(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    store = LocalArtifactStore(tmp_path / "artifacts")
+    src = tmp_path / "src.bin"
+    src.write_bytes(b"x")
+
+    def no_space(*args: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(shutil, "move", no_space)
+    with pytest.raises(StorageFull) as caught:
+        store.put_file("t/recordings/a.bin", src)
+    assert caught.value.storage == "artifact storage"
+    with pytest.raises(FileNotFoundError):  # absent keys stay FileNotFoundError
+        b"".join(store.iter_bytes("t/recordings/a.bin"))
+
+
 def test_idempotency_keys_are_per_tenant(store: JobStore) -> None:
     a = store.add_job(job(idempotency_key="k", request_hash="h"))
     again = store.add_job(job(idempotency_key="k", request_hash="h2"))
@@ -181,11 +364,9 @@ def _expired_jobs(store: JobStore, n: int, finished_at: float) -> None:
 
 def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
                                                         tmp_path: Path) -> None:
-    from service.artifacts import MemoryArtifactStore
     from service.jobs import PURGE_BATCH
+    from service.retention import purge
     from service.runtime import Runtime
-    from service.settings import Settings
-    from service.worker import purge
 
     postgres = isinstance(store, SqlJobStore) and store.engine.dialect.name == "postgresql"
     n = 70_000 if postgres else 2 * PURGE_BATCH + 5  # over PostgreSQL's 65,535 parameters
@@ -193,8 +374,8 @@ def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
     _expired_jobs(store, n, now - 100)
     kept = store.add_job(job(status="succeeded", finished_at=now))
     store.add_recording(recording(created_at=now - 100))
-    runtime = Runtime(Settings(data_dir=tmp_path, retention_seconds=50), store, MemoryQueue(),
-                      MemoryArtifactStore())
+    runtime = Runtime(Settings(data_dir=tmp_path, retention_seconds=50), store, local_queue(),
+                      LocalArtifactStore(tmp_path / "artifacts"))
     assert purge(runtime, now=now) == n + 1
     assert store.counts() == {("skeleton", "succeeded"): 1}
     assert store.get_job(kept.id) is not None
@@ -252,11 +433,11 @@ def test_listing_leases_counts_and_purge(store: JobStore) -> None:
 # ---------------------------------------------------------------------------------- queue
 
 
-@pytest.fixture(params=["memory", "sqlite", "redis"])
+@pytest.fixture(params=["memory-huey", "sqlite", "redis"])
 def queue(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobQueue]:
-    """Each queue implementation."""
-    if request.param == "memory":
-        yield MemoryQueue()
+    """The queue on each huey storage."""
+    if request.param == "memory-huey":
+        yield local_queue()
         return
     if request.param == "sqlite":
         yield open_queue(f"sqlite:///{tmp_path / 'queue.db'}")
@@ -304,14 +485,22 @@ def test_bad_urls_are_refused() -> None:
         open_queue("amqp://x")
 
 
+def test_in_memory_back_ends_are_refused(tmp_path: Path) -> None:
+    # several worker processes would each have a store and a queue of their own
+    with pytest.raises(ValueError, match="unsupported database URL 'memory://'"):
+        open_store("memory://")
+    with pytest.raises(ValueError, match="unsupported queue URL 'memory://'"):
+        open_queue("memory://")
+    with pytest.raises(ValueError, match="unsupported storage URL 'memory://'"):
+        open_artifacts(Settings(data_dir=tmp_path, storage_url="memory://"))
+
+
 # ------------------------------------------------------------------------------ artifacts
 
 
-@pytest.fixture(params=["memory", "local"])
-def artifacts(request: pytest.FixtureRequest, tmp_path: Path) -> ArtifactStore:
-    """Each artifact-store implementation (S3 runs in the distributed e2e tests)."""
-    if request.param == "memory":
-        return MemoryArtifactStore()
+@pytest.fixture
+def artifacts(tmp_path: Path) -> ArtifactStore:
+    """The local artifact store (S3 runs in the distributed e2e tests)."""
     return LocalArtifactStore(tmp_path / "artifacts")
 
 

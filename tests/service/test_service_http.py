@@ -20,12 +20,21 @@ from fastapi import FastAPI
 
 from service import uploads
 from service.app import create_app
-from service.artifacts import MemoryArtifactStore
-from service.jobs import SqlJobStore
-from service.queue import MemoryQueue
-from service.runtime import Runtime, memory_runtime
+from service.artifacts import LocalArtifactStore
+from service.jobs import SqlJobStore, sql_error
+from service.queue import queue_error
+from service.runtime import Runtime
 from service.settings import Settings
-from tests.service.helpers import AUTH_A, FAKE_KINDS, KEYS, TestClient, sensor_csv, upload
+from tests.service.helpers import (
+    AUTH_A,
+    FAKE_KINDS,
+    KEYS,
+    TestClient,
+    local_queue,
+    local_runtime,
+    sensor_csv,
+    upload,
+)
 from tests.service.test_service_api import assert_problem
 from tests.service.test_service_backends import postgres_url  # noqa: F401  (a fixture)
 
@@ -67,8 +76,8 @@ def sql_client(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[TestC
     with store.engine.begin() as conn:
         conn.execute(sqlalchemy.text("DELETE FROM bonefit_jobs"))
         conn.execute(sqlalchemy.text("DELETE FROM bonefit_recordings"))
-    runtime = Runtime(Settings(data_dir=tmp_path, api_keys=KEYS), store, MemoryQueue(),
-                      MemoryArtifactStore())
+    runtime = Runtime(Settings(data_dir=tmp_path, api_keys=KEYS), store, local_queue(),
+                      LocalArtifactStore(tmp_path / "artifacts"))
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
     try:
         with TestClient(app, headers=AUTH_A, raise_server_exceptions=False) as c:
@@ -169,8 +178,11 @@ def serving(app: FastAPI) -> Iterator[int]:
 
 
 def _raiser(exc: Exception) -> Callable[..., Any]:
+    """A back-end method failing as the adapter does when its driver raises ``exc``."""
+    raised = sql_error(exc) or queue_error(exc) or exc
+
     def fail(*args: Any, **kwargs: Any) -> Any:
-        raise exc
+        raise raised
 
     return fail
 
@@ -183,7 +195,7 @@ def _raiser(exc: Exception) -> Callable[..., Any]:
 ])
 def test_an_outage_is_answered_on_a_kept_alive_connection(
         settings: Settings, exc: Exception, status: int) -> None:
-    runtime = memory_runtime(settings)
+    runtime = local_runtime(settings)
     runtime.store.list_recordings = _raiser(exc)  # type: ignore[method-assign]
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
     with serving(app) as port, httpx.Client(base_url=f"http://127.0.0.1:{port}",
@@ -204,7 +216,7 @@ def test_an_outage_is_answered_on_a_kept_alive_connection(
 
 @pytest.mark.parametrize("last_event_id", [b"\xb2", b"9" * 5000, b"-1", b"1.5", b""])
 def test_any_last_event_id_is_answered(settings: Settings, last_event_id: bytes) -> None:
-    app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
+    app = create_app(runtime=local_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
     # over HTTP: the test client re-encodes the header's bytes, a server passes them on
     with serving(app) as port, httpx.Client(base_url=f"http://127.0.0.1:{port}",
                                             headers=AUTH_A, timeout=SECONDS) as client:
@@ -240,7 +252,7 @@ def _read_all(sock: socket.socket) -> bytes:
 
 def test_idle_bodies_time_out_and_the_connections_are_shed(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path, api_keys=KEYS, body_timeout_seconds=0.5)
-    app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
+    app = create_app(runtime=local_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
     with serving(app) as port:
         slow = [_slow_upload(port) for _ in range(3)]
         job = socket.create_connection(("127.0.0.1", port), timeout=SECONDS)  # a JSON body
@@ -264,7 +276,7 @@ def test_idle_bodies_time_out_and_the_connections_are_shed(tmp_path: Path) -> No
 def test_a_trickling_body_is_shed(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path, api_keys=KEYS, body_timeout_seconds=0.5,
                         body_min_bytes_per_second=1000)
-    app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
+    app = create_app(runtime=local_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
     with serving(app) as port, _slow_upload(port) as sock:
         sock.setblocking(False)
         answer = b""
@@ -296,7 +308,7 @@ def _until(what: Callable[[], httpx.Response], status: int) -> httpx.Response:
 
 def test_uploads_over_the_cap_are_refused_until_one_ends(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path, api_keys=KEYS, max_concurrent_uploads=2)
-    app = create_app(runtime=memory_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
+    app = create_app(runtime=local_runtime(settings), kinds=FAKE_KINDS, housekeeping=False)
     with serving(app) as port, httpx.Client(base_url=f"http://127.0.0.1:{port}",
                                             headers=AUTH_A, timeout=SECONDS) as client:
 
@@ -368,7 +380,8 @@ def test_an_outage_while_following_a_job_ends_the_stream_with_an_error_event(
     def flaky(*args: Any, **kwargs: Any) -> Any:
         calls.append(args)
         if len(calls) > 2:  # the route's check and the first poll pass, then the outage
-            raise sqlalchemy.exc.OperationalError("SELECT", {}, Exception("connection lost"))
+            return _raiser(sqlalchemy.exc.OperationalError(
+                "SELECT", {}, Exception("connection lost")))()
         return get_job(*args, **kwargs)
 
     runtime.store.get_job = flaky  # type: ignore[method-assign]

@@ -16,22 +16,27 @@ from typing import Any
 
 import pytest
 import sqlalchemy.exc
+from huey import MemoryHuey
 
 from estimation.progress import Progress
 from service.app import API_STEPS, create_app
-from service.jobs import Job, Recording, new_id
+from service.errors import BackendError, StorageFull
+from service.housekeeping import housekeeping
+from service.jobs import Job, Recording, new_id, sql_error
 from service.kinds import Input, Kind, SkeletonParams
 from service.leases import LeaseKeeper
-from service.queue import MemoryQueue
-from service.runtime import Runtime, memory_runtime, open_runtime
+from service.queue import HueyQueue
+from service.reaper import reap
+from service.runtime import Runtime, open_runtime
 from service.settings import Settings
-from service.worker import Worker, housekeeping, reap, run_worker
+from service.worker import Worker, run_worker
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,
     KEYS,
     TestClient,
     drain,
+    local_runtime,
     sensor_csv,
     submit,
     upload,
@@ -136,7 +141,7 @@ def test_sigterm_hands_back_a_job_that_never_reports_progress(
 
 
 def test_rolling_restarts_never_use_up_a_long_jobs_attempts(tmp_path: Path) -> None:
-    runtime = memory_runtime(Settings(data_dir=tmp_path, max_attempts=2,
+    runtime = local_runtime(Settings(data_dir=tmp_path, max_attempts=2,
                                       shutdown_grace_seconds=0))
     job_id = queued_job(runtime, tmp_path)
     for restart in range(3):  # more restarts than attempts
@@ -172,7 +177,7 @@ REAPER = """
 import sys, time
 from service.runtime import open_runtime
 from service.settings import Settings
-from service.worker import reap
+from service.reaper import reap
 runtime = open_runtime(Settings())
 end = time.time() + float(sys.argv[1])
 reap(runtime)
@@ -264,27 +269,29 @@ def test_the_lease_keeper_stops_renewing_when_its_worker_dies(tmp_path: Path) ->
 # ------------------------------------------------------------ idempotent retry after an outage
 
 
-class FlakyQueue(MemoryQueue):
-    """A queue that refuses messages while ``down`` (Redis is unreachable)."""
+class FlakyQueue(HueyQueue):
+    """A queue whose storage refuses messages while ``down`` (Redis is unreachable)."""
 
     def __init__(self, error: Exception) -> None:
-        super().__init__()
+        super().__init__(MemoryHuey("bonefit-test", results=False))
         self.error = error
         self.down = True
+        send = self.huey.storage.enqueue
 
-    def enqueue(self, job_id: str) -> None:
-        if self.down:
-            raise self.error
-        super().enqueue(job_id)
+        def enqueue(data: bytes, priority: int | None = None) -> None:
+            if self.down:
+                raise self.error
+            send(data, priority)
+
+        self.huey.storage.enqueue = enqueue
 
 
-@pytest.fixture(params=["memory", "sqlite"])
-def store_runtime(request: pytest.FixtureRequest, tmp_path: Path) -> Runtime:
-    """A runtime on each kind of job store, with a queue that starts down."""
+@pytest.fixture
+def store_runtime(tmp_path: Path) -> Runtime:
+    """A runtime with a queue that starts down."""
     settings = Settings(data_dir=tmp_path, api_keys=KEYS, lease_seconds=5,
                         progress_interval_seconds=0)
-    runtime = (memory_runtime(settings) if request.param == "memory"
-               else open_runtime(settings))
+    runtime = open_runtime(settings)
     import redis.exceptions
 
     runtime.queue = FlakyQueue(redis.exceptions.ConnectionError("Connection refused"))
@@ -319,15 +326,18 @@ def test_a_retry_after_a_queue_outage_runs_the_job(store_runtime: Runtime, attem
         assert client.get(f"/v1/jobs/{retried.json()['id']}").json()["status"] == "succeeded"
 
 
-def disk_full_error() -> sqlalchemy.exc.OperationalError:
+def disk_full_error() -> BackendError:
+    """What the job store raises when SQLite's disk is full (tests patch its methods)."""
     import sqlite3
 
-    return sqlalchemy.exc.OperationalError(
-        "UPDATE bonefit_jobs", {}, sqlite3.OperationalError("database or disk is full"))
+    error = sql_error(sqlalchemy.exc.OperationalError(
+        "UPDATE bonefit_jobs", {}, sqlite3.OperationalError("database or disk is full")))
+    assert isinstance(error, StorageFull)
+    return error
 
 
 def test_a_job_the_full_disk_kept_from_queueing_is_never_stuck(tmp_path: Path) -> None:
-    runtime = memory_runtime(Settings(data_dir=tmp_path, api_keys=KEYS, lease_seconds=5))
+    runtime = local_runtime(Settings(data_dir=tmp_path, api_keys=KEYS, lease_seconds=5))
     runtime.queue = FlakyQueue(OSError(errno.ENOSPC, "No space left on device"))
     store = runtime.store
     update = store.update_job
@@ -357,7 +367,7 @@ def test_a_job_the_full_disk_kept_from_queueing_is_never_stuck(tmp_path: Path) -
 
 
 def test_reap_handles_each_job_on_its_own(tmp_path: Path) -> None:
-    runtime = memory_runtime(Settings(data_dir=tmp_path, lease_seconds=5))
+    runtime = local_runtime(Settings(data_dir=tmp_path, lease_seconds=5))
     ids = [queued_job(runtime, tmp_path) for _ in range(2)]
     while runtime.queue.run_next(lambda _id: None):
         pass  # a worker took both messages, then died
@@ -410,7 +420,7 @@ def test_an_upload_meeting_a_full_disk_is_a_507_naming_the_storage(
     assert (r.status_code, r.json()["storage"]) == (507, "job database")
     assert client.get("/v1/recordings").json()["items"] == []  # nothing half-stored
     assert not any((settings.data_dir / "uploads").iterdir())
-    assert runtime.artifacts.blobs == {}  # type: ignore[attr-defined]
+    assert not any(p.is_file() for p in (settings.data_dir / "artifacts").rglob("*"))
 
 
 def test_a_job_submitted_on_a_full_database_is_a_507(client: TestClient, runtime: Runtime,
@@ -569,7 +579,7 @@ def test_readyz_reports_low_disk_space(client: TestClient, runtime: Runtime,
 
 def test_housekeeping_steps_are_independent(tmp_path: Path,
                                             caplog: pytest.LogCaptureFixture) -> None:
-    runtime = memory_runtime(Settings(data_dir=tmp_path, retention_seconds=10))
+    runtime = local_runtime(Settings(data_dir=tmp_path, retention_seconds=10))
     old = Recording(id=new_id(), tenant="t", key="t/recordings/x", filename=None,
                     content_type=None, format="sensor-csv", size=1, sha256="0" * 64,
                     created_at=time.time() - 100)

@@ -16,10 +16,14 @@ from typing import Any
 import pytest
 
 from estimation.progress import Progress
+from service.errors import StoreUnavailable
 from service.kinds import Input, Kind, SkeletonParams
+from service.reaper import reap
+from service.retention import purge
 from service.runtime import Runtime
 from service.settings import Settings
-from service.worker import Worker, private_tmp, purge, reap
+from service.tempdirs import private_tmp
+from service.worker import Worker
 from tests.service.helpers import TestClient, drain, sensor_csv, submit, upload
 
 
@@ -109,6 +113,28 @@ def test_crashes_are_retried_then_fail_without_leaking(client: TestClient, runti
     assert (failed["status"], failed["attempts"]) == ("failed", 2)
     assert failed["error"]["status"] == 500
     assert "boom" not in str(failed["error"])
+
+
+def test_a_success_the_store_cannot_record_is_retried(
+        client: TestClient, runtime: Runtime, monkeypatch: pytest.MonkeyPatch) -> None:
+    job = submit(client, upload(client)["id"])
+    succeed = runtime.store.succeed
+    calls: list[str] = []
+
+    def down_once(job_id: str, *args: Any) -> Any:
+        calls.append(job_id)
+        if len(calls) == 1:
+            raise StoreUnavailable("the job database is unreachable (OperationalError)")
+        return succeed(job_id, *args)
+
+    monkeypatch.setattr(runtime.store, "succeed", down_once)
+    worker = Worker(runtime, kind_with(lambda progress: None))
+    assert runtime.queue.run_next(worker.run_job)  # never raises into the queue
+    again = client.get(f"/v1/jobs/{job['id']}").json()
+    assert (again["status"], again["attempts"]) == ("queued", 1)
+    assert "StoreUnavailable" in again["progress"]["message"]
+    drain(runtime, worker)
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded"
 
 
 def test_deleted_recording_fails_the_job(client: TestClient, runtime: Runtime,
