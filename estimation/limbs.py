@@ -39,6 +39,7 @@ from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
 from .params import check_number
 from .progress import Progress, no_progress
+from .vocabulary import OPTIMIZERS
 
 __all__ = ["LimbFit", "estimate_limb", "paper_cost", "standard_lengths", "torso_length"]
 
@@ -1036,7 +1037,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     if method not in ("paper", "improved"):
         raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
                          field="method")
-    if optimizer not in ("least-squares", "nelder-mead"):
+    if optimizer not in OPTIMIZERS:
         raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
                          "'nelder-mead'", field="optimizer")
     lengths = (float(standard_lengths[0]), float(standard_lengths[1]))

@@ -35,8 +35,9 @@ from .params import (
     check_number,
 )
 from .progress import Progress, no_progress
+from .vocabulary import TRANSLATION_METHODS
 
-METHODS: Final[tuple[str, ...]] = ("contact", "hachaj2018")
+METHODS: Final[tuple[str, ...]] = TRANSLATION_METHODS
 """Names accepted by :func:`estimate_translation`."""
 
 CONTACT_LABELS: Final[tuple[str, ...]] = ("none", "left", "right", "both")

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -29,6 +29,19 @@ from estimation.params import (
     WEIGHT_MAX,
 )
 from estimation.progress import Progress, scaled
+from estimation.vocabulary import (
+    ANTHROPOMETRY_KEYS,
+    ANTHROPOMETRY_TABLES,
+    AccelerationUnit,
+    AnthropometryKey,
+    AnthropometryTable,
+    LengthUnit,
+    Optimizer,
+    PositionUnit,
+    SkeletonMethod,
+    TorsoEstimator,
+    TranslationMethod,
+)
 
 SENSOR_FORMATS = {"sensor-csv": "csv", "tracker": "tracker", "npz": "npz"}
 """API format name → ``estimation.io.sensors`` format name."""
@@ -70,12 +83,8 @@ class JointOffsetIn(BaseModel):
     local: tuple[float, float, float] = Field(description="Metres, in the sensor's frame.")
 
 
-ANTHROPOMETRY_KEYS = Literal["torso", "thigh", "shank", "upperarm", "forearm"]
-"""Keys of a custom anthropometric table (``limbs.standard_lengths``)."""
-TABLE_KEYS: tuple[str, ...] = get_args(ANTHROPOMETRY_KEYS)
-
-ANTHROPOMETRY_TABLE: TypeAdapter[dict[ANTHROPOMETRY_KEYS, float]] = TypeAdapter(
-    dict[ANTHROPOMETRY_KEYS, Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]])
+ANTHROPOMETRY_TABLE: TypeAdapter[dict[AnthropometryKey, float]] = TypeAdapter(
+    dict[AnthropometryKey, Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]])
 """A custom table: positive, finite lengths or ratios, in any one unit."""
 
 
@@ -84,10 +93,10 @@ class SkeletonParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    method: Literal["auto", "llsf", "gdke", "reduced"] = "auto"
-    optimizer: Literal["least-squares", "nelder-mead"] = "least-squares"
-    torso: Literal["llsf", "gdke"] = "llsf"
-    anthropometry: Literal["aist", "winter"] | dict[str, float] = Field(
+    method: SkeletonMethod = "auto"
+    optimizer: Optimizer = "least-squares"
+    torso: TorsoEstimator = "llsf"
+    anthropometry: AnthropometryTable | dict[str, float] = Field(
         "aist", description="A table name, or lengths (or ratios) of torso, thigh, shank, "
                             "upperarm and forearm in any one unit.")
     w_s: float = Field(0.01, ge=0, le=WEIGHT_MAX, description="Weight of eq. 5's length term.")
@@ -96,7 +105,7 @@ class SkeletonParams(BaseModel):
     up: tuple[float, float, float] = Field(
         (0.0, 1.0, 0.0), description="World up direction of the source frame (non-zero).")
     i0: int = Field(0, ge=0, le=2**31, description="Calibration frame of hands, feet and head.")
-    units: Literal["m", "cm", "mm", "in"] | None = None
+    units: PositionUnit | None = None
     fps: float | None = Field(None, ge=MIN_FPS, le=MAX_FPS,
                               description="Frame rate, Hz (tracker files).")
     stations: dict[Annotated[str, Field(min_length=1, max_length=100)],
@@ -118,8 +127,8 @@ class SkeletonParams(BaseModel):
         """One error at ``anthropometry`` or ``anthropometry.<key>``, not one per union arm."""
         if isinstance(value, dict):
             return ANTHROPOMETRY_TABLE.validate_python(value)
-        if value not in ("aist", "winter"):
-            raise ValueError(f"use 'aist', 'winter' or a table of {', '.join(TABLE_KEYS)}; "
+        if value not in ANTHROPOMETRY_TABLES:
+            raise ValueError(f"use 'aist', 'winter' or a table of {', '.join(ANTHROPOMETRY_KEYS)}; "
                              f"got {value!r}")
         return value
 
@@ -194,15 +203,14 @@ class TranslationParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    method: Literal["contact", "hachaj2018"] = "contact"
+    method: TranslationMethod = "contact"
     left_foot: str | None = Field(None, min_length=1, max_length=100,
                                   description="Default: found by name or topology.")
     right_foot: str | None = Field(None, min_length=1, max_length=100)
-    units: Literal["auto", "m", "cm", "mm", "in", "ft", "cmu"] | PositiveFloat = Field(
+    units: Literal["auto", LengthUnit] | PositiveFloat = Field(
         "auto", description="Length unit of a BVH or kinematics CSV: auto (from the legs' "
                             "length), a name, or metres per unit (> 0).")
-    acceleration_units: Literal["g", "m/s2", "free-g", "free-m/s2",
-                                "second-differences"] | None = None
+    acceleration_units: AccelerationUnit | None = None
     subject: str | None = Field(
         None, min_length=1, max_length=100,
         description="MVNX subject to read, by label or 1-based number; default the first.")

@@ -23,10 +23,9 @@ from ..model import JOINTS
 from ..params import check_fps
 from ..recording import SensorRecording
 from ..results import SkeletonResult
+from ..vocabulary import OPTIMIZERS, SKELETON_METHODS
 from .progress import ProgressBar
 
-METHODS = ("auto", "llsf", "gdke", "reduced")
-OPTIMIZERS = ("least-squares", "nelder-mead")
 UP_AXES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0),
            "-y": (0.0, -1.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
 
@@ -135,7 +134,7 @@ def _estimator() -> Callable[..., SkeletonResult]:
 def run(args: argparse.Namespace) -> int:
     """Run ``bonefit skeleton``; returns the exit code (bad input raises InputError)."""
     fmt = _choice(args.format, ["auto", *FORMATS], "--format")
-    method = _choice(args.method, METHODS, "--method")
+    method = _choice(args.method, SKELETON_METHODS, "--method")
     optimizer = _choice(args.optimizer, OPTIMIZERS, "--optimizer")
     units = _choice(args.units, list(UNITS), "--units") if args.units is not None else None
     up = UP_AXES.get(args.up.strip().lower())

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..vocabulary import KINEMATICS_FORMATS, TRANSLATION_METHODS
 from .progress import ProgressBar
 
 EXAMPLES = """\
@@ -48,9 +49,9 @@ def register(sub: Any) -> None:
                         help="g, m/s2, free-g, free-m/s2 or second-differences "
                              "(default: g, checked against the data)")
     parser.add_argument("--format", default="auto",
-                        choices=("auto", "kinematics-csv", "bvh", "mvnx"),
+                        choices=("auto", *KINEMATICS_FORMATS),
                         help="input format (default: from the file's content)")
-    parser.add_argument("--method", default="contact", choices=("contact", "hachaj2018"),
+    parser.add_argument("--method", default="contact", choices=TRANSLATION_METHODS,
                         help="contact (default): stance model; hachaj2018: the paper's "
                              "method exactly")
     parser.add_argument("--left-foot", default=None, metavar="NAME",

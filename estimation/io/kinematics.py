@@ -43,6 +43,7 @@ from ..bvh import (
 )
 from ..errors import InputError
 from ..results import timings_document
+from ..vocabulary import KINEMATICS_FORMATS, TRANSLATION_OUTPUT_FORMATS
 from .body import (
     Feet,
     classify,
@@ -63,10 +64,10 @@ PathLike = str | os.PathLike[str]
 GRAVITY: Final[float] = 9.80665
 """Standard gravity, m/s²."""
 
-FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx")
+FORMATS: Final[tuple[str, ...]] = KINEMATICS_FORMATS
 """Input formats of :func:`read_kinematics` (besides ``"auto"``)."""
 
-OUTPUT_FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx", "json")
+OUTPUT_FORMATS: Final[tuple[str, ...]] = TRANSLATION_OUTPUT_FORMATS
 """Output formats of :func:`write_translation`."""
 
 ACCELERATION_UNITS: Final[dict[str, tuple[float, str]]] = {
@@ -189,7 +190,7 @@ class KinematicsRecording:
 # --------------------------------------------------------------------------- helpers
 
 
-def _fps_from_time(time: NDArray[np.float64]) -> float:
+def _kinematics_fps(time: NDArray[np.float64]) -> float:
     if time.size < 2:
         raise InputError("need at least two frames", field="Time")
     steps = np.diff(time)
@@ -201,7 +202,7 @@ def _fps_from_time(time: NDArray[np.float64]) -> float:
     return round(fps, 6) if abs(fps - round(fps, 6)) < 1e-6 * fps else fps
 
 
-def _check_units(units: str | None) -> str | None:
+def _acceleration_unit_key(units: str | None) -> str | None:
     if units is None:
         return None
     key = units.strip().lower().replace("²", "2").replace("m/s^2", "m/s2")
@@ -387,7 +388,7 @@ def read_kinematics_csv(
         Malformed file, missing foot columns (listing the joints present), units that do
         not look like accelerometer readings in g.
     """
-    declared = _check_units(acceleration_units)
+    declared = _acceleration_unit_key(acceleration_units)
     header, table = _read_table(path)
     col = {h: i for i, h in enumerate(header)}
     joints = _position_joints(header)
@@ -407,7 +408,7 @@ def read_kinematics_csv(
     if time_key is None:
         raise InputError("no Time column", field="Time", line=1)
     time = table[:, col[time_key]].copy()
-    fps = _fps_from_time(time)
+    fps = _kinematics_fps(time)
     raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
     unit, note = _resolve_acceleration_units(
         raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name)
@@ -501,7 +502,7 @@ def read_acceleration_csv(
         for open_, close in (("[", "]"), ("(", ")")):
             if open_ in h and h.endswith(close):
                 base, _, rest = h.partition(open_)
-                found = _check_units(rest[:-1].strip())
+                found = _acceleration_unit_key(rest[:-1].strip())
                 if unit is not None and found != unit:
                     raise InputError("acceleration columns declare different units", field=h)
                 unit = found
@@ -593,7 +594,7 @@ def read_bvh_kinematics(
     KinematicsRecording
         ``notes`` say which feet, toes and unit were used and how they were found.
     """
-    declared = _check_units(acceleration_units)
+    declared = _acceleration_unit_key(acceleration_units)
     motion = read_bvh(path)
     feet = find_bvh_feet(motion, left_foot, right_foot)
     names = motion.names
@@ -662,7 +663,7 @@ def detect_format(path: PathLike) -> str:
                      "columns, a BVH or an MVNX file); pass format", field="format")
 
 
-def _resolve_format(path: PathLike, format: str) -> str:
+def _kinematics_format(path: PathLike, format: str) -> str:
     if format == "auto":
         return detect_format(path)
     if format not in FORMATS:
@@ -712,7 +713,7 @@ def read_kinematics(
         Unreadable file, missing foot (listing the joints present), unrecognised units, a
         length unit that does not give a person's legs.
     """
-    fmt = _resolve_format(path, format)
+    fmt = _kinematics_format(path, format)
     if fmt == "kinematics-csv":
         return read_kinematics_csv(path, left_foot=left_foot, right_foot=right_foot,
                                    acceleration_units=acceleration_units, units=units)
@@ -740,7 +741,7 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
     dict
         ``format``, ``frames``, ``joints`` (list), ``fps``; streams the file.
     """
-    fmt = _resolve_format(path, format)
+    fmt = _kinematics_format(path, format)
     if fmt == "mvnx":
         from .mvnx import sniff_mvnx
 

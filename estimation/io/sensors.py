@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..model import SEGMENTS
 from ..recording import SensorRecording
+from ..vocabulary import SENSOR_FORMATS
 
 if TYPE_CHECKING:
     from .tracker import TrackerLayout
@@ -38,7 +39,7 @@ PathLike = str | os.PathLike[str]
 UNITS: Final[dict[str, float]] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 """Length units accepted by the readers and their size in metres."""
 
-FORMATS: Final[tuple[str, ...]] = ("csv", "tracker", "npz")
+FORMATS: Final[tuple[str, ...]] = SENSOR_FORMATS
 """Recording formats ``read_recording`` understands (besides ``"auto"``)."""
 
 COMPONENTS: Final[tuple[str, ...]] = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -547,7 +548,7 @@ def detect_format(path: PathLike) -> str:
                      field="format")
 
 
-def _resolve_format(path: PathLike, format: str) -> str:
+def _sensor_format(path: PathLike, format: str) -> str:
     fmt = format.strip().lower()
     if fmt == "auto":
         return detect_format(path)
@@ -591,7 +592,7 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
     FileNotFoundError
         If ``path`` does not exist.
     """
-    fmt = _resolve_format(path, format)
+    fmt = _sensor_format(path, format)
     if units is not None:
         unit_scale(units)
     if fmt == "csv":
@@ -634,7 +635,7 @@ def sniff_recording(path: PathLike, format: str = "auto", *,
     InputError
         Unreadable header or unknown format.
     """
-    fmt = _resolve_format(path, format)
+    fmt = _sensor_format(path, format)
     if fmt == "npz":
         return _sniff_npz(path)
     meta: dict[str, str] = {}
