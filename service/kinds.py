@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import importlib
-import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -58,7 +57,7 @@ class Input:
 
 
 NUMERICAL_MODULES = ("estimation.skeleton", "estimation.translation", "estimation.io.sensors",
-                     "estimation.io.skeleton", "estimation.io.kinematics")
+                     "estimation.io.skeleton", "estimation.io.kinematics", "estimation.pipeline")
 """What the run functions import: the API process never needs them (nor scipy)."""
 
 
@@ -231,64 +230,57 @@ class TranslationParams(BaseModel):
         return model.model_validate(value)
 
 
+def _stages(progress: Progress) -> Callable[[str], None]:
+    """Report the pipeline's reading at 0 and writing at 0.95 of the job."""
+    at = {"reading": 0.0, "writing": 0.95}
+    return lambda stage: progress(at[stage], stage)
+
+
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
-    from estimation.io.sensors import read_recording
-    from estimation.io.skeleton import offsets_from_dict, write_skeleton_files
-    from estimation.skeleton import estimate_skeleton
+    from estimation import pipeline
+    from estimation.io.skeleton import offsets_from_dict
 
     source = inputs["recording"]
-    progress(0.0, "reading")
-    started = time.perf_counter()
-    recording = read_recording(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
-                               units=params.units, fps=params.fps, stations=params.stations,
-                               tracker_layout=params.tracker_layout)
-    read_s = time.perf_counter() - started
-    result = estimate_skeleton(
-        recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
-        up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
-        w_l=params.w_l, smooth=params.smooth,
-        offsets=None if params.offsets is None else offsets_from_dict(
-            {k: v.model_dump() for k, v in params.offsets.items()}),
-        progress=scaled(progress, 0.02, 0.95))
-    progress(0.95, "writing")
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
            "csv": outdir / "skeleton.csv"}
-    result = replace(result, timings={**result.timings, "read_s": read_s})
-    write_skeleton_files(result, json_path=out["json"], bvh_path=out["bvh"],
-                         csv_path=out["csv"])
+    pipeline.run_skeleton(
+        pipeline.SensorSource(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
+                              units=params.units, fps=params.fps, stations=params.stations,
+                              tracker_layout=params.tracker_layout),
+        pipeline.SkeletonRunOptions(
+            method=params.method, optimizer=params.optimizer, torso=params.torso,
+            up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
+            w_l=params.w_l, smooth=params.smooth,
+            offsets=None if params.offsets is None else offsets_from_dict(
+                {k: v.model_dump() for k, v in params.offsets.items()})),
+        pipeline.SkeletonOutputs(json=out["json"], bvh=out["bvh"], csv=out["csv"]),
+        progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
     return out
 
 
 def run_translation(inputs: Mapping[str, Input], params: TranslationParams, progress: Progress,
                     outdir: Path) -> dict[str, Path]:
     """Read the kinematics (and accelerations), estimate the root path, write the results."""
-    from estimation.io.kinematics import read_kinematics, write_translation_files
-    from estimation.translation import estimate_translation
+    from estimation import pipeline
 
     source = inputs["recording"]
-    progress(0.0, "reading")
-    started = time.perf_counter()
     accelerations = inputs.get("accelerations")
-    recording = read_kinematics(
-        source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
-        accelerations=accelerations.path if accelerations else None,
-        left_foot=params.left_foot, right_foot=params.right_foot,
-        acceleration_units=params.acceleration_units, units=params.units,
-        subject=params.subject)
-    read_s = time.perf_counter() - started
-    result = estimate_translation(recording, method=params.method,
-                                  left_foot=recording.left_foot, right_foot=recording.right_foot,
-                                  progress=scaled(progress, 0.02, 0.95),
-                                  **params.options.model_dump())
-    progress(0.95, "writing")
     out = {"json": outdir / "translation.json", "bvh": outdir / "translation.bvh"}
     if source.format == "kinematics-csv":  # a corrected CSV needs a CSV input to correct
         out["csv"] = outdir / "translation.csv"
     writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv"}
-    result = replace(result, timings={**result.timings, "read_s": read_s})
-    write_translation_files(result, recording, [(writers[f], p) for f, p in out.items()])
+    pipeline.run_translation(
+        pipeline.KinematicsSource(
+            source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
+            accelerations=accelerations.path if accelerations else None,
+            left_foot=params.left_foot, right_foot=params.right_foot,
+            acceleration_units=params.acceleration_units, units=params.units,
+            subject=params.subject),
+        pipeline.TranslationRunOptions(params.method, params.options.model_dump()),
+        [(writers[f], p) for f, p in out.items()],
+        progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
     return out
 
 
