@@ -4,7 +4,7 @@ Two estimators share one entry point, :func:`estimate_translation`:
 
 ``hachaj2018``
     Hachaj & Ogiela's heuristic exactly as their published R implementation computes it
-    (design.md, "Root translation"), in O(N).
+    (docs/translation.md, "Methods and what they assume"), in O(N).
 ``contact`` (default)
     A stance model: per-frame foot contacts (left, right, both, none) chosen by Viterbi
     decoding of how well each hypothesis explains the measured foot accelerations, then a

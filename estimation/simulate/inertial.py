@@ -1,9 +1,9 @@
 """Synthetic inertial-suit recordings with a known root path, from real BVH clips.
 
-The protocol of design.md ("Evaluation protocol", translation): strip the root translation of
-a real clip, compute the foot accelerometer signals from the true motion (sensor frame, g,
-gravity included, white noise, optional saturation), resample to the rate of a suit, and keep
-the true hips path for scoring.
+The protocol of docs/benchmarks.md ("The evaluation protocol", translation): strip the root
+translation of a real clip, compute the foot accelerometer signals from the true motion
+(sensor frame, g, gravity included, white noise, optional saturation), resample to the rate of
+a suit, and keep the true hips path for scoring.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Synthetic 6-DOF sensor recordings with exact joint centres, from BVH motion.
 
-Follows the evaluation protocol of design.md: a rigid 15-segment body is built from a BVH
+Follows the evaluation protocol of docs/benchmarks.md: a rigid 15-segment body is built from a BVH
 clip (the rotations of any joints between two model segments are folded into the pivot joint,
 so the true centres are exact), virtual sensors are attached 3–7 cm off each bone with random
 orientations, and the recording is corrupted by white noise, slow soft-tissue slip and dropped
@@ -81,7 +81,7 @@ SKELETON_MAPS: Final[dict[str, dict[str, str]]] = {
         "r_hip": "UpperLeg_R", "r_knee": "LowerLeg_R", "r_ankle": "Foot_R", "r_toe": "Toes_R",
     },
 }
-"""BVH node names of each model role, per data set (see /work/shared/data/README.md).
+"""BVH node names of each model role, per data set (see docs/benchmarks.md, "The data").
 ``example_motion`` uses the ``cmu_bvh11`` names."""
 
 # segment -> (orientation role, origin joint role, bone start role, bone end role)
@@ -310,7 +310,7 @@ def simulate_sensors(
 
     Notes
     -----
-    Evaluation protocol of design.md. Each segment's orientation is the global rotation of
+    Evaluation protocol of docs/benchmarks.md. Each segment's orientation is the global rotation of
     its most distal BVH node inside the segment, and every joint is a fixed point of the rest
     pose in its parent segment's frame, so the two sensors adjoining a joint agree on its
     position exactly (before noise). Sensors sit at 30–70 % along the bone, 3–7 cm off it in a

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from estimation import skeleton as skeleton_module
 from estimation.bvh import forward_kinematics, read_bvh
 from estimation.cli import main
-from estimation import skeleton as skeleton_module
 from estimation.io.sensors import example_path, read_recording, write_sensor_csv
 from estimation.io.skeleton import BVH_NODES
 from estimation.model import JOINTS, SEGMENTS
