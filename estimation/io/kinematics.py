@@ -46,14 +46,15 @@ from ..results import timings_document
 from ..vocabulary import KINEMATICS_FORMATS, TRANSLATION_OUTPUT_FORMATS
 from .body import (
     Feet,
-    classify,
     find_bvh_feet,
     find_column_feet,
+    find_toe,
     is_end_site_name,
     leg_length,
     match_sensor,
     parse_length_unit,
     resolve_length_unit,
+    varying_root,
 )
 
 if TYPE_CHECKING:
@@ -269,24 +270,6 @@ def _resolve_acceleration_units(
         f"{names}); declare acceleration_units", field="acceleration_units")
 
 
-def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]) -> str | None:
-    """Toe joint of ``foot`` (positions in metres): a joint named like a toe of the foot's
-    side (``LeftToe``, ``LeftToeBase``, ``Toes_L``, ``lToe``) 2–35 cm from the foot.
-    Anonymous end sites (Shadow's ``EndSite4``) are not taken: where they sit on the foot is
-    not known."""
-    side = classify(foot)[0]
-    if side is None:
-        return None
-    i = joints.index(foot)
-    candidates = [name for name in joints if classify(name) == (side, "toe")]
-    if not candidates:
-        return None
-    gaps = [float(np.median(np.linalg.norm(positions[:, joints.index(c)] - positions[:, i],
-                                           axis=1))) for c in candidates]
-    best = int(np.argmin(gaps))
-    return candidates[best] if 0.02 < gaps[best] < 0.35 else None
-
-
 # --------------------------------------------------------------------------- kinematics CSV
 
 
@@ -454,7 +437,7 @@ def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
     contacts: dict[str, NDArray[np.bool_]] = {}
     toes: dict[str, str] = {}
     for foot in feet:
-        toe = _auto_toe(foot, joints, positions)
+        toe = find_toe(foot, joints, positions)
         if toe is not None:
             toes[foot] = toe
             notes.append(f"{toe} is the toe of {foot}")
@@ -525,24 +508,13 @@ def read_acceleration_csv(
     return table[:, col[tkey]].copy(), out, unit
 
 
-def _varying_root(motion: BvhMotion) -> int:
-    """The first node whose position channels move (Bandai files carry a static dummy root)."""
-    for j, chans in enumerate(motion.channels):
-        if any(c.endswith("position") for c in chans):
-            vals = motion.channel_values(j)
-            k = [i for i, c in enumerate(chans) if c.endswith("position")]
-            if np.ptp(vals[:, k], axis=0).max() > 1e-9:
-                return j
-    return motion.parents.index(-1)
-
-
 def bvh_positions_without_root_translation(motion: BvhMotion, root: int | None = None
                                            ) -> tuple[NDArray[np.float64], int]:
     """Forward kinematics with the root's position channels frozen at frame 0.
 
     Returns positions (F, J, 3) in BVH units and the index of the root node used.
     """
-    j = _varying_root(motion) if root is None else root
+    j = varying_root(motion) if root is None else root
     values = motion.values.copy()
     start = sum(len(c) for c in motion.channels[:j])
     for k, ch in enumerate(motion.channels[j]):
@@ -550,13 +522,6 @@ def bvh_positions_without_root_translation(motion: BvhMotion, root: int | None =
             values[:, start + k] = values[0, start + k]
     positions, _ = forward_kinematics(motion.with_values(values))
     return positions, j
-
-
-def _child(motion: BvhMotion, node: int) -> int | None:
-    kids = [k for k, p in enumerate(motion.parents) if p == node]
-    if not kids:
-        return None
-    return max(kids, key=lambda k: float(np.linalg.norm(motion.offsets[k])))
 
 
 def read_bvh_kinematics(

@@ -19,12 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
-from ..io.kinematics import (
-    GRAVITY,
-    KinematicsRecording,
-    _child,
-    _varying_root,
-)
+from ..io.body import longest_child, varying_root
+from ..io.kinematics import GRAVITY, KinematicsRecording
 
 FOOT_NAMES: Final[tuple[tuple[str, str], ...]] = (
     ("LeftFoot", "RightFoot"),
@@ -131,7 +127,7 @@ def simulate_inertial(
     rng = np.random.default_rng(seed)
     world, rotations = forward_kinematics(motion)
     world = world * length_units_m
-    root = _varying_root(motion)
+    root = varying_root(motion)
     n = motion.n_frames
     t_src = np.arange(n) / rate
     window = max(5, round(0.1 * rate) | 1)
@@ -159,7 +155,7 @@ def simulate_inertial(
         out_acc[foot] = a * GRAVITY
     toes = {}
     for foot in (left_foot, right_foot):
-        child = _child(motion, motion.names.index(foot))
+        child = longest_child(motion, motion.names.index(foot))
         if child is not None:
             toes[foot] = motion.names[child]
     recording = KinematicsRecording(
