@@ -42,6 +42,12 @@ from estimation.vocabulary import (
     TranslationMethod,
 )
 
+RecordingFormat = Literal["sensor-csv", "tracker", "npz", "kinematics-csv", "bvh", "mvnx",
+                          "accelerations-csv"]
+"""API names of the recording formats an upload may declare (or ``"auto"``)."""
+ResultFormat = Literal["json", "bvh", "csv"]
+"""Formats a job's result is served in."""
+
 SENSOR_FORMATS = {"sensor-csv": "csv", "tracker": "tracker", "npz": "npz"}
 """API format name → ``estimation.io.sensors`` format name."""
 KINEMATICS_FORMATS = {"kinematics-csv": "kinematics-csv", "bvh": "bvh", "mvnx": "mvnx"}
@@ -304,6 +310,6 @@ def default_kinds() -> dict[str, Kind]:
     }
 
 
-MEDIA_TYPES = {"json": "application/json", "bvh": "application/x-bvh",
+MEDIA_TYPES: dict[ResultFormat, str] = {"json": "application/json", "bvh": "application/x-bvh",
                "csv": "text/csv; charset=utf-8"}
 """Content type of each result format."""

@@ -8,12 +8,11 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from .jobs import Job, Recording
-from .kinds import SkeletonParams, TranslationParams
+from .kinds import RecordingFormat, SkeletonParams, TranslationParams
+from .kinds import ResultFormat as ResultFormat  # re-exported: the API names it here
 
-UploadFormat = Literal["auto", "sensor-csv", "tracker", "npz", "kinematics-csv", "bvh", "mvnx",
-                       "accelerations-csv"]
+UploadFormat = Literal["auto", RecordingFormat]
 Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-ResultFormat = Literal["json", "bvh", "csv"]
 RecordingId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[0-9a-z]+$")]
 
 

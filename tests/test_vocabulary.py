@@ -70,3 +70,11 @@ def test_translate_cli_choices_are_the_vocabulary() -> None:
     options = {a.dest: a for a in _subcommand("translate")._actions}
     assert tuple(options["method"].choices or ()) == vocabulary.TRANSLATION_METHODS
     assert tuple(options["format"].choices or ()) == ("auto", *vocabulary.KINEMATICS_FORMATS)
+
+
+def test_service_formats_are_one_list() -> None:
+    declared = set(get_args(kinds.RecordingFormat))
+    assert set(kinds.SENSOR_FORMATS) | set(kinds.KINEMATICS_FORMATS) <= declared
+    assert set(kinds.SENSOR_FORMATS.values()) == set(vocabulary.SENSOR_FORMATS)
+    assert set(kinds.KINEMATICS_FORMATS.values()) == set(vocabulary.KINEMATICS_FORMATS)
+    assert set(kinds.MEDIA_TYPES) == set(get_args(kinds.ResultFormat))
