@@ -17,10 +17,10 @@ from ._lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from .bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
-    from .errors import BonefitError, EstimationError, InputError
+    from .errors import BonefitError, EstimationError, InputError, LimitError
     from .gaps import fill_gaps
-    from .io.kinematics import KinematicsRecording
     from .joints import JointFit, estimate_joint
+    from .kinematics import KinematicsRecording
     from .limbs import LimbFit, estimate_limb, standard_lengths, torso_length
     from .model import DROPPED_IN_REDUCED, JOINTS, REDUCED_SEGMENTS, SEGMENTS
     from .orientations import estimate_orientations
@@ -29,7 +29,12 @@ if TYPE_CHECKING:
     from .results import JointOffset, SkeletonResult
     from .skeleton import estimate_chest, estimate_root, estimate_skeleton
     from .slip import SlipFit, estimate_slip, rotation_noise_variance
-    from .translation import ContactOptions, TranslationResult, estimate_translation
+    from .translation import (
+        ContactOptions,
+        HachajOptions,
+        TranslationResult,
+        estimate_translation,
+    )
 
 __all__ = [
     "DROPPED_IN_REDUCED",
@@ -40,11 +45,13 @@ __all__ = [
     "BvhMotion",
     "ContactOptions",
     "EstimationError",
+    "HachajOptions",
     "InputError",
     "JointFit",
     "JointOffset",
     "KinematicsRecording",
     "LimbFit",
+    "LimitError",
     "Progress",
     "SensorRecording",
     "SkeletonResult",
@@ -70,9 +77,9 @@ __all__ = [
 # names above are imported from their submodule on first use (see _lazy)
 __getattr__, __dir__ = lazy_attributes(__name__, {
     "bvh": ("BvhMotion", "forward_kinematics", "read_bvh", "write_bvh"),
-    "errors": ("BonefitError", "EstimationError", "InputError"),
+    "errors": ("BonefitError", "EstimationError", "InputError", "LimitError"),
     "gaps": ("fill_gaps",),
-    "io.kinematics": ("KinematicsRecording",),
+    "kinematics": ("KinematicsRecording",),
     "joints": ("JointFit", "estimate_joint"),
     "limbs": ("LimbFit", "estimate_limb", "standard_lengths", "torso_length"),
     "model": ("DROPPED_IN_REDUCED", "JOINTS", "REDUCED_SEGMENTS", "SEGMENTS"),
@@ -82,5 +89,6 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "results": ("JointOffset", "SkeletonResult"),
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
-    "translation": ("ContactOptions", "TranslationResult", "estimate_translation"),
+    "translation": ("ContactOptions", "HachajOptions", "TranslationResult",
+                    "estimate_translation"),
 })

@@ -55,3 +55,20 @@ class EstimationError(BonefitError):
     """
 
     title = "Cannot estimate from this input"
+
+
+class LimitError(InputError):
+    """The input declares or holds more than a documented limit allows (frames, columns,
+    line length, array size); ``limit`` names the limit (``MAX_FRAMES``...)."""
+
+    title = "Input beyond a limit"
+
+    def __init__(self, detail: str, *, limit: str, field: str | None = None,
+                 sensor: str | None = None, line: int | None = None,
+                 column: int | None = None) -> None:
+        super().__init__(detail, field=field, sensor=sensor, line=line, column=column)
+        self.limit = limit
+
+    def location(self) -> dict[str, str | int]:
+        """The location fields and the name of the limit."""
+        return {**super().location(), "limit": self.limit}

@@ -160,6 +160,24 @@ def fill_sensor_major(
                              "quaternions: blocks per sensor) in place")
     n_sensors, n_frames = positions.shape[:2]
     t = np.arange(n_frames, dtype=float) if time is None else np.asarray(time, dtype=float)
+    valid, norms2 = _measured(positions, quaternions)
+    longest = np.zeros(n_sensors, dtype=np.intp)
+    gaps = _Gaps.of(valid)
+    if gaps is None:
+        return FilledGaps(valid, longest, norms2)
+    np.maximum.at(longest, gaps.run_sensor, gaps.hi - gaps.lo - 1)
+    span = t[gaps.i1] - t[gaps.i0]
+    frac = np.where(span > 0, (t[gaps.frame] - t[gaps.i0]) / np.where(span > 0, span, 1.0),
+                    0.0)
+    _fill_positions(positions, gaps, t, frac, method)
+    _fill_quaternions(quaternions, norms2, gaps, frac)
+    return FilledGaps(valid, longest, norms2)
+
+
+def _measured(positions: NDArray[np.float64], quaternions: NDArray[np.float64]
+              ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """Measured samples (S, F) of sensor-major positions and component-major quaternions,
+    and the quaternions' squared norms (S, F); InputError naming a sensor with none."""
     # one pass of isfinite over the contiguous positions, then the components' masks
     finite_p = np.isfinite(positions)
     valid = finite_p[..., 0] & finite_p[..., 1] & finite_p[..., 2]
@@ -174,57 +192,102 @@ def fill_sensor_major(
     if empty.any():
         s = int(np.flatnonzero(empty)[0])
         raise InputError(f"sensor column {s} has no valid sample", sensor=str(s))
-    # the dropped samples (sensor-major flat indices, sorted) and their runs: each run is
-    # bracketed by the valid samples lo = first − 1 and hi = last + 1 (−1, F: none)
-    bad = np.flatnonzero(~valid.reshape(-1))
-    longest = np.zeros(n_sensors, dtype=np.intp)
-    if bad.size == 0:
-        return FilledGaps(valid, longest, norms2)
-    sensor, frame = np.divmod(bad, n_frames)
-    starts = np.ones(bad.size, dtype=bool)
-    starts[1:] = (bad[1:] != bad[:-1] + 1) | (sensor[1:] != sensor[:-1])
-    run = np.cumsum(starts) - 1
-    run_sensor = sensor[starts]
-    lo = frame[starts] - 1
-    hi = frame[np.append(starts[1:], True)] + 1
-    np.maximum.at(longest, run_sensor, hi - lo - 1)
-    i0, i1 = lo[run], hi[run]
-    interior = (i0 >= 0) & (i1 < n_frames)
-    # outside the valid range, repeat the nearest valid sample
-    i0 = np.where(i0 < 0, i1, i0)
-    i1 = np.where(i1 >= n_frames, i0, i1)
-    span = t[i1] - t[i0]
-    frac = np.where(span > 0, (t[frame] - t[i0]) / np.where(span > 0, span, 1.0), 0.0)
+    return valid, norms2
+
+
+class _Gaps(NamedTuple):
+    """The dropped samples of sensor-major streams and the runs they form.
+
+    Per dropped sample (sensor-major order): ``bad`` its flat index, ``sensor``, ``frame``,
+    ``run`` its run, ``i0``/``i1`` the valid samples it is interpolated between (the same
+    one outside the valid range) and ``interior`` whether it has valid samples on both
+    sides. Per run: ``run_sensor`` and the bracketing frames ``lo = first − 1`` and
+    ``hi = last + 1`` (−1, F: none)."""
+
+    bad: NDArray[np.intp]
+    sensor: NDArray[np.intp]
+    frame: NDArray[np.intp]
+    run: NDArray[np.intp]
+    run_sensor: NDArray[np.intp]
+    lo: NDArray[np.intp]
+    hi: NDArray[np.intp]
+    i0: NDArray[np.intp]
+    i1: NDArray[np.intp]
+    interior: NDArray[np.bool_]
+
+    @classmethod
+    def of(cls, valid: NDArray[np.bool_]) -> _Gaps | None:
+        """The gaps of ``valid`` (S, F); None without any."""
+        n_frames = valid.shape[1]
+        bad = np.flatnonzero(~valid.reshape(-1))
+        if bad.size == 0:
+            return None
+        sensor, frame = np.divmod(bad, n_frames)
+        starts = np.ones(bad.size, dtype=bool)
+        starts[1:] = (bad[1:] != bad[:-1] + 1) | (sensor[1:] != sensor[:-1])
+        run = np.cumsum(starts) - 1
+        lo = frame[starts] - 1
+        hi = frame[np.append(starts[1:], True)] + 1
+        i0, i1 = lo[run], hi[run]
+        interior = (i0 >= 0) & (i1 < n_frames)
+        # outside the valid range, repeat the nearest valid sample
+        i0 = np.where(i0 < 0, i1, i0)
+        i1 = np.where(i1 >= n_frames, i0, i1)
+        return cls(bad, sensor, frame, run, sensor[starts], lo, hi, i0, i1, interior)
+
+
+def _fill_positions(positions: NDArray[np.float64], gaps: _Gaps, t: NDArray[np.float64],
+                    frac: NDArray[np.float64], method: str) -> None:
+    """Fill the dropped positions (S, F, 3) in place: linearly at ``frac`` between the
+    bracketing samples, or (``"cubic"``) by the cubic through two valid samples each side
+    of an interior gap where there are two."""
+    n_frames = positions.shape[1]
     pos = positions.reshape(-1, 3)
-    base = sensor * n_frames
-    p0, p1 = pos[base + i0], pos[base + i1]
+    base = gaps.sensor * n_frames
+    p0, p1 = pos[base + gaps.i0], pos[base + gaps.i1]
     filled_pos = p0 + frac[:, None] * (p1 - p0)
     if method == "cubic":
-        # local cubic through two valid samples each side of the gap: one vectorised step
-        # for all sensors instead of a global spline per sensor. The valid sample before
-        # lo is lo − 1 unless that was dropped: then the previous run of the sensor ends
-        # there, and its own lo is the one
-        same_prev = np.zeros(lo.size, dtype=bool)
-        same_prev[1:] = (run_sensor[1:] == run_sensor[:-1]) & (hi[:-1] == lo[1:])
-        before_run = np.where(same_prev, np.roll(lo, 1), lo - 1)
-        same_next = np.zeros(hi.size, dtype=bool)
-        same_next[:-1] = same_prev[1:]
-        after_run = np.where(same_next, np.roll(hi, -1), hi + 1)
-        before = np.where(interior, before_run[run], -1)
-        after = np.where(interior, after_run[run], n_frames)
+        before, after = _outer_knots(gaps, n_frames)
         cubic = (before >= 0) & (after < n_frames)
         if cubic.any():
-            knots = np.stack([before[cubic], i0[cubic], i1[cubic], after[cubic]], axis=1)
+            knots = np.stack([before[cubic], gaps.i0[cubic], gaps.i1[cubic], after[cubic]],
+                             axis=1)
             filled_pos[cubic] = _lagrange(t[knots], pos[base[cubic, None] + knots],
-                                          t[frame[cubic]])
-    pos[bad] = filled_pos
-    q0, q1 = quaternions[sensor, :, i0], quaternions[sensor, :, i1]
+                                          t[gaps.frame[cubic]])
+    pos[gaps.bad] = filled_pos
+
+
+def _outer_knots(gaps: _Gaps, n_frames: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Per dropped sample, the valid samples before ``i0`` and after ``i1`` (−1 and
+    ``n_frames`` outside an interior gap).
+
+    Local cubics through two valid samples each side of the gap: one vectorised step for
+    all sensors instead of a global spline per sensor. The valid sample before lo is
+    lo − 1 unless that was dropped: then the previous run of the sensor ends there, and its
+    own lo is the one."""
+    lo, hi, run_sensor = gaps.lo, gaps.hi, gaps.run_sensor
+    same_prev = np.zeros(lo.size, dtype=bool)
+    same_prev[1:] = (run_sensor[1:] == run_sensor[:-1]) & (hi[:-1] == lo[1:])
+    before_run = np.where(same_prev, np.roll(lo, 1), lo - 1)
+    same_next = np.zeros(hi.size, dtype=bool)
+    same_next[:-1] = same_prev[1:]
+    after_run = np.where(same_next, np.roll(hi, -1), hi + 1)
+    before = np.where(gaps.interior, before_run[gaps.run], -1)
+    after = np.where(gaps.interior, after_run[gaps.run], n_frames)
+    return before, after
+
+
+def _fill_quaternions(quaternions: NDArray[np.float64], norms2: NDArray[np.float64],
+                      gaps: _Gaps, frac: NDArray[np.float64]) -> None:
+    """Fill the dropped quaternions (S, 4, F) in place by Slerp at ``frac`` between the
+    bracketing samples, and their squared norms (S, F)."""
+    sensor, frame = gaps.sensor, gaps.frame
+    q0, q1 = quaternions[sensor, :, gaps.i0], quaternions[sensor, :, gaps.i1]
     q0 = q0 / rows.norms(q0)[:, None]
     q1 = q1 / rows.norms(q1)[:, None]
     filled_quat = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
     quaternions[sensor, :, frame] = filled_quat
     norms2[sensor, frame] = _norms2(*filled_quat.T)
-    return FilledGaps(valid, longest, norms2)
 
 
 def _norms2(w: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64],

@@ -102,7 +102,9 @@ def _llsf_system(ra: NDArray[np.float64], rb: NDArray[np.float64],
     return normal, rhs
 
 
-_SLIP_BASIS_MAX: Final[int] = 16
+SLIP_BASIS_MAX: Final[int] = 16
+"""Most cosines of the slip model (``slip_basis``): on a long recording only the slowest slip
+is modelled."""
 
 RULE_GATE_SIGMA: Final[float] = 3.0
 """The foot-of-perpendicular rule is dropped when its shift along the hinge axis exceeds this
@@ -110,10 +112,23 @@ many standard deviations of the data's own estimate along the axis (a consistenc
 the rule's hypothesis that the bone is perpendicular to the axis; see ``estimate_joint``)."""
 
 
-def _slip_basis(n: int, period: float) -> NDArray[np.float64]:
-    """Cosines (F, K) of every period down to ``period`` frames, unit RMS, no constant (a
-    constant slip is part of the centre)."""
-    k = min(int(np.ceil(2.0 * n / period)), _SLIP_BASIS_MAX)
+def slip_basis(n: int, period: float) -> NDArray[np.float64]:
+    """Cosines of the slow soft-tissue slip model (shared with ``slip.estimate_slip``).
+
+    Parameters
+    ----------
+    n : int
+        Number of frames F.
+    period : float
+        Shortest period modelled, frames.
+
+    Returns
+    -------
+    ndarray, shape (F, K)
+        Cosines of every period down to ``period`` frames (at most ``SLIP_BASIS_MAX``), unit
+        RMS, no constant (a constant slip is part of the centre).
+    """
+    k = min(int(np.ceil(2.0 * n / period)), SLIP_BASIS_MAX)
     t = (np.arange(n) + 0.5) / n
     return np.asarray(np.sqrt(2.0) * np.cos(np.pi * np.outer(t, np.arange(1, k + 1))))
 
@@ -181,10 +196,23 @@ def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np
     return normal - n_bc.T @ back[:, :6], rhs - n_bc.T @ back[:, 6], back
 
 
-def _white_variance(r: NDArray[np.float64], use: NDArray[np.bool_]) -> float | None:
-    """Variance per axis of the white part of a series (second differences, where smooth
-    motion contributes little; the median against outliers, 0.4549 the median of χ²₁), or
-    None with 10 or fewer usable triples of frames."""
+def white_variance(r: NDArray[np.float64], use: NDArray[np.bool_]) -> float | None:
+    """Variance per axis of the white part of a series (shared with ``slip.estimate_slip``).
+
+    Parameters
+    ----------
+    r : ndarray, shape (F, 3)
+        A residual series, metres.
+    use : ndarray of bool, shape (F,)
+        Frames that count.
+
+    Returns
+    -------
+    float or None
+        m², from second differences (where smooth motion contributes little; the median
+        against outliers, 0.4549 the median of χ²₁); None with 10 or fewer usable triples of
+        frames.
+    """
     dd = r[2:] - 2.0 * r[1:-1] + r[:-2]
     ok = use[2:] & use[1:-1] & use[:-2]
     if ok.sum() <= 10:
@@ -233,7 +261,7 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
     rel = quat.relative(qa.T, qb.T, axis=0)
     if valid is not None:
         rel = np.compress(np.asarray(valid, dtype=bool), rel, axis=1)  # 6x rel[:, valid]
-    dev = quat.as_rotvec(quat._relative_matrix(quat.mean(rel.T)) @ rel, axis=0)
+    dev = quat.as_rotvec(quat.relative_matrix(quat.mean(rel.T)) @ rel, axis=0)
     n_avg = 9 if dev.shape[1] >= 9 else 1
     if n_avg > 1:
         # 9-frame moving sums of the three components at once, by pairwise sums (a cumulative
@@ -318,7 +346,7 @@ def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float
         cov += wdx.T @ dx / total
         b += 0.5 * wdx.T @ rows.dots(x, x) / total
         if bias_compensation:
-            sigma2 = _white_variance(x, use)
+            sigma2 = white_variance(x, use)
             if sigma2 is not None:
                 sigma2_total += sigma2
                 mean_total += sigma2 * mean
@@ -567,11 +595,11 @@ def estimate_joint(
     slip_ridge = 0.0
     basis = np.zeros((n, 0))
     if slip_period > 0 and highpass <= 1 and method != "gdke":
-        basis = _slip_basis(n, slip_period)
+        basis = slip_basis(n, slip_period)
         if basis.shape[1] > 0:
             c0 = _solve(*_llsf_system(ra, rb, d, w0, unit))[0]
             r0 = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
-            white = _white_variance(r0, both)
+            white = white_variance(r0, both)
             white = max(float(np.mean(r0[both] ** 2)) if white is None else white, 1e-12)
             slow = max(float(np.mean(r0[both] ** 2)) - white, white)
             slip_ridge = white / (0.5 * slow / basis.shape[1])

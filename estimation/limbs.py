@@ -20,6 +20,51 @@ Two estimators:
     frame, and the knee and the ankle are put in the plane through the hip perpendicular to
     that axis), weak priors instead of the paper's pull towards the sensor origins, and
     plausibility bounds; the priors grow when the limb hardly moves.
+
+Details
+-------
+``E`` is a sum of squares because ``Var_t(l) = Σ_t ((l(t) − l̄)/√M)²``; with
+``u = (ankle − knee)/l`` the Jacobian rows are ``∂l/∂s_j = −uᵀP_k`` and
+``∂l/∂s_{j+1} = uᵀP_{k+1}`` (computed in the upper sensor frame, where
+``P_kᵀP_{k+1}`` is precomputed once), so one evaluation costs O(F).
+
+The Nelder–Mead path uses scipy's implementation with an initial simplex of 5 cm steps
+around the start, ``xatol=1e-6`` m and ``fatol`` 1e-9·E, and restarts from its own
+result with a shrinking simplex until a restart lowers E by less than 1e-9 (relative):
+it then converges as far as the least-squares path (within ~1e-10 of the same minimum).
+
+``"improved"`` replaces ``Var_t(l)`` by ``Σ_t ρ(l(t) − L)`` with a free length ``L`` and
+the soft-L1 loss ``ρ``, drops the ``|s|²`` term (it pulls the joints towards the sensor
+origins, a bias of centimetres), and adds the hinge rule: with ``n`` the flexion axis in
+the upper frame (least-scatter direction of the distal joint's path there), the middle
+joint is the point of the axis nearest the proximal joint (``nᵀ(s_j − h) = 0``) and the
+distal joint lies in the same plane (``nᵀ(x̄ − s_j) = 0``); both directions are
+unobservable from a hinge's motion. The distal joint's path across that plane,
+``nᵀ(x(t) − x̄)``, is penalised in every frame (weight 0.2 relative to the data rows): the
+ankle (wrist) centre is the one point of the foot (hand) that a twist of the shank
+(forearm) about its own axis leaves on the flexion arc, which singles it out where the
+length of the shank (forearm) alone hardly varies (-1.5 to -2 mm on the 11-sensor limb
+median, every seed of the accuracy benchmark). The rule is switched off when that path is not a
+clean arc wider than 1 cm. Weak priors (per frame, relative to the data rows: 1e-4 on the
+two standard lengths, 3e-4 on the middle joint lying on the proximal–distal line at the
+standard length ratio and on the distal joint lying near its sensor) keep a motionless
+limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the relative
+rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment lengths
+beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
+the paper's least-squares solution, the geometric point and a straight limb through the
+distal sensor; the alternation between axis and joints runs on a 400-frame subsample
+from each start and the best is polished on every frame. Weights were chosen on
+simulated clips (see ``docs/skeleton-limbs.md``).
+
+Least-squares fits first converge on a subsample of about 400 frames and are then
+polished on all frames, stopping when E changes by less than 1e-10 (relative). The
+full-frame fits solve the 6 × 6 (7 × 7) normal equations directly instead of running
+MINPACK's QR on the (2F + 7)-row Jacobian: for the paper's E the normal equations and the
+exact Hessian come from per-frame sums (``paper_normal``), so the full-size polish is
+two Newton steps, each one pass over the frames; the improved objective's Jacobian is
+formed and multiplied out. The improved method's alternations from rough starts keep
+MINPACK (``scipy.optimize.least_squares``) on the subsample: its objective has several
+local minima and the optimizer's steps decide which one a start falls into.
 """
 
 from __future__ import annotations
@@ -30,13 +75,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import lapack
 from scipy.optimize import least_squares, minimize
 from scipy.spatial.transform import Rotation
 
 from . import _rows as rows
 from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
+from .least_squares import Normal, levenberg_marquardt, normal_from_residuals
 from .params import check_number
 from .progress import Progress, no_progress
 from .vocabulary import OPTIMIZERS
@@ -158,12 +203,23 @@ def standard_lengths(torso_length: float,
 
 
 @dataclass(frozen=True)
-class _Limb:
-    """The data expressed in the upper sensor frame, where the costs are cheapest."""
+class LimbInUpperFrame:
+    """A limb's data expressed in the upper sensor frame, where the costs are cheapest
+    (:func:`limb_in_upper_frame`).
 
-    b: Float  # (F,3) distal sensor origin in the upper frame
-    q: Float  # (F,3,3) distal → upper rotation matrices
-    h: Float  # (F,3) proximal joint in the upper frame
+    Attributes
+    ----------
+    b : ndarray, shape (F, 3)
+        Distal sensor origin, metres.
+    q : ndarray, shape (F, 3, 3)
+        Distal → upper sensor rotation matrices.
+    h : ndarray, shape (F, 3)
+        Proximal joint, metres.
+    """
+
+    b: Float
+    q: Float
+    h: Float
 
     @property
     def n(self) -> int:
@@ -211,7 +267,7 @@ def _world(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rot
     return _World(hip, pu, upper_rotations.as_matrix(), pd, distal_rotations.as_matrix())
 
 
-def _in_upper_frame(world: _World) -> _Limb:
+def _in_upper_frame(world: _World) -> LimbInUpperFrame:
     ru = world.ru
     ru_t = ru.transpose(0, 2, 1)
     b = rows.apply_each(ru_t, world.pd - world.pu)
@@ -219,17 +275,28 @@ def _in_upper_frame(world: _World) -> _Limb:
     q = rows.relative_matrices(ru, world.rd)
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
-    return _Limb(b=b, q=q, h=h)
+    return LimbInUpperFrame(b=b, q=q, h=h)
 
 
-def _prepare(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
-             distal_positions: ArrayLike, distal_rotations: Rotation) -> _Limb:
+def limb_in_upper_frame(proximal: ArrayLike, upper_positions: ArrayLike,
+                        upper_rotations: Rotation, distal_positions: ArrayLike,
+                        distal_rotations: Rotation) -> LimbInUpperFrame:
+    """A limb's inputs (as for :func:`estimate_limb`), checked and expressed in the upper
+    sensor's frame: the first step of every limb fit.
+
+    Raises
+    ------
+    InputError
+        Bad shapes, different numbers of frames, NaN or inf.
+    EstimationError
+        Fewer than 3 frames.
+    """
     return _in_upper_frame(_world(proximal, upper_positions, upper_rotations, distal_positions,
                                   distal_rotations))
 
 
-def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
-                     ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
+def paper_residuals(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float,
+                    w_l: float) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """``E`` as a sum of squares: residuals r(θ) with Σ r² = E, and their Jacobian.
 
     θ = (s_j, s_{j+1}). Per frame the variance and lower-length terms share l, and
@@ -290,12 +357,7 @@ def _paper_residuals(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l:
 _SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 _SIGN_OUTER = np.outer(_SIGN, _SIGN)
 
-Normal = tuple[float, Float, Float] | tuple[float, Float, Float, Float]
-"""``(E, g, H[, K])`` at a point: the cost, ``g = Jᵀr`` (half its gradient), ``H = JᵀJ`` and
-optionally ``K = JᵀJ + Σ r ∇²r`` (half the exact Hessian)."""
-
-
-class _PaperObjective(NamedTuple):
+class PaperObjective(NamedTuple):
     """The paper's E at θ, its normal equations, and the two segment lengths per frame; the
     three share one pass over the frames at the last point asked for."""
 
@@ -304,12 +366,12 @@ class _PaperObjective(NamedTuple):
     lengths: Callable[[Float], tuple[Float, Float]]
 
 
-def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: float,
-                  exact: bool = True) -> _PaperObjective:
+def paper_normal(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float,
+                 w_l: float, exact: bool = True) -> PaperObjective:
     """``E`` and its Gauss–Newton normal equations, without the (2M + 7)-row Jacobian.
 
     Returns ``cost(θ) → E``, ``normal(θ) → (E, Jᵀr, JᵀJ)`` with ``r``, ``J`` those of
-    :func:`_paper_residuals`, and ``lengths(θ) → (l_{j,j+1}(t), l_{j−1,j}(t))``. With
+    :func:`paper_residuals`, and ``lengths(θ) → (l_{j,j+1}(t), l_{j−1,j}(t))``. With
     ``j_t = ∂l_t/∂θ = (−u_t, u_tᵀQ_t)`` (rows of an (M, 6) array), ``ê_t`` the unit
     hip → knee direction and ``c_t = (1 + w)l_t − l̄ − wL``::
 
@@ -323,82 +385,119 @@ def _paper_normal(limb: _Limb, lengths: tuple[float, float], w_s: float, w_l: fl
     minimum, so Gauss–Newton alone converges only linearly (5–9 full-size iterations
     measured on the RT1-size benchmark), Newton quadratically.
     """
-    m = limb.n
-    l_up, l_low = lengths
-    last: dict[str, Any] = {}
+    terms = _PaperTerms(limb, lengths, w_s, w_l, exact)
+    return PaperObjective(terms.cost, terms.normal, terms.segment_lengths)
 
-    def geometry(theta: Float) -> tuple[Float, Float, Float, Float, float]:
-        # normal() is asked for at the point cost() has just accepted
-        if last.get("theta") is not None and np.array_equal(last["theta"], theta):
-            return last["value"]  # type: ignore[no-any-return]
+
+class _Geometry(NamedTuple):
+    """Per-frame geometry of a limb at θ: middle → distal vectors ``d`` (M, 3) and their
+    lengths ``ll``, proximal → middle vectors ``e`` and their lengths ``lu``; and E."""
+
+    d: Float
+    ll: Float
+    e: Float
+    lu: Float
+    value: float
+
+
+class _PaperTerms:
+    """The paper's E of one limb and its normal equations (see ``paper_normal``), sharing
+    one pass over the frames at the last point asked for."""
+
+    def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float, w_l: float,
+                 exact: bool) -> None:
+        self.limb, self.lengths, self.w_s, self.w_l, self.exact = limb, lengths, w_s, w_l, exact
+        self._last: tuple[Float, _Geometry] | None = None
+
+    def geometry(self, theta: Float) -> _Geometry:
+        """The geometry at ``theta`` (cached: ``normal`` is asked for at the point ``cost``
+        has just accepted)."""
+        if self._last is not None and np.array_equal(self._last[0], theta):
+            return self._last[1]
+        m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
         k, a = theta[:3], theta[3:]
-        d = limb.distal(a) - k
+        d = self.limb.distal(a) - k
         ll = rows.norms(d)
-        e = k - limb.h
+        e = k - self.limb.h
         lu = rows.norms(e)
         dev = ll - np.einsum("f->", ll) / m
         value = float((np.einsum("f,f->", dev, dev)
                        + w_l * (np.einsum("f,f->", lu - l_up, lu - l_up)
                                 + np.einsum("f,f->", ll - l_low, ll - l_low))) / m
-                      + w_s * np.einsum("i,i->", theta, theta))
-        last["theta"], last["value"] = theta.copy(), (d, ll, e, lu, value)
-        return d, ll, e, lu, value
+                      + self.w_s * np.einsum("i,i->", theta, theta))
+        geometry = _Geometry(d, ll, e, lu, value)
+        self._last = (theta.copy(), geometry)
+        return geometry
 
-    def cost(theta: Float) -> float:
-        return geometry(theta)[4]
+    def cost(self, theta: Float) -> float:
+        """E at ``theta``."""
+        return self.geometry(theta).value
 
-    def segment_lengths(theta: Float) -> tuple[Float, Float]:
-        _, ll, _, lu, _ = geometry(theta)
-        return ll, lu
+    def segment_lengths(self, theta: Float) -> tuple[Float, Float]:
+        """``(l_{j,j+1}(t), l_{j−1,j}(t))`` at ``theta``."""
+        g = self.geometry(theta)
+        return g.ll, g.lu
 
-    def normal(theta: Float) -> Normal:
-        d, ll, e, lu, value = geometry(theta)
-        inv_l = 1.0 / ll
-        inv_lu = 1.0 / lu
-        # rows of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then ê) and
-        # ones, then c, c_u, c/l, c_u/l_u and the first nine rows weighted by c/l and
-        # c_u/l_u: every sum below is an entry of a product of rows of z. z is frame-major
-        # so that numpy's loops run over frames, not over 3 components.
-        z = np.empty((23, m))
-        np.multiply(d.T, inv_l, out=z[:3])
-        for j in range(3):
-            # uᵀQ row by row: strided reads of Q, a third faster than einsum
-            np.multiply(z[0], limb.q[:, 0, j], out=z[3 + j])
-            z[3 + j] += z[1] * limb.q[:, 1, j]
-            z[3 + j] += z[2] * limb.q[:, 2, j]
-        np.multiply(e.T, inv_lu, out=z[6:9])
-        z[9] = 1.0
-        c, cu, cl, cul = z[10], z[11], z[12], z[13]
-        np.multiply(ll, (1.0 + w_l) / m, out=c)
-        c -= (np.einsum("f->", ll) / m + w_l * l_low) / m
-        np.subtract(lu, l_up, out=cu)
-        cu *= w_l / m
-        np.multiply(c, inv_l, out=cl)
-        np.multiply(cu, inv_lu, out=cul)
+    def normal(self, theta: Float) -> Normal:
+        """``(E, Jᵀr, JᵀJ[, K])`` at ``theta``."""
+        geo = self.geometry(theta)
+        z = self._rows(geo)
+        m, w_l = self.limb.n, self.w_l
         # Σ x yᵀ of the plain rows, then the two weighted blocks: three small products take
         # 80 µs for 6,283 frames where the one (10, 23) product took 210 (OpenBLAS's kernels)
         gram = z[:10] @ z[:14].T
-        g = _SIGN * gram[:6, 10] + w_s * theta
+        g = _SIGN * gram[:6, 10] + self.w_s * theta
         g[:3] += gram[6:9, 11]
         j_bar = _SIGN * gram[:6, 9] / m
         h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar) \
-            + w_s * np.eye(6)
+            + self.w_s * np.eye(6)
         h[:3, :3] += w_l / m * gram[6:9, 6:9]
-        if not exact:
-            return value, g, h
+        if not self.exact:
+            return geo.value, g, h
+        return geo.value, g, h, h + self._second_order(z, gram)
+
+    def _rows(self, geo: _Geometry) -> Float:
+        """Rows (23, M) of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then
+        ê) and ones, then c, c_u, c/l, c_u/l_u; rows 14–22 are left for ``_second_order``.
+
+        Every sum of the normal equations is an entry of a product of rows of z. z is
+        frame-major so that numpy's loops run over frames, not over 3 components."""
+        m, (l_up, l_low), w_l, q = self.limb.n, self.lengths, self.w_l, self.limb.q
+        inv_l = 1.0 / geo.ll
+        inv_lu = 1.0 / geo.lu
+        z = np.empty((23, m))
+        np.multiply(geo.d.T, inv_l, out=z[:3])
+        for j in range(3):
+            # uᵀQ row by row: strided reads of Q, a third faster than einsum
+            np.multiply(z[0], q[:, 0, j], out=z[3 + j])
+            z[3 + j] += z[1] * q[:, 1, j]
+            z[3 + j] += z[2] * q[:, 2, j]
+        np.multiply(geo.e.T, inv_lu, out=z[6:9])
+        z[9] = 1.0
+        c, cu, cl, cul = z[10], z[11], z[12], z[13]
+        np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
+        c -= (np.einsum("f->", geo.ll) / m + w_l * l_low) / m
+        np.subtract(geo.lu, l_up, out=cu)
+        cu *= w_l / m
+        np.multiply(c, inv_l, out=cl)
+        np.multiply(cu, inv_lu, out=cul)
+        return z
+
+    def _second_order(self, z: Float, gram: Float) -> Float:
+        """``Σ r ∇²r`` (6, 6), from the rows ``z`` (completed here) and their ``gram``."""
+        m = self.limb.n
+        cl, cul = z[12], z[13]
         np.multiply(z[:6], cl, out=z[14:20])
         np.multiply(z[6:9], cul, out=z[20:])
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         second = gram[9, 12] * np.eye(6) - _SIGN_OUTER * (z[:6] @ z[14:20].T)
-        cross = (cl @ limb.q.reshape(m, 9)).reshape(3, 3)
+        cross = (cl @ self.limb.q.reshape(m, 9)).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
         second[:3, :3] += gram[9, 13] * np.eye(3) - z[6:9] @ z[20:].T
-        return value, g, h, h + second
-
-    return _PaperObjective(cost, normal, segment_lengths)
+        return np.asarray(second)
 
 
 def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,
@@ -431,14 +530,14 @@ def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike
     -----
     Miura et al. 2015, eqs. 2–5.
     """
-    limb = _prepare(proximal, upper_positions, upper_rotations, distal_positions,
+    limb = limb_in_upper_frame(proximal, upper_positions, upper_rotations, distal_positions,
                     distal_rotations)
-    fun, _ = _paper_residuals(limb, standard_lengths, w_s, w_l)
+    fun, _ = paper_residuals(limb, standard_lengths, w_s, w_l)
     r = fun(np.asarray(theta, dtype=float).reshape(6))
     return float(np.einsum("i,i->", r, r))
 
 
-def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
+def _initial_point(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Float:
     """Start from geometry: the knee one thigh length from the hip, through the thigh sensor
     (which sits on the bone); the ankle one shank length from that knee towards the foot
     sensor (which sits next to the ankle)."""
@@ -455,16 +554,6 @@ def _initial_point(limb: _Limb, lengths: tuple[float, float]) -> Float:
     return np.concatenate([k0, a0])
 
 
-_RTOL = 1e-10
-"""Relative change of E (and of its linear model) at which least-squares fits stop: E then
-lies within ~1e-12 (relative) of its minimum, far inside the 1e-6 agreement with Nelder–Mead
-that the tests and benchmarks check."""
-
-_NEWTON_CONSTANT = 1e4
-"""Bound on C in "the next Newton decrease is about C·δ² after a decrease δ" (relative to E),
-used to stop without a last pass over the frames; C up to ~200 was seen on the simulated
-clips."""
-
 _ROUGH_START = 1e-3
 """Initial Levenberg–Marquardt damping for starts from geometry (Nielsen's suggestion)."""
 
@@ -477,7 +566,7 @@ full-size iterations instead of ~15."""
 _COARSE_RTOL = 1e-6
 """Relative change of E at which the subsample fit stops: its minimum is itself ~1e-3 (relative
 E) away from the full-frame one, so polishing it further only costs iterations; the full-frame
-fit that follows still stops at ``_RTOL``."""
+fit that follows still stops at ``least_squares.RTOL``."""
 
 
 _COARSE_NEWTON_GAIN = 2e-3
@@ -487,164 +576,26 @@ than the subsample's minimum differs from the full one (measured: the full-frame
 the same point, 3 of 17 subsample normal-equation passes fewer on the RT1-size benchmark)."""
 
 
-def _coarse(limb: _Limb) -> _Limb | None:
+def _coarse(limb: LimbInUpperFrame) -> LimbInUpperFrame | None:
     step = limb.n // _COARSE_FRAMES
     if step < 2:
         return None
-    return _Limb(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
+    return LimbInUpperFrame(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
 
 
-def _levenberg_marquardt(cost: Callable[[Float], float], normal: Callable[[Float], Normal],
-                         x0: Float, *, rtol: float = _RTOL, max_iter: int = 200,
-                         damping: float = 1e-6, newton_rtol: float | None = None,
-                         ) -> tuple[Float, int, bool]:
-    """Minimise a sum of squares ``E(θ) = Σ r(θ)²`` by Levenberg–Marquardt.
-
-    Parameters
-    ----------
-    cost : callable
-        ``θ (P,) → E``.
-    normal : callable
-        ``θ (P,) → (E, Jᵀr (P,), JᵀJ (P, P)[, K (P, P)])``: the Gauss–Newton normal
-        equations and optionally half the exact Hessian ``K``, used (Newton–LM) wherever
-        ``K + μD`` is positive definite.
-    x0 : ndarray, shape (P,)
-        Start.
-    rtol : float
-        Stop when an accepted step lowered E by at most ``rtol·E`` and the model predicted
-        no more (MINPACK's ``ftol`` test); when the model predicts a decrease of at most
-        ``rtol·E`` (no step can lower E by more); or when a Newton step (exact curvature)
-        that the model predicted within 10 % lowered E by at most ``√(rtol/C)·E`` with
-        ``C = 1e4`` (quadratic convergence: the next step would gain at most ``rtol·E``).
-    max_iter : int
-        Maximum number of normal-equation evaluations.
-    damping : float
-        Initial ``μ`` (relative to ``D``): small for starts near the minimum (a converged
-        subsample fit), larger for rough geometric starts.
-    newton_rtol : float, optional
-        Relative decrease of a confirmed Newton step below which to stop; default
-        ``√(rtol/C)`` (see ``rtol``).
-
-    Returns
-    -------
-    x : ndarray, shape (P,)
-    n_evaluations : int
-        Evaluations of ``cost`` plus of ``normal``.
-    converged : bool
-
-    Notes
-    -----
-    With P ≤ 7 the ``P × P`` system ``(JᵀJ + μD) s = −Jᵀr`` (``D`` the diagonal of ``JᵀJ``:
-    Marquardt's scaling, as ``x_scale="jac"`` in scipy) is solved directly. MINPACK's QR of
-    the N × P Jacobian, which ``scipy.optimize.least_squares(method="lm")`` runs at every
-    iteration, cost more than the residuals themselves at N ≈ 12,600 (6,283 frames). The
-    damping ``μ`` follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for non-linear
-    least squares problems", 2nd ed., 2004, §3.2); it starts small because every start here
-    comes from a converged fit on a subsample or from geometry, so the first steps are
-    Gauss–Newton steps.
-    """
-    x = np.array(x0, dtype=float)
-    newton_stop = np.sqrt(rtol / _NEWTON_CONSTANT) if newton_rtol is None else newton_rtol
-    e, g, h, curv = _unpack(normal(x))
-    n_eval = 1
-    mu, nu = damping, 2.0
-    for _ in range(max_iter):
-        diag = np.diag(h)
-        diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
-        done = False
-        while True:
-            step, model = _damped_step(curv, h, mu * diag, g)
-            # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
-            # M + μD is positive definite
-            predicted = float(-2.0 * (g @ step) - step @ model @ step)
-            if not np.isfinite(predicted):
-                return x, n_eval, False
-            if predicted <= rtol * e:
-                # nothing left to gain: x is the minimum up to rounding
-                return x, n_eval, True
-            x_new = x + step
-            e_new = cost(x_new)
-            n_eval += 1
-            if e_new < e:
-                rho = (e - e_new) / predicted
-                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu = 2.0
-                done = e - e_new <= rtol * e and predicted <= rtol * e
-                if model is curv and abs(rho - 1.0) < 0.1 \
-                        and e - e_new <= newton_stop * e:
-                    # Newton converges quadratically once its model holds (ρ ≈ 1): after a
-                    # decrease of δ·E the next one is about C·δ²·E ≤ rtol·E
-                    done = True
-                x = x_new
-                break
-            mu *= nu
-            nu *= 2.0
-            if mu > 1e16:
-                return x, n_eval, True
-        if done:
-            return x, n_eval, True
-        e, g, h, curv = _unpack(normal(x))
-        n_eval += 1
-    return x, n_eval, False
-
-
-def _unpack(n: Normal) -> tuple[float, Float, Float, Float | None]:
-    return (n[0], n[1], n[2], n[3]) if len(n) == 4 else (n[0], n[1], n[2], None)
-
-
-def _damped_step(curv: Float | None, h: Float, damping: Float, g: Float,
-                 ) -> tuple[Float, Float]:
-    """Solve ``(M + diag(damping)) s = −g`` with ``M`` the exact curvature when given and
-    the damped system is positive definite there, else ``M = JᵀJ``; returns ``s`` and ``M``."""
-    for model in (curv, h):
-        if model is None:
-            continue
-        a = model.copy()
-        a.flat[::a.shape[0] + 1] += damping
-        # LAPACK's dposv: a Cholesky factorisation, which fails (info > 0) unless the matrix
-        # is positive definite, and the solve, in one call (7 µs against 21 for numpy's two)
-        _, step, info = lapack.dposv(a, -g, overwrite_a=True)
-        if info == 0 and np.all(np.isfinite(step)):
-            return np.asarray(step, dtype=np.float64), model
-    return np.full(g.shape, np.nan), h
-
-
-def _normal_from_residuals(fun: Callable[[Float], Float], jac: Callable[[Float], Float],
-                           ) -> tuple[Callable[[Float], float], Callable[[Float], Normal]]:
-    """``cost`` and ``normal`` for :func:`_levenberg_marquardt` from residuals and their
-    Jacobian (the Jacobian is small enough here to form)."""
-    last: dict[str, Any] = {}
-
-    def residuals(theta: Float) -> Float:
-        if last.get("theta") is None or not np.array_equal(last["theta"], theta):
-            last["theta"], last["r"] = theta.copy(), fun(theta)
-        return last["r"]  # type: ignore[no-any-return]
-
-    def cost(theta: Float) -> float:
-        r = residuals(theta)
-        return float(r @ r)
-
-    def normal(theta: Float) -> Normal:
-        r = residuals(theta)
-        j = jac(theta)
-        return float(r @ r), j.T @ r, j.T @ j
-
-    return cost, normal
-
-
-def _fit_paper_ls(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
-                  w_l: float, objective: _PaperObjective) -> tuple[Float, int, bool]:
+def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,
+                  w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
     """Least squares on E: on a subsample first, then on every frame (``objective``)."""
     n_eval = 0
     coarse = _coarse(limb)
     if coarse is not None:
-        sub = _paper_normal(coarse, lengths, w_s, w_l)
-        x0, n_coarse, _ = _levenberg_marquardt(sub.cost, sub.normal, x0, rtol=_COARSE_RTOL,
-                                               damping=_ROUGH_START,
-                                               newton_rtol=_COARSE_NEWTON_GAIN)
+        sub = paper_normal(coarse, lengths, w_s, w_l)
+        x0, n_coarse, _ = levenberg_marquardt(sub.cost, sub.normal, x0, rtol=_COARSE_RTOL,
+                                              damping=_ROUGH_START,
+                                              newton_rtol=_COARSE_NEWTON_GAIN)
         n_eval += n_coarse
-    x, n_full, ok = _levenberg_marquardt(objective.cost, objective.normal, x0,
-                                         damping=_ROUGH_START if coarse is None else 1e-6)
+    x, n_full, ok = levenberg_marquardt(objective.cost, objective.normal, x0,
+                                        damping=_ROUGH_START if coarse is None else 1e-6)
     return x, n_eval + n_full, ok
 
 
@@ -661,7 +612,7 @@ runs it ends at most 1e-10 (relative) above the least-squares E, which itself li
 1e-13) cost 1.7× the evaluations for agreement the comparison cannot use."""
 
 
-def _fit_paper_nm(limb: _Limb, x0: Float, lengths: tuple[float, float], w_s: float,
+def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,
                   w_l: float, progress: Progress) -> tuple[Float, int, bool]:
     l_up, l_low = lengths
 
@@ -706,7 +657,7 @@ def _soft_l1(r: Float, scale: float) -> tuple[Float, Float]:
     return r * np.sqrt(2.0 / (s + 1.0)), np.sqrt(0.5 * (s + 1.0)) / s
 
 
-def _hinge_axis(limb: _Limb, a: Float) -> tuple[Float, float]:
+def _hinge_axis(limb: LimbInUpperFrame, a: Float) -> tuple[Float, float]:
     """Flexion axis in the upper frame: the distal joint circles around it, so it is the
     direction of least scatter of the distal joint's path. Second value: how far that path
     is from a clean circle arc, 0 (planar and wide) to 1 (no usable axis): the planarity
@@ -721,10 +672,10 @@ def _hinge_axis(limb: _Limb, a: Float) -> tuple[Float, float]:
     return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
 
 
-def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_hinge: float,
-                      w_line: float, w_length: float, w_distal: float,
-                      robust_scale: float | None, w_plane: float,
-                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
+def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
+                     w_hinge: float, w_line: float, w_length: float, w_distal: float,
+                     robust_scale: float | None, w_plane: float,
+                     ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """θ = (k, a, L): middle joint (upper frame), distal joint (distal frame), lower length.
 
     Rows: M data rows ρ(l(t) − L); 2 hinge rows; 3 straight-limb rows (middle joint at the
@@ -737,82 +688,120 @@ def _improved_problem(limb: _Limb, lengths: tuple[float, float], axis: Float, w_
     about its own axis leaves it in place, so in the thigh (upper-arm) frame its path follows
     the flexion arc; points beside it also swing with the ankle (wrist) and the twist.
     """
-    m = limb.n
-    h_bar = limb.h.mean(axis=0)
-    b_bar = limb.b.mean(axis=0)
-    q_bar = limb.q.mean(axis=0)
-    c_h = np.sqrt(m * w_hinge)
-    c_s = np.sqrt(m * w_line)
-    c_l = np.sqrt(m * w_length)
-    c_d = np.sqrt(m * w_distal)
-    c_b = np.sqrt(m * _W_BOUND)
-    l_up, l_low = lengths
-    tol_up, tol_low = _BOUND * l_up, _BOUND * l_low
+    problem = _ImprovedProblem(limb, lengths, axis, _PriorWeights(
+        w_hinge, w_line, w_length, w_distal, w_plane), robust_scale)
+    return problem.residuals, problem.jacobian
 
-    def outside(value: float, target: float, tol: float) -> tuple[float, float]:
-        # flat-bottomed penalty: zero within ±tol of the standard length, linear beyond
-        dev = value - target
-        excess = abs(dev) - tol
-        return (float(np.sign(dev) * excess), float(np.sign(dev))) if excess > 0 else (0.0, 0.0)
 
-    ratio = l_up / (l_up + l_low)
-    c_p = np.sqrt(w_plane)
-    q_dev = np.einsum("i,fij->fj", axis, limb.q - q_bar) if w_plane > 0 else None
-    b_dev = (limb.b - b_bar) @ axis if w_plane > 0 else None
+class _PriorWeights(NamedTuple):
+    """Per-frame weights of the improved method's prior rows (see ``improved_problem``)."""
 
-    def fun(theta: Float) -> Float:
+    hinge: float
+    line: float
+    length: float
+    distal: float
+    plane: float
+
+
+def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
+    """Flat-bottomed penalty and its derivative: zero within ±tol of ``target``, linear
+    beyond."""
+    dev = value - target
+    excess = abs(dev) - tol
+    return (float(np.sign(dev) * excess), float(np.sign(dev))) if excess > 0 else (0.0, 0.0)
+
+
+class _ImprovedProblem:
+    """Residuals and Jacobian of the improved objective of one limb (``improved_problem``);
+    θ = (k, a, L)."""
+
+    def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
+                 weights: _PriorWeights, robust_scale: float | None) -> None:
+        m = limb.n
+        self.limb, self.lengths, self.axis, self.robust_scale = limb, lengths, axis, robust_scale
+        self.h_bar = limb.h.mean(axis=0)
+        self.b_bar = limb.b.mean(axis=0)
+        self.q_bar = limb.q.mean(axis=0)
+        self.c_h = np.sqrt(m * weights.hinge)
+        self.c_s = np.sqrt(m * weights.line)
+        self.c_l = np.sqrt(m * weights.length)
+        self.c_d = np.sqrt(m * weights.distal)
+        self.c_b = np.sqrt(m * _W_BOUND)
+        l_up, l_low = lengths
+        self.tol_up, self.tol_low = _BOUND * l_up, _BOUND * l_low
+        self.ratio = l_up / (l_up + l_low)
+        self.c_p = np.sqrt(weights.plane)
+        self.q_dev = np.einsum("i,fij->fj", axis, limb.q - self.q_bar) \
+            if weights.plane > 0 else None
+        self.b_dev = (limb.b - self.b_bar) @ axis if weights.plane > 0 else None
+
+    def residuals(self, theta: Float) -> Float:
+        """The data rows, the 13 prior rows, then the flexion-plane rows when weighted."""
         k, a, length = theta[:3], theta[3:6], theta[6]
-        ll = rows.norms(limb.distal(a) - k)
+        ll = rows.norms(self.limb.distal(a) - k)
         r = ll - length
-        if robust_scale is not None:
-            r, _ = _soft_l1(r, robust_scale)
-        x_bar = b_bar + q_bar @ a
-        lu = np.linalg.norm(k - h_bar)
-        tail = np.concatenate([
-            [c_h * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
-            c_s * (k - h_bar - ratio * (x_bar - h_bar)),
-            [c_l * (lu - l_up), c_l * (length - l_low)],
-            c_d * a,
-            [c_b * outside(float(lu), l_up, tol_up)[0],
-             c_b * outside(float(length), l_low, tol_low)[0],
-             c_b * outside(float(np.linalg.norm(a)), 0.0, _DISTAL_REACH)[0]],
-        ])
-        if q_dev is not None and b_dev is not None:
-            return np.concatenate([r, tail, c_p * (b_dev + q_dev @ a)])
+        if self.robust_scale is not None:
+            r, _ = _soft_l1(r, self.robust_scale)
+        tail = self._prior_rows(k, a, length)
+        if self.q_dev is not None and self.b_dev is not None:
+            return np.concatenate([r, tail, self.c_p * (self.b_dev + self.q_dev @ a)])
         return np.concatenate([r, tail])
 
-    def jac(theta: Float) -> Float:
+    def _prior_rows(self, k: Float, a: Float, length: float) -> Float:
+        """Hinge (2), straight-limb (3), length (2), distal-offset (3) and plausibility (3)
+        rows."""
+        h_bar, axis, c_h, c_b = self.h_bar, self.axis, self.c_h, self.c_b
+        l_up, l_low = self.lengths
+        x_bar = self.b_bar + self.q_bar @ a
+        lu = np.linalg.norm(k - h_bar)
+        return np.concatenate([
+            [c_h * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
+            self.c_s * (k - h_bar - self.ratio * (x_bar - h_bar)),
+            [self.c_l * (lu - l_up), self.c_l * (length - l_low)],
+            self.c_d * a,
+            [c_b * _outside(float(lu), l_up, self.tol_up)[0],
+             c_b * _outside(float(length), l_low, self.tol_low)[0],
+             c_b * _outside(float(np.linalg.norm(a)), 0.0, _DISTAL_REACH)[0]],
+        ])
+
+    def jacobian(self, theta: Float) -> Float:
+        """Jacobian of :meth:`residuals`, (rows, 7)."""
+        m, q_dev = self.limb.n, self.q_dev
         k, a, length = theta[:3], theta[3:6], theta[6]
-        d = limb.distal(a) - k
+        d = self.limb.distal(a) - k
         ll = rows.norms(d)
         u = d / ll[:, None]
         j = np.zeros((m + 13 + (m if q_dev is not None else 0), 7))
         if q_dev is not None:
-            j[m + 13:, 3:6] = c_p * q_dev
+            j[m + 13:, 3:6] = self.c_p * q_dev
         j[:m, :3] = -u
-        j[:m, 3:6] = np.einsum("fi,fij->fj", u, limb.q)
+        j[:m, 3:6] = np.einsum("fi,fij->fj", u, self.limb.q)
         j[:m, 6] = -1.0
-        if robust_scale is not None:
-            _, dr = _soft_l1(ll - length, robust_scale)
+        if self.robust_scale is not None:
+            _, dr = _soft_l1(ll - length, self.robust_scale)
             j[:m] *= dr[:, None]
-        j[m, :3] = c_h * axis
-        j[m + 1, :3] = -c_h * axis
-        j[m + 1, 3:6] = c_h * axis @ q_bar
-        j[m + 2:m + 5, :3] = c_s * np.eye(3)
-        j[m + 2:m + 5, 3:6] = -c_s * ratio * q_bar
-        e = k - h_bar
-        j[m + 5, :3] = c_l * e / np.linalg.norm(e)
-        j[m + 6, 6] = c_l
-        j[m + 7:m + 10, 3:6] = c_d * np.eye(3)
-        j[m + 10, :3] = c_b * outside(float(np.linalg.norm(e)), l_up, tol_up)[1] * e \
-            / np.linalg.norm(e)
-        j[m + 11, 6] = c_b * outside(float(length), l_low, tol_low)[1]
-        reach = float(np.linalg.norm(a))
-        if reach > 0:
-            j[m + 12, 3:6] = c_b * outside(reach, 0.0, _DISTAL_REACH)[1] * a / reach
+        self._prior_jacobian(j[m:m + 13], k, a, length)
         return j
 
-    return fun, jac
+    def _prior_jacobian(self, j: Float, k: Float, a: Float, length: float) -> None:
+        """Rows (13, 7) of the prior rows' Jacobian, written into ``j``."""
+        axis, c_h, c_s, c_b, q_bar = self.axis, self.c_h, self.c_s, self.c_b, self.q_bar
+        l_up, l_low = self.lengths
+        j[0, :3] = c_h * axis
+        j[1, :3] = -c_h * axis
+        j[1, 3:6] = c_h * axis @ q_bar
+        j[2:5, :3] = c_s * np.eye(3)
+        j[2:5, 3:6] = -c_s * self.ratio * q_bar
+        e = k - self.h_bar
+        j[5, :3] = self.c_l * e / np.linalg.norm(e)
+        j[6, 6] = self.c_l
+        j[7:10, 3:6] = self.c_d * np.eye(3)
+        j[10, :3] = c_b * _outside(float(np.linalg.norm(e)), l_up, self.tol_up)[1] * e \
+            / np.linalg.norm(e)
+        j[11, 6] = c_b * _outside(float(length), l_low, self.tol_low)[1]
+        reach = float(np.linalg.norm(a))
+        if reach > 0:
+            j[12, 3:6] = c_b * _outside(reach, 0.0, _DISTAL_REACH)[1] * a / reach
 
 
 # Weights of the improved method's priors, per frame (the data rows have unit weight and
@@ -822,7 +811,7 @@ _W_HINGE = 0.03     # hinge rule, fully on for planar distal paths
 _W_LINE = 3e-4      # middle joint on the proximal–distal line at the standard length ratio
 _W_LENGTH = 1e-4    # standard lengths (anthropometric tables are ±20 % off real subjects)
 _W_DISTAL = 3e-4    # distal joint near its sensor (as the paper's w_S, weaker, distal only)
-_W_PLANE = 0.2      # distal joint's path in the flexion plane, per frame (see _improved_problem)
+_W_PLANE = 0.2      # distal joint's path in the flexion plane, per frame (see improved_problem)
 _W_BOUND = 1.0      # lengths beyond ±_BOUND of the standard ones (implausible): strong
 _BOUND = 0.3
 _DISTAL_REACH = 0.2  # m: the ankle (wrist) lies within this distance of the foot (hand) sensor
@@ -834,7 +823,7 @@ _ALTERNATE = 2      # axis ↔ joints alternations
 _MOTION_REF_DEG = 20.0  # relative rotation (90th percentile) below which priors are raised
 
 
-def _relative_motion_deg(limb: _Limb) -> float:
+def _relative_motion_deg(limb: LimbInUpperFrame) -> float:
     """90th percentile of the angle between the distal–upper relative rotation and its mean
     (chordal mean), degrees: how much the limb moves."""
     u, _, vt = np.linalg.svd(limb.q.mean(axis=0))
@@ -850,7 +839,7 @@ def _hinge_weight(doubt: float) -> float:
 _MIN_MEASURED = 10
 
 
-def _measured(limb: _Limb, valid: ArrayLike | None) -> _Limb:
+def _measured(limb: LimbInUpperFrame, valid: ArrayLike | None) -> LimbInUpperFrame:
     """The frames of ``limb`` flagged in ``valid`` (all of them without a mask, or with fewer
     than ``_MIN_MEASURED`` flagged)."""
     if valid is None:
@@ -860,10 +849,34 @@ def _measured(limb: _Limb, valid: ArrayLike | None) -> _Limb:
         raise InputError(f"valid must have shape ({limb.n},), got {keep.shape}", field="valid")
     if keep.all() or keep.sum() < _MIN_MEASURED:
         return limb
-    return _Limb(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
+    return LimbInUpperFrame(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
 
 
-def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float],
+def _check_limb_options(method: str, optimizer: str,
+                        standard_lengths: tuple[float, float]) -> tuple[float, float]:
+    """The standard lengths as floats, the method and optimizer checked."""
+    if method not in ("paper", "improved"):
+        raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
+                         field="method")
+    if optimizer not in OPTIMIZERS:
+        raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
+                         "'nelder-mead'", field="optimizer")
+    lengths = (float(standard_lengths[0]), float(standard_lengths[1]))
+    if not all(np.isfinite(v) and v > 0 for v in lengths):
+        raise InputError("standard lengths must be positive", field="standard_lengths")
+    return lengths
+
+
+def _straight_start(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Float:
+    """A straight limb: the middle joint one upper length from the proximal joint towards
+    the distal sensor, the distal joint at its sensor's origin."""
+    h_bar = limb.h.mean(axis=0)
+    toward = limb.b.mean(axis=0) - h_bar
+    return np.concatenate([
+        h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9), np.zeros(3)])
+
+
+def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[float, float],
                   robust_scale: float | None) -> tuple[Float, int, bool, dict[str, Any]]:
     n_eval, ok = 0, False
     coarse = _coarse(limb) or limb
@@ -881,7 +894,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
-            fun, jac = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
+            fun, jac = improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
                                          w_line, w_length, w_distal, robust_scale,
                                          _W_PLANE)
             # MINPACK's trust region from these rough starts: the objective has several
@@ -897,7 +910,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
             axis = new_axis
             if moved < 1e-4:
                 break
-        fun, _ = _improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
+        fun, _ = improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
                                    w_length, w_distal, robust_scale, _W_PLANE)
         r = fun(x)
         value = float(r @ r)
@@ -905,12 +918,25 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
             best = (value, x, axis, doubt)
     assert best is not None
     _, x, axis, doubt = best
-    fun, jac = _improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
+    fun, jac = improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
                                  w_length, w_distal, robust_scale, _W_PLANE)
     if coarse is not limb:
-        x, more, ok = _levenberg_marquardt(*_normal_from_residuals(fun, jac), x)
+        x, more, ok = levenberg_marquardt(*normal_from_residuals(fun, jac), x)
         n_eval += more
     r = fun(x)
+    return x[:6], n_eval, ok, {
+        "objective": float(r @ r),
+        "hinge_axis_local": axis.tolist(),
+        "hinge_doubt": doubt,
+        "relative_motion_deg": motion_deg,
+        "prior_gain": gain,
+        "flexion_range_deg": _flexion_range_deg(limb, x, axis) if doubt < 1.0 else None,
+    }
+
+
+def _flexion_range_deg(limb: LimbInUpperFrame, x: Float, axis: Float) -> float:
+    """Range (2.5–97.5 percentiles, degrees) of the middle → distal direction's angle about
+    the flexion ``axis`` in the upper frame, at ``x`` = (middle, distal, ...)."""
     v = limb.distal(x[3:6]) - x[:3]
     v -= np.outer(v @ axis, axis)
     v /= np.maximum(rows.norms(v), 1e-12)[:, None]
@@ -918,15 +944,7 @@ def _fit_improved(limb: _Limb, starts: list[Float], lengths: tuple[float, float]
     angles = np.degrees(np.arccos(np.clip(v @ (mean_dir / np.linalg.norm(mean_dir)), -1, 1)))
     side = np.sign(np.cross(v, mean_dir) @ axis)
     signed = angles * np.where(side == 0, 1.0, side)
-    return x[:6], n_eval, ok, {
-        "objective": float(r @ r),
-        "hinge_axis_local": axis.tolist(),
-        "hinge_doubt": doubt,
-        "relative_motion_deg": motion_deg,
-        "prior_gain": gain,
-        "flexion_range_deg": (float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
-                              if doubt < 1.0 else None),
-    }
+    return float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
 
 
 def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
@@ -990,86 +1008,27 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707, 2015, eqs. 2–5.
     Nelder & Mead, Comput. J. 7:308–313, 1965.
 
-    ``E`` is a sum of squares because ``Var_t(l) = Σ_t ((l(t) − l̄)/√M)²``; with
-    ``u = (ankle − knee)/l`` the Jacobian rows are ``∂l/∂s_j = −uᵀP_k`` and
-    ``∂l/∂s_{j+1} = uᵀP_{k+1}`` (computed in the upper sensor frame, where
-    ``P_kᵀP_{k+1}`` is precomputed once), so one evaluation costs O(F).
-
-    The Nelder–Mead path uses scipy's implementation with an initial simplex of 5 cm steps
-    around the start, ``xatol=1e-6`` m and ``fatol`` 1e-9·E, and restarts from its own
-    result with a shrinking simplex until a restart lowers E by less than 1e-9 (relative):
-    it then converges as far as the least-squares path (within ~1e-10 of the same minimum).
-
-    ``"improved"`` replaces ``Var_t(l)`` by ``Σ_t ρ(l(t) − L)`` with a free length ``L`` and
-    the soft-L1 loss ``ρ``, drops the ``|s|²`` term (it pulls the joints towards the sensor
-    origins, a bias of centimetres), and adds the hinge rule: with ``n`` the flexion axis in
-    the upper frame (least-scatter direction of the distal joint's path there), the middle
-    joint is the point of the axis nearest the proximal joint (``nᵀ(s_j − h) = 0``) and the
-    distal joint lies in the same plane (``nᵀ(x̄ − s_j) = 0``); both directions are
-    unobservable from a hinge's motion. The distal joint's path across that plane,
-    ``nᵀ(x(t) − x̄)``, is penalised in every frame (weight 0.2 relative to the data rows): the
-    ankle (wrist) centre is the one point of the foot (hand) that a twist of the shank
-    (forearm) about its own axis leaves on the flexion arc, which singles it out where the
-    length of the shank (forearm) alone hardly varies (-1.5 to -2 mm on the 11-sensor limb
-    median, every seed of the accuracy benchmark). The rule is switched off when that path is not a
-    clean arc wider than 1 cm. Weak priors (per frame, relative to the data rows: 1e-4 on the
-    two standard lengths, 3e-4 on the middle joint lying on the proximal–distal line at the
-    standard length ratio and on the distal joint lying near its sensor) keep a motionless
-    limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the relative
-    rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment lengths
-    beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
-    the paper's least-squares solution, the geometric point and a straight limb through the
-    distal sensor; the alternation between axis and joints runs on a 400-frame subsample
-    from each start and the best is polished on every frame. Weights were chosen on
-    simulated clips (see ``docs/skeleton-limbs.md``).
-
-    Least-squares fits first converge on a subsample of about 400 frames and are then
-    polished on all frames, stopping when E changes by less than 1e-10 (relative). The
-    full-frame fits solve the 6 × 6 (7 × 7) normal equations directly instead of running
-    MINPACK's QR on the (2F + 7)-row Jacobian: for the paper's E the normal equations and the
-    exact Hessian come from per-frame sums (``_paper_normal``), so the full-size polish is
-    two Newton steps, each one pass over the frames; the improved objective's Jacobian is
-    formed and multiplied out. The improved method's alternations from rough starts keep
-    MINPACK (``scipy.optimize.least_squares``) on the subsample: its objective has several
-    local minima and the optimizer's steps decide which one a start falls into.
+    The cost's derivatives, the optimizers and the improved objective are described in the
+    module docstring.
     """
     report = progress or no_progress
-    if method not in ("paper", "improved"):
-        raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
-                         field="method")
-    if optimizer not in OPTIMIZERS:
-        raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
-                         "'nelder-mead'", field="optimizer")
-    lengths = (float(standard_lengths[0]), float(standard_lengths[1]))
-    if not all(np.isfinite(v) and v > 0 for v in lengths):
-        raise InputError("standard lengths must be positive", field="standard_lengths")
+    lengths = _check_limb_options(method, optimizer, standard_lengths)
     report(0.0, "limbs")
     world = _world(proximal, upper_positions, upper_rotations, distal_positions,
                    distal_rotations)
     limb = _in_upper_frame(world)
-    # a start needs only means over the frames: the subsample's are as good
-    x0 = _initial_point(_coarse(limb) or limb, lengths)
-    measured = _measured(limb, valid)
-    quality: dict[str, Any] = {"method": method}
-    objective = _paper_normal(limb, lengths, w_s, w_l)
-    if method == "paper" and optimizer == "nelder-mead":
-        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
-        quality["optimizer"] = "nelder-mead"
-    else:
-        theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l, objective)
-        quality["optimizer"] = "least-squares"
-        if method == "improved":
-            report(0.3, "limbs")
-            h_bar = measured.h.mean(axis=0)
-            toward = measured.b.mean(axis=0) - h_bar
-            straight = np.concatenate([
-                h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9),
-                np.zeros(3)])
-            theta, more, ok, extra = _fit_improved(measured, [theta, x0, straight], lengths,
-                                                   robust_scale)
-            n_eval += more
-            quality.update(extra)
-            quality["fitted_frames"] = measured.n
+    objective = paper_normal(limb, lengths, w_s, w_l)
+    theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective,
+                                           _LimbSettings(method, optimizer, lengths, w_s, w_l,
+                                                         robust_scale), report)
+    fit = _limb_fit(world, objective, theta, n_eval, ok, quality)
+    report(1.0, "limbs")
+    return fit
+
+
+def _limb_fit(world: _World, objective: PaperObjective, theta: Float, n_eval: int, ok: bool,
+              quality: dict[str, Any]) -> LimbFit:
+    """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
     cost = objective.cost(theta)
     ll, lu = objective.lengths(theta)
@@ -1081,8 +1040,44 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
         "converged": ok,
         "n_evaluations": n_eval,
     })
-    report(1.0, "limbs")
     middle = rows.transform(world.ru, k, world.pu)
     distal = rows.transform(world.rd, a, world.pd)
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
                    cost=cost, n_evaluations=n_eval, quality=quality)
+
+
+class _LimbSettings(NamedTuple):
+    """``estimate_limb``'s method, optimizer, standard lengths, weights and loss scale."""
+
+    method: str
+    optimizer: str
+    lengths: tuple[float, float]
+    w_s: float
+    w_l: float
+    robust_scale: float | None
+
+
+def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: PaperObjective,
+              settings: _LimbSettings, report: Progress
+              ) -> tuple[Float, int, bool, dict[str, Any]]:
+    """θ of the method and optimizer asked for, the evaluations used, whether it converged
+    and the method's quality figures; ``measured`` the frames the improved method fits."""
+    method, lengths, w_s, w_l = settings.method, settings.lengths, settings.w_s, settings.w_l
+    # a start needs only means over the frames: the subsample's are as good
+    x0 = _initial_point(_coarse(limb) or limb, lengths)
+    quality: dict[str, Any] = {"method": method}
+    if method == "paper" and settings.optimizer == "nelder-mead":
+        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
+        quality["optimizer"] = "nelder-mead"
+        return theta, n_eval, ok, quality
+    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l, objective)
+    quality["optimizer"] = "least-squares"
+    if method == "improved":
+        report(0.3, "limbs")
+        theta, more, ok, extra = _fit_improved(
+            measured, [theta, x0, _straight_start(measured, lengths)], lengths,
+            settings.robust_scale)
+        n_eval += more
+        quality.update(extra)
+        quality["fitted_frames"] = measured.n
+    return theta, n_eval, ok, quality

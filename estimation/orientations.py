@@ -77,7 +77,7 @@ def _frame_from_yz(y: Float, z: Float) -> Axes:
     return _cross(y, z), y, z
 
 
-def _quat_from_xy(x: Float, y: Float, out: Float) -> Float:
+def quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
     z = x × y, as quaternions written into ``out`` (F, 4), ``w ≥ 0``.
 
@@ -229,8 +229,8 @@ def _trunk(pos: Mapping[str, Float], slots: Iterator[Float], i0: int,
     # x = y × z is orthogonal to y whatever z's y component, so z is used as it comes
     pelvis_x = _cross(pelvis_y, _cross(rh, lh))
     chest_x = _cross(chest_y, _cross(ls, rs))
-    quats = {"pelvis": _quat_from_xy(pelvis_x, pelvis_y, next(slots)),
-             "chest": _quat_from_xy(chest_x, chest_y, next(slots))}
+    quats = {"pelvis": quat_from_xy(pelvis_x, pelvis_y, next(slots)),
+             "chest": quat_from_xy(chest_x, chest_y, next(slots))}
     chest_x = _normalise(chest_x)
     chest = (chest_x, chest_y, _cross(chest_x, chest_y))
     for seg, top, bottom in (("spine", "chest", "waist"), ("cervical", "neck", "chest")):
@@ -307,6 +307,24 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
     - forearm: the hand frame turned by the minimal rotation that puts its y on the forearm
       (the elbow twist of the paper's Fig. 4).
     """
+    pos, n = _checked_joints(joints, sensor_rotations, i0)
+    # Frames come from their axes, and are composed as quaternion arrays: Rotation.__mul__
+    # on 6,283 rotations costs 3–5 ms in scipy 1.17, quaternions.multiply 0.1 ms.
+    # Memory: the results are slices of one block, and the temporaries alive at any time take
+    # less room than it: glibc returns a freed heap top to the system once it exceeds twice the
+    # largest block freed so far, and faulting that memory in again cost 2–3 ms a call
+    slots = iter(np.empty((len(SEGMENTS) + 2, n, 4)))
+    quats, parent_x, forward_i0 = _trunk(pos, slots, i0)
+    reference = _end_references(calibration, quats["pelvis"][i0], up, forward_i0)
+    _end_segments(quats, sensor_rotations, reference, i0, slots)
+    _limb_segments(quats, pos, sensor_rotations, parent_x, slots)
+    return quats
+
+
+def _checked_joints(joints: Mapping[str, ArrayLike], sensor_rotations: Mapping[str, Rotation],
+                    i0: int) -> tuple[dict[str, Float], int]:
+    """Every joint of ``JOINTS`` as an (F, 3) array and F, the rotations' lengths and ``i0``
+    checked."""
     n: int | None = None
     pos: dict[str, Float] = {}
     for name in JOINTS:
@@ -319,53 +337,60 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
         if len(rot) != n:
             raise InputError(f"sensor {seg!r} has {len(rot)} rotations for {n} frames",
                              sensor=seg)
+    return pos, n
 
-    # Frames come from their axes, and are composed as quaternion arrays: Rotation.__mul__
-    # on 6,283 rotations costs 3–5 ms in scipy 1.17, quaternions.multiply 0.1 ms.
-    # Memory: the results are slices of one block, and the temporaries alive at any time take
-    # less room than it: glibc returns a freed heap top to the system once it exceeds twice the
-    # largest block freed so far, and faulting that memory in again cost 2–3 ms a call
-    slots = iter(np.empty((len(SEGMENTS) + 2, n, 4)))
-    quats, parent_x, forward_i0 = _trunk(pos, slots, i0)
-    pelvis_i0 = quats["pelvis"][i0]
-    if isinstance(calibration, str):
-        if calibration == "pelvis":
-            reference = dict.fromkeys(_ENDS, pelvis_i0)
-        elif calibration == "upright":
-            y = np.array(up, dtype=float).reshape(3, 1)
-            upright = quat.from_axis_rows(*_frame_from_yz(y, forward_i0))[0]
-            reference = dict.fromkeys(_ENDS, upright)
-        else:
-            raise InputError(f"unknown calibration {calibration!r}; use 'pelvis', 'upright' "
-                             "or a mapping of rotations", field="calibration")
-    else:
-        reference = {s: calibration[s].as_quat(scalar_first=True) if s in calibration
-                     else pelvis_i0 for s in _ENDS}
+
+def _end_references(calibration: str | Mapping[str, Rotation], pelvis_i0: Float,
+                    up: ArrayLike, forward_i0: Float) -> dict[str, Float]:
+    """Orientation (4,) of each end segment (hands, feet, head) at the calibration frame."""
+    if not isinstance(calibration, str):
+        return {s: calibration[s].as_quat(scalar_first=True) if s in calibration
+                else pelvis_i0 for s in _ENDS}
+    if calibration == "pelvis":
+        return dict.fromkeys(_ENDS, pelvis_i0)
+    if calibration == "upright":
+        y = np.array(up, dtype=float).reshape(3, 1)
+        upright = quat.from_axis_rows(*_frame_from_yz(y, forward_i0))[0]
+        return dict.fromkeys(_ENDS, upright)
+    raise InputError(f"unknown calibration {calibration!r}; use 'pelvis', 'upright' "
+                     "or a mapping of rotations", field="calibration")
+
+
+def _end_segments(quats: dict[str, Float], sensor_rotations: Mapping[str, Rotation],
+                  reference: Mapping[str, Float], i0: int, slots: Iterator[Float]) -> None:
+    """Eq. 7 into ``quats``: each end segment with a sensor turns with it from its
+    ``reference`` orientation at ``i0``."""
     ends = [s for s in _ENDS if s in sensor_rotations]
-    if ends:
-        # scipy's own, scalar-last quaternions (a third of the cost of scalar-first ones)
-        last = [sensor_rotations[s].as_quat() for s in ends]
-        offset = quat.relative(np.array([q[i0, [3, 0, 1, 2]] for q in last]),
-                               np.array([np.reshape(reference[s], 4) for s in ends]))
-        # q ⊗ c for one quaternion c is linear in q: rows e_j ⊗ c of a 4 × 4 matrix, here
-        # ordered as scipy's components
-        matrices = quat.multiply(np.eye(4)[[1, 2, 3, 0]], offset[:, None])
-        for seg, q, m in zip(ends, last, matrices, strict=True):
-            quats[seg] = _canonical(m.T @ q.T, next(slots))
+    if not ends:
+        return
+    # scipy's own, scalar-last quaternions (a third of the cost of scalar-first ones)
+    last = [sensor_rotations[s].as_quat() for s in ends]
+    offset = quat.relative(np.array([q[i0, [3, 0, 1, 2]] for q in last]),
+                           np.array([np.reshape(reference[s], 4) for s in ends]))
+    # q ⊗ c for one quaternion c is linear in q: rows e_j ⊗ c of a 4 × 4 matrix, here
+    # ordered as scipy's components
+    matrices = quat.multiply(np.eye(4)[[1, 2, 3, 0]], offset[:, None])
+    for seg, q, m in zip(ends, last, matrices, strict=True):
+        quats[seg] = _canonical(m.T @ q.T, next(slots))
 
+
+def _limb_segments(quats: dict[str, Float], pos: Mapping[str, Float],
+                   sensor_rotations: Mapping[str, Rotation], parent_x: Mapping[str, Float],
+                   slots: Iterator[Float]) -> None:
+    """Thighs, shanks, upper arms and forearms (eq. 6) into ``quats``, and the feet and
+    hands that have no sensor (their lower segment's frame)."""
     for upper, lower, distal, prox, mid, end, sign in _LIMBS:
         upper_bone = _normalise(_rows(pos, prox, mid))
         lower_bone = _normalise(_rows(pos, mid, end))
         sensor = sensor_rotations.get(upper)
         x = _flexion_axis(upper_bone, lower_bone, None if sensor is None else sensor.as_matrix(),
                           parent_x["pelvis" if upper.endswith("thigh") else "chest"], sign)
-        quats[upper] = _quat_from_xy(x, upper_bone, next(slots))
+        quats[upper] = quat_from_xy(x, upper_bone, next(slots))
         if distal not in quats:
-            quats[lower] = _quat_from_xy(x, lower_bone, next(slots))
+            quats[lower] = quat_from_xy(x, lower_bone, next(slots))
             quats[distal] = quats[lower]
         elif sign < 0:
             hand = quats[distal]
             quats[lower] = _align_y(hand, _local(hand, lower_bone), next(slots))
         else:
-            quats[lower] = _quat_from_xy(x, lower_bone, next(slots))
-    return quats
+            quats[lower] = quat_from_xy(x, lower_bone, next(slots))

@@ -144,7 +144,7 @@ def _components_back(rows: Float, axis: int) -> Float:
     return rows if axis == 0 else np.ascontiguousarray(np.moveaxis(rows, 0, axis))
 
 
-def _relative_matrix(q: Float) -> Float:
+def relative_matrix(q: Float) -> Float:
     """The matrix ``L`` (4, 4) of ``p ↦ relative(q, p)`` for one quaternion ``q`` (4,), which
     is linear in ``p``: ``relative(q, np.eye(4)).T`` up to the sign of zeros, without its
     dozen small ufunc calls. One (4, 4) × (4, N) product then applies ``q⁻¹`` to N

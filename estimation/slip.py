@@ -7,13 +7,53 @@ the equations of all its joints (the chest sensor's, for instance, those of the 
 both shoulders), so the joints that share a sensor pin its slip down together, as in the
 Cramér–Rao bound of ``benchmarks/skeleton_bound.py``. The estimated slip is then removed from
 the sensor positions and the joints are located as usual.
+
+Model
+-----
+Joint j between sensors a and b: ``R_a (c_a − s_a(t)) + p_a = R_b (c_b − s_b(t)) + p_b``
+with ``s(t) = Σ_k φ_k(t) β_k`` over the cosines of ``joints.estimate_joint``'s slip
+model (every period down to ``1 / slip_hz``, at most 16, no constant). Unknowns: every
+joint's centre in both frames (a negligible ridge) and every sensor's coefficients, each
+with a Gaussian prior of variance ``λ_s = v_s / (2K)`` per axis (``v_s`` the mean slow
+residual variance of the plain fits of the sensor's joints: total minus white, the white
+part from second differences). The rows of joint j are weighted by the inverse of the
+residual variance the model leaves: the white part, plus the share of the slow part above
+the basis's highest frequency where 16 cosines do not reach ``slip_hz`` (recordings over
+``16 / (2 slip_hz)`` seconds; a flat slip spectrum assumed). Weighting by the white part
+alone let the data outweigh the slip prior wherever the white noise is small (a precise
+tracker): the slips then drift along the directions the equations barely see, the whole
+body moving as one (a 63 s dance simulated with 5 mm of slip and no white noise: 20 mm
+RMS of common slip and every joint 70 mm off, 3–4 mm with this weighting). The maximum a
+posteriori slip is the solution of one sparse-ish linear system ((6J + 3KS) unknowns),
+whose blocks are sums of ``φ_k φ_l M_t`` terms (``M_t = R_aᵀR_b``) as in
+``joints._slip_system``. The rotations used as regressors are low-passed
+(``ROTATION_SMOOTH_S``, on the measured samples: a filled gap carries no weight); the
+measured ones serve to remove the slip.
+
+Errors in variables (``rotation_noise``): a rotation with white noise of variance ``v``
+per axis has ``E[R] = (1 − v) R̄``, so the sums ``Σ R_aᵀR_b`` of a joint come out
+``(1 − v)²`` times their noise-free value and the ``Σ R_aᵀ d`` sums ``(1 − v)`` times:
+the weakest eigenvalues of a joint that rotates a few degrees gain about ``2v`` and its
+centre is pulled toward the sensors (attenuation bias). With ``v`` scaled by the
+smoothing filter's noise gain, the M-dependent blocks of joint j are divided by
+``(1 − v)²`` and its right-hand side by ``(1 − v)`` in a second system (same
+assembly, one more factorisation), where this leaves ``EIV_SIGNAL_SHARE`` of the joint's
+weakest eigenvalue; its centre and covariance replace the uncorrected ones when the two
+centres differ by more than ``EIV_CHI2`` in Mahalanobis distance. The slips stay those of
+the uncorrected system. Corrected least squares for measurement error: Fuller,
+*Measurement Error Models*, Wiley 1987, §2.2.
+
+Soft-tissue artefact of skin-mounted sensors: Leardini, Chiari, Della Croce & Cappozzo,
+"Human movement analysis using stereophotogrammetry. Part 3: Soft tissue artifact
+assessment and compensation", Gait & Posture 21(2):212–225, 2005. Savitzky & Golay,
+Anal. Chem. 36(8):1627–1639, 1964.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +62,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import _rows as rows
 from . import quaternions as quat
-from .joints import _slip_basis, _white_variance
+from .joints import slip_basis, white_variance
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
@@ -198,163 +238,277 @@ def estimate_slip(
 
     Notes
     -----
-    Joint j between sensors a and b: ``R_a (c_a − s_a(t)) + p_a = R_b (c_b − s_b(t)) + p_b``
-    with ``s(t) = Σ_k φ_k(t) β_k`` over the cosines of ``joints.estimate_joint``'s slip
-    model (every period down to ``1 / slip_hz``, at most 16, no constant). Unknowns: every
-    joint's centre in both frames (a negligible ridge) and every sensor's coefficients, each
-    with a Gaussian prior of variance ``λ_s = v_s / (2K)`` per axis (``v_s`` the mean slow
-    residual variance of the plain fits of the sensor's joints: total minus white, the white
-    part from second differences). The rows of joint j are weighted by the inverse of the
-    residual variance the model leaves: the white part, plus the share of the slow part above
-    the basis's highest frequency where 16 cosines do not reach ``slip_hz`` (recordings over
-    ``16 / (2 slip_hz)`` seconds; a flat slip spectrum assumed). Weighting by the white part
-    alone let the data outweigh the slip prior wherever the white noise is small (a precise
-    tracker): the slips then drift along the directions the equations barely see, the whole
-    body moving as one (a 63 s dance simulated with 5 mm of slip and no white noise: 20 mm
-    RMS of common slip and every joint 70 mm off, 3–4 mm with this weighting). The maximum a
-    posteriori slip is the solution of one sparse-ish linear system ((6J + 3KS) unknowns),
-    whose blocks are sums of ``φ_k φ_l M_t`` terms (``M_t = R_aᵀR_b``) as in
-    ``joints._slip_system``. The rotations used as regressors are low-passed
-    (``ROTATION_SMOOTH_S``, on the measured samples: a filled gap carries no weight); the
-    measured ones serve to remove the slip.
-
-    Errors in variables (``rotation_noise``): a rotation with white noise of variance ``v``
-    per axis has ``E[R] = (1 − v) R̄``, so the sums ``Σ R_aᵀR_b`` of a joint come out
-    ``(1 − v)²`` times their noise-free value and the ``Σ R_aᵀ d`` sums ``(1 − v)`` times:
-    the weakest eigenvalues of a joint that rotates a few degrees gain about ``2v`` and its
-    centre is pulled toward the sensors (attenuation bias). With ``v`` scaled by the
-    smoothing filter's noise gain, the M-dependent blocks of joint j are divided by
-    ``(1 − v)²`` and its right-hand side by ``(1 − v)`` in a second system (same
-    assembly, one more factorisation), where this leaves ``EIV_SIGNAL_SHARE`` of the joint's
-    weakest eigenvalue; its centre and covariance replace the uncorrected ones when the two
-    centres differ by more than ``EIV_CHI2`` in Mahalanobis distance. The slips stay those of
-    the uncorrected system. Corrected least squares for measurement error: Fuller,
-    *Measurement Error Models*, Wiley 1987, §2.2.
-
-    Soft-tissue artefact of skin-mounted sensors: Leardini, Chiari, Della Croce & Cappozzo,
-    "Human movement analysis using stereophotogrammetry. Part 3: Soft tissue artifact
-    assessment and compensation", Gait & Posture 21(2):212–225, 2005. Savitzky & Golay,
-    Anal. Chem. 36(8):1627–1639, 1964.
+    The model, its weighting and the errors-in-variables correction are described in the
+    module docstring.
     """
     sensors = sorted({s for pair in pairs for s in pair})
     n = next(iter(positions.values())).shape[0]
-    basis = _slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
-    k = basis.shape[1]
-    # at most _SLIP_BASIS_MAX cosines: on a long recording only the slowest slip is modelled,
-    # and the rest (this share of it, for a flat spectrum up to slip_hz) is noise to the model
-    unmodelled = 1.0 - min(1.0, k / (2.0 * n * slip_hz / fps)) if slip_hz > 0 else 1.0
+    layout = SlipLayout.of(sensors, len(pairs), n, fps, slip_hz)
     smoothed = _smoothed_rotations(np.stack([quaternions[s] for s in sensors], axis=1),
                                     np.stack([valid[s] for s in sensors], axis=1), fps)
     rot = {s: smoothed[:, i] for i, s in enumerate(sensors)}
-    n_c = 6 * len(pairs)
-    # unknowns: every sensor's slip coefficients, then every joint's centre (last, so that
-    # their covariance is the inverse of the factor's last block alone)
-    n_s = 3 * k * len(sensors)
-    index = {s: 3 * k * i for i, s in enumerate(sensors)}
-    size = n_s + n_c
-    blocks: list[tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]] = []
-    # the errors-in-variables change of each corrected joint's block and right-hand side
-    eiv: list[tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]] = []
-    corrected = [False] * len(pairs)
-    share = [1.0] * len(pairs)
     v_eiv = rotation_noise * _noise_gain(n, fps)
-    white: list[float] = []
-    slow: dict[str, list[float]] = {s: [] for s in sensors}
+    blocks = [joint_block(layout, j, (a, b), (rot[a], rot[b]), positions[b] - positions[a],
+                          (valid[a] & valid[b]).astype(float), v_eiv)
+              for j, (a, b) in enumerate(pairs)]
+    normal, rhs_all = _assemble(layout, blocks)
+    x, blocks_c = _solve_system(normal, rhs_all, layout.n_s)
+    centres = x[layout.n_s:].reshape(-1, 2, 3)
+    k = layout.k
+    slip = {s: layout.basis @ x[layout.index[s]:layout.index[s] + 3 * k].reshape(k, 3)
+            for s in sensors}
+    share = tuple(block.share for block in blocks)
+    if not any(block.eiv is not None for block in blocks):
+        return SlipFit(slip, centres, blocks_c, (False,) * len(pairs), share)
+    centres, blocks_c, corrected = _errors_in_variables(
+        normal, rhs_all, layout.n_s, blocks, centres, blocks_c)
+    return SlipFit(slip, centres, blocks_c, corrected, share)
+
+
+@dataclass(frozen=True, eq=False)
+class SlipLayout:
+    """Where each unknown of the slip model sits in its normal equations.
+
+    Attributes
+    ----------
+    sensors : tuple of str
+        Sensors of the joints' pairs, sorted; S of them.
+    basis : ndarray, shape (F, K)
+        The slip model's cosines (``joints.slip_basis``); K = 0 without slip.
+    unmodelled : float
+        Share of the slow residual above the basis's highest frequency (at most
+        ``joints.SLIP_BASIS_MAX`` cosines: on a long recording only the slowest slip is
+        modelled, and the rest, for a flat spectrum up to ``slip_hz``, is noise to the model).
+    index : dict of str to int
+        First unknown of each sensor's 3K slip coefficients.
+    n_s : int
+        Number of slip unknowns, 3KS; every joint's 6 centre unknowns follow them (last, so
+        that their covariance is the inverse of the factor's last block alone).
+    size : int
+        Number of unknowns, ``n_s + 6J``.
+    """
+
+    sensors: tuple[str, ...]
+    basis: NDArray[np.float64]
+    unmodelled: float
+    index: dict[str, int]
+    n_s: int
+    size: int
+
+    @property
+    def k(self) -> int:
+        """Number of cosines K."""
+        return int(self.basis.shape[1])
+
+    @classmethod
+    def of(cls, sensors: Sequence[str], n_joints: int, n: int, fps: float,
+           slip_hz: float) -> SlipLayout:
+        """The layout for ``sensors``, ``n_joints`` joints, ``n`` frames at ``fps`` Hz and
+        slip up to ``slip_hz`` (0: no slip unknowns)."""
+        basis = slip_basis(n, fps / slip_hz) if slip_hz > 0 else np.zeros((n, 0))
+        k = basis.shape[1]
+        unmodelled = 1.0 - min(1.0, k / (2.0 * n * slip_hz / fps)) if slip_hz > 0 else 1.0
+        n_s = 3 * k * len(sensors)
+        return cls(tuple(sensors), basis, unmodelled,
+                   {s: 3 * k * i for i, s in enumerate(sensors)}, n_s, n_s + 6 * n_joints)
+
+
+class JointNoise(NamedTuple):
+    """Residual levels of one joint's plain fit (no slip), per axis, m²."""
+
+    total: float
+    white: float
+
+
+class JointBlock(NamedTuple):
+    """One joint's rows of the slip model, weighted and ready to add.
+
+    ``idx`` are the unknowns they touch (the joint's centres, then both sensors' slip
+    coefficients); ``normal`` and ``rhs`` their normal-equation block and right-hand side;
+    ``eiv`` the errors-in-variables change of both, or None where the joint is not corrected;
+    ``share`` as ``SlipFit.signal_share``."""
+
+    idx: NDArray[np.intp]
+    normal: NDArray[np.float64]
+    rhs: NDArray[np.float64]
+    sensors: tuple[str, str]
+    noise: JointNoise
+    eiv: tuple[NDArray[np.float64], NDArray[np.float64]] | None
+    share: float
+
+
+def joint_block(layout: SlipLayout, j: int, pair: tuple[str, str],
+                rotations: tuple[NDArray[np.float64], NDArray[np.float64]],
+                d: NDArray[np.float64], w: NDArray[np.float64], v_eiv: float) -> JointBlock:
+    """The weighted rows of joint ``j`` between sensors ``pair`` in the slip model.
+
+    Parameters
+    ----------
+    layout : SlipLayout
+    j : int
+        The joint's number (its centres' place among the unknowns).
+    pair : (str, str)
+        Its sensors a and b.
+    rotations : (ndarray, ndarray), shape (F, 3, 3) each
+        Their smoothed sensor → world rotations.
+    d : ndarray, shape (F, 3)
+        ``p_b − p_a``, metres.
+    w : ndarray, shape (F,)
+        1 where both samples are measured, else 0.
+    v_eiv : float
+        Orientation noise variance after smoothing, rad² (0: no correction).
+
+    Returns
+    -------
+    JointBlock
+    """
+    ra, rb = rotations
+    n = d.shape[0]
+    m9 = rows.relative_matrices(ra, rb).reshape(n, 9)  # M_t = R_aᵀ R_b
+    ra_d = rows.apply_each(ra.transpose(0, 2, 1), d)  # R_aᵀ d
+    rb_d = rows.apply_each(rb.transpose(0, 2, 1), d)
+    total = max(float(w.sum()), 1.0)
+    msum = (w @ m9).reshape(3, 3)
     eye3 = np.eye(3)
-    for j, (a, b) in enumerate(pairs):
-        ra, rb = rot[a], rot[b]
-        w = (valid[a] & valid[b]).astype(float)
-        total = max(float(w.sum()), 1.0)
-        d = positions[b] - positions[a]
-        m9 = rows.relative_matrices(ra, rb).reshape(n, 9)  # M_t = R_aᵀ R_b
-        ra_d = rows.apply_each(ra.transpose(0, 2, 1), d)  # R_aᵀ d
-        rb_d = rows.apply_each(rb.transpose(0, 2, 1), d)
-        wphi = basis * w[:, None]
-        # plain LLSF of this joint for its noise levels
-        msum = (w @ m9).reshape(3, 3)
-        plain = np.block([[total * eye3, -msum], [-msum.T, total * eye3]])
-        prhs = np.concatenate([w @ ra_d, -(w @ rb_d)])
-        c0 = np.linalg.lstsq(plain, prhs, rcond=None)[0]
-        res = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
-        use = w > 0
-        total_var = float(np.mean(res[use] ** 2)) if use.any() else 1e-6
-        white_var = _white_variance(res, use)
-        white_var = max(total_var if white_var is None else white_var, 1e-12)
-        white.append(white_var)
-        for s in (a, b):
-            slow[s].append(max(total_var - white_var, 0.0))
-        row_var = white_var + unmodelled * max(total_var - white_var, 0.0)
-        # normal-equation blocks of [c_a, c_b, β_a, β_b]
-        phiphi = wphi.T @ basis  # Σ w φ_k φ_l
-        # Σ w φ_k φ_l M[i, j]: one (K, F) × (F, K) product per entry of M, ordered (k, i, l, j)
-        entries = np.empty((k, k, 9))
-        for e in range(9):
-            entries[:, :, e] = (wphi * m9[:, e, None]).T @ basis
-        t_kl = entries.reshape(k, k, 3, 3).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
-        phim = (wphi.T @ m9).reshape(k, 3, 3)  # Σ w φ_k M
-        sum_phi = wphi.sum(axis=0)
-        big = np.zeros((6 + 6 * k, 6 + 6 * k))
-        big[:6, :6] = plain
-        ca, cb, ba, bb = slice(0, 3), slice(3, 6), slice(6, 6 + 3 * k), slice(6 + 3 * k, None)
-        big[ca, ba] = -np.kron(sum_phi[None, :], eye3)
-        big[ca, bb] = phim.transpose(1, 0, 2).reshape(3, 3 * k)
-        big[cb, ba] = phim.transpose(2, 0, 1).reshape(3, 3 * k)
-        big[cb, bb] = -np.kron(sum_phi[None, :], eye3)
-        big[ba, ba] = big[bb, bb] = np.kron(phiphi, eye3)
-        big[ba, bb] = -t_kl
-        big[6:, :6] = big[:6, 6:].T
-        big[bb, ba] = big[ba, bb].T
-        rhs = np.concatenate([prhs, -(wphi.T @ ra_d).reshape(-1), (wphi.T @ rb_d).reshape(-1)])
-        idx = np.concatenate([np.arange(n_s + 6 * j, n_s + 6 * j + 6),
-                              np.arange(index[a], index[a] + 3 * k),
-                              np.arange(index[b], index[b] + 3 * k)])
-        blocks.append((idx, big / row_var, rhs / row_var))
-        if v_eiv > 0.0:
-            gain = 1.0 / (1.0 - v_eiv) ** 2
-            s_max = float(np.linalg.svd(msum / total, compute_uv=False)[0])
-            # weakest eigenvalue of the plain block: 1 − s_max before, 1 − gain·s_max after
-            share[j] = max((1.0 - gain * s_max) / max(1.0 - s_max, 1e-300), 0.0)
-            if share[j] >= EIV_SIGNAL_SHARE:
-                mdep = np.zeros_like(big)
-                for r_, c_ in ((ca, cb), (ca, bb), (cb, ba), (ba, bb)):
-                    mdep[r_, c_] = big[r_, c_]
-                mdep += mdep.T
-                eiv.append((idx, (gain - 1.0) * mdep / row_var,
-                            (np.sqrt(gain) - 1.0) * rhs / row_var))
-                corrected[j] = True
+    plain = np.block([[total * eye3, -msum], [-msum.T, total * eye3]])
+    prhs = np.concatenate([w @ ra_d, -(w @ rb_d)])
+    noise = _plain_noise(plain, prhs, rotations, d, w)
+    row_var = noise.white + layout.unmodelled * max(noise.total - noise.white, 0.0)
+    big, rhs = _slip_rows(layout.basis, w, m9, (ra_d, rb_d), plain, prhs)
+    k = layout.k
+    a, b = pair
+    idx = np.concatenate([np.arange(layout.n_s + 6 * j, layout.n_s + 6 * j + 6),
+                          np.arange(layout.index[a], layout.index[a] + 3 * k),
+                          np.arange(layout.index[b], layout.index[b] + 3 * k)])
+    share, eiv = 1.0, None
+    if v_eiv > 0.0:
+        share, eiv = _eiv_change(big, rhs, msum / total, v_eiv, k)
+    if eiv is not None:
+        eiv = (eiv[0] / row_var, eiv[1] / row_var)
+    return JointBlock(idx, big / row_var, rhs / row_var, pair, noise, eiv, share)
+
+
+def _plain_noise(plain: NDArray[np.float64], prhs: NDArray[np.float64],
+                 rotations: tuple[NDArray[np.float64], NDArray[np.float64]],
+                 d: NDArray[np.float64], w: NDArray[np.float64]) -> JointNoise:
+    """Total and white residual variance per axis of the plain LLSF of one joint (normal
+    equations ``plain``, ``prhs``), m²; the white part from second differences, the total
+    where too few frames give it, at least 1e-12."""
+    c0 = np.asarray(np.linalg.lstsq(plain, prhs, rcond=None)[0], dtype=np.float64)
+    ra, rb = rotations
+    res = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
+    use = w > 0
+    total_var = float(np.mean(res[use] ** 2)) if use.any() else 1e-6
+    white_var = white_variance(res, use)
+    return JointNoise(total_var, max(total_var if white_var is None else white_var, 1e-12))
+
+
+_CA, _CB = slice(0, 3), slice(3, 6)
+
+
+def _slip_rows(basis: NDArray[np.float64], w: NDArray[np.float64], m9: NDArray[np.float64],
+               rotated_d: tuple[NDArray[np.float64], NDArray[np.float64]],
+               plain: NDArray[np.float64], prhs: NDArray[np.float64]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unweighted normal-equation block (6 + 6K square) and right-hand side of one joint's
+    unknowns ``[c_a, c_b, β_a, β_b]``, from the weights ``w`` (F,), ``M_t`` (F, 9) and
+    ``R_aᵀd``, ``R_bᵀd`` (F, 3 each)."""
+    k = basis.shape[1]
+    ra_d, rb_d = rotated_d
+    wphi = basis * w[:, None]
+    phiphi = wphi.T @ basis  # Σ w φ_k φ_l
+    # Σ w φ_k φ_l M[i, j]: one (K, F) × (F, K) product per entry of M, ordered (k, i, l, j)
+    entries = np.empty((k, k, 9))
+    for e in range(9):
+        entries[:, :, e] = (wphi * m9[:, e, None]).T @ basis
+    t_kl = entries.reshape(k, k, 3, 3).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
+    phim = (wphi.T @ m9).reshape(k, 3, 3)  # Σ w φ_k M
+    sum_phi = wphi.sum(axis=0)
+    eye3 = np.eye(3)
+    big = np.zeros((6 + 6 * k, 6 + 6 * k))
+    big[:6, :6] = plain
+    ba, bb = slice(6, 6 + 3 * k), slice(6 + 3 * k, None)
+    big[_CA, ba] = -np.kron(sum_phi[None, :], eye3)
+    big[_CA, bb] = phim.transpose(1, 0, 2).reshape(3, 3 * k)
+    big[_CB, ba] = phim.transpose(2, 0, 1).reshape(3, 3 * k)
+    big[_CB, bb] = -np.kron(sum_phi[None, :], eye3)
+    big[ba, ba] = big[bb, bb] = np.kron(phiphi, eye3)
+    big[ba, bb] = -t_kl
+    big[6:, :6] = big[:6, 6:].T
+    big[bb, ba] = big[ba, bb].T
+    rhs = np.concatenate([prhs, -(wphi.T @ ra_d).reshape(-1), (wphi.T @ rb_d).reshape(-1)])
+    return big, rhs
+
+
+def _eiv_change(big: NDArray[np.float64], rhs: NDArray[np.float64],
+                mean_m: NDArray[np.float64], v_eiv: float, k: int
+                ) -> tuple[float, tuple[NDArray[np.float64], NDArray[np.float64]] | None]:
+    """Signal share of one joint and, where it is at least ``EIV_SIGNAL_SHARE``, the
+    errors-in-variables change of its unweighted block and right-hand side (see
+    ``estimate_slip``); ``mean_m`` is the joint's weighted mean ``M_t``."""
+    gain = 1.0 / (1.0 - v_eiv) ** 2
+    s_max = float(np.linalg.svd(mean_m, compute_uv=False)[0])
+    # weakest eigenvalue of the plain block: 1 − s_max before, 1 − gain·s_max after
+    share = max((1.0 - gain * s_max) / max(1.0 - s_max, 1e-300), 0.0)
+    if share < EIV_SIGNAL_SHARE:
+        return share, None
+    ba, bb = slice(6, 6 + 3 * k), slice(6 + 3 * k, None)
+    mdep = np.zeros_like(big)
+    for r_, c_ in ((_CA, _CB), (_CA, bb), (_CB, ba), (ba, bb)):
+        mdep[r_, c_] = big[r_, c_]
+    mdep += mdep.T
+    return share, ((gain - 1.0) * mdep, (np.sqrt(gain) - 1.0) * rhs)
+
+
+def _assemble(layout: SlipLayout, blocks: Sequence[JointBlock]
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The slip model's normal equations: every joint's block plus a negligible ridge on the
+    centres and each sensor's slip prior (variance: half the slow residual of its joints,
+    at least half the median white residual)."""
+    size = layout.size
     normal = np.zeros((size, size))
     rhs_all = np.zeros(size)
-    for idx, big, rhs in blocks:
-        normal[np.ix_(idx, idx)] += big
-        rhs_all[idx] += rhs
+    for block in blocks:
+        normal[np.ix_(block.idx, block.idx)] += block.normal
+        rhs_all[block.idx] += block.rhs
     ridge = np.full(size, 1e-9 * float(np.max(np.diag(normal))))
-    floor = float(np.median(white))
-    for s in sensors:
-        # per-axis slip variance of this sensor: half the slow residual of its joints
-        var = max(0.5 * float(np.mean(slow[s])), 0.5 * floor)
-        ridge[index[s]:index[s] + 3 * k] = k / var
+    floor = float(np.median([block.noise.white for block in blocks]))
+    k = layout.k
+    for s in layout.sensors:
+        slow = [max(block.noise.total - block.noise.white, 0.0)
+                for block in blocks for sensor in block.sensors if sensor == s]
+        var = max(0.5 * float(np.mean(slow)), 0.5 * floor)
+        ridge[layout.index[s]:layout.index[s] + 3 * k] = k / var
     normal[np.diag_indices(size)] += ridge
-    x, blocks_c = _solve_system(normal, rhs_all, n_s)
-    centres = x[n_s:].reshape(-1, 2, 3)
-    slip = {s: basis @ x[index[s]:index[s] + 3 * k].reshape(k, 3) for s in sensors}
-    if not eiv:
-        return SlipFit(slip, centres, blocks_c, tuple(corrected), tuple(share))
-    for idx, delta, rhs in eiv:
-        normal[np.ix_(idx, idx)] += delta
-        rhs_all[idx] += rhs
+    return normal, rhs_all
+
+
+def _errors_in_variables(normal: NDArray[np.float64], rhs_all: NDArray[np.float64], n_s: int,
+                         blocks: Sequence[JointBlock], centres: NDArray[np.float64],
+                         covariances: NDArray[np.float64]
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[bool, ...]]:
+    """Centres, covariances and per-joint flags after the errors-in-variables correction:
+    a corrected joint's centre replaces the plain one where they differ by more than
+    ``EIV_CHI2`` (squared Mahalanobis distance); none where the corrected system is not
+    positive definite. ``normal`` and ``rhs_all`` are changed in place."""
+    for block in blocks:
+        if block.eiv is not None:
+            normal[np.ix_(block.idx, block.idx)] += block.eiv[0]
+            rhs_all[block.idx] += block.eiv[1]
     try:
         x_e, blocks_e = _solve_system(normal, rhs_all, n_s)
     except np.linalg.LinAlgError:  # the corrections together left no positive definite system
-        return SlipFit(slip, centres, blocks_c, (False,) * len(pairs), tuple(share))
+        return centres, covariances, (False,) * len(blocks)
     centres_e = x_e[n_s:].reshape(-1, 2, 3)
-    centres, blocks_c = centres.copy(), blocks_c.copy()
-    for j in range(len(pairs)):
+    centres, covariances = centres.copy(), covariances.copy()
+    corrected = [block.eiv is not None for block in blocks]
+    for j in range(len(blocks)):
         if not corrected[j]:
             continue
         shift = (centres_e[j] - centres[j]).reshape(6)
-        if float(shift @ np.linalg.solve(blocks_c[j], shift)) > EIV_CHI2:
+        if float(shift @ np.linalg.solve(covariances[j], shift)) > EIV_CHI2:
             centres[j] = centres_e[j]
-            blocks_c[j] = blocks_e[j]
+            covariances[j] = blocks_e[j]
         else:
             corrected[j] = False
-    return SlipFit(slip, centres, blocks_c, tuple(corrected), tuple(share))
+    return centres, covariances, tuple(corrected)

@@ -10,6 +10,13 @@ Two estimators share one entry point, :func:`estimate_translation`:
     decoding of how well each hypothesis explains the measured foot accelerations, then a
     root path that keeps planted heel/toe points still, follows a ballistic arc in flight and
     keeps each contact on its own floor level.
+
+T. Hachaj and M. R. Ogiela, "Heuristic method for calculating the translation of human body
+recordings using data from an inertial motion capture costume", Journal of Advances in
+Information Technology 9(4), 2018; reference implementation
+github.com/browarsoftware/ShadowMoCap. The contact model is this project's: Viterbi decoding
+(Rabiner 1989) of contact states scored by the foot accelerometers against the accelerations
+each state predicts from the kinematics.
 """
 
 from __future__ import annotations
@@ -18,14 +25,14 @@ import math
 import time as _time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d
 
 from .errors import EstimationError, InputError
-from .io.kinematics import GRAVITY, KinematicsRecording
+from .kinematics import GRAVITY, KinematicsRecording
 from .params import (
     CONTACT_OPTION_RANGES,
     HACHAJ_EPS_RANGE,
@@ -329,18 +336,31 @@ def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, ri
     return translation, _contact_labels(left_c, right_c), float(ground)
 
 
-def _hachaj_options(options: Mapping[str, Any]) -> tuple[int, float]:
-    """``window`` and ``eps`` of ``hachaj2018`` from the caller's options, checked."""
-    unknown = sorted(set(options) - {"window", "eps"})
-    if unknown:
-        raise InputError(f"unknown option(s) for hachaj2018: {', '.join(unknown)}; "
-                         "options: eps, window", field=unknown[0])
-    low, high = HACHAJ_WINDOW_RANGE
-    window = check_integer(options.get("window", HACHAJ_WINDOW), "window", low=low, high=high)
-    eps_low, eps_high = HACHAJ_EPS_RANGE
-    eps = check_number(options.get("eps", HACHAJ_EPS_M), "eps", low=eps_low, high=eps_high,
-                       low_open=True, unit=" m")
-    return window, eps
+@dataclass(frozen=True)
+class HachajOptions:
+    """Parameters of ``hachaj2018`` (the reference implementation's constants).
+
+    Attributes
+    ----------
+    window : int
+        Gaussian window, samples (``HACHAJ_WINDOW_RANGE``); the effective length is
+        :func:`hachaj_window_length`.
+    eps : float
+        Pass-2 threshold on the feet's smoothed height difference, metres
+        (``HACHAJ_EPS_RANGE``).
+    """
+
+    window: int = HACHAJ_WINDOW
+    eps: float = HACHAJ_EPS_M
+
+    def __post_init__(self) -> None:
+        low, high = HACHAJ_WINDOW_RANGE
+        window = check_integer(self.window, "window", low=low, high=high)
+        eps_low, eps_high = HACHAJ_EPS_RANGE
+        eps = check_number(self.eps, "eps", low=eps_low, high=eps_high, low_open=True,
+                           unit=" m")
+        object.__setattr__(self, "window", window)
+        object.__setattr__(self, "eps", eps)
 
 
 # --------------------------------------------------------------------------- contact model
@@ -421,6 +441,44 @@ class ContactOptions:
                                  field=name)
 
 
+MethodOptions = ContactOptions | HachajOptions
+"""Options of one translation method."""
+
+METHOD_OPTIONS: Final[dict[str, type[ContactOptions] | type[HachajOptions]]] = {
+    "contact": ContactOptions, "hachaj2018": HachajOptions}
+"""The options dataclass of each method of :func:`estimate_translation`."""
+
+
+def method_options(method: str, options: Mapping[str, Any]) -> MethodOptions:
+    """The options of ``method`` from keyword values, checked.
+
+    Parameters
+    ----------
+    method : {"contact", "hachaj2018"}
+    options : mapping of str to object
+        Field values of ``METHOD_OPTIONS[method]``; missing fields take their defaults.
+
+    Returns
+    -------
+    ContactOptions or HachajOptions
+
+    Raises
+    ------
+    InputError
+        Unknown method, an unknown option (``field`` names the first) or a value out of
+        range (``field`` names it).
+    """
+    if method not in METHOD_OPTIONS:
+        raise InputError(f"unknown method {method!r}; use {', '.join(METHODS)}", field="method")
+    cls = METHOD_OPTIONS[method]
+    fields = set(cls.__dataclass_fields__)
+    unknown = sorted(set(options) - fields)
+    if unknown:
+        raise InputError(f"unknown option(s) for {method}: {', '.join(unknown)}; "
+                         f"options: {', '.join(sorted(fields))}", field=unknown[0])
+    return cls(**options)
+
+
 def _saturated(raw: NDArray[np.float64], clip_g: float | None,
                frame: str) -> NDArray[np.bool_]:
     """Frames where a component sits at the accelerometer's range (the magnitude is then only
@@ -473,16 +531,39 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
                     ) -> tuple[NDArray[np.int64], dict[str, Any]]:
     """States 0 none, 1 left, 2 right, 3 both per frame, by Viterbi decoding."""
     fps = recording.fps
-    n = recording.n_frames
     sigma = max(opt.smoothing_s * fps, 0.5)
     p = gaussian_filter1d(recording.positions, sigma, axis=0, mode="nearest")
+    meas = [recording.accelerations[name] for name in names]
+    sat = [_saturated(raw, opt.clip_g, recording.acceleration_frame) for raw in meas]
+    points = [f.point(p) for f in feet]
+    cost = _acceleration_costs(recording, p, feet, points, root, (meas, sat), sigma, opt)
+    rel_speed = np.linalg.norm(_derivative(points[0], fps) - _derivative(points[1], fps),
+                               axis=1)
+    rel_scale = _relative_speed_scale(meas, recording.acceleration_frame, rel_speed, sigma,
+                                      opt)
+    _add_state_priors(cost, [f.sole(p) for f in feet], rel_speed / rel_scale, opt)
+    cost *= 100.0 / fps  # costs are per 10 ms, whatever the frame rate
+    states = _viterbi(cost, _switch_costs(opt))
+    info = {"saturated_fraction": float(np.mean(np.concatenate(sat))),
+            "relative_speed_scale_m_s": rel_scale}
+    return states, info
+
+
+def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],
+                        feet: tuple[_Feet, _Feet], points: list[NDArray[np.float64]],
+                        root: int,
+                        readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
+                        sigma: float, opt: ContactOptions) -> NDArray[np.float64]:
+    """Cost (F, 4) of each contact state: how far the foot accelerometers are from what the
+    state predicts (a planted contact point does not accelerate; in flight the hips fall).
+
+    ``p`` are the smoothed positions, ``points`` each foot's contact point in them,
+    ``readings`` each foot accelerometer's samples and saturated frames, ``sigma`` the
+    smoothing in frames."""
+    fps = recording.fps
+    meas, sat = readings
     a_sensor = [_second_derivative(p[:, f.heel], fps) for f in feet]
-    a_point = []
-    v_point = []
-    for f in feet:
-        pt = f.point(p)
-        a_point.append(_second_derivative(pt, fps))
-        v_point.append(_derivative(pt, fps))
+    a_point = [_second_derivative(pt, fps) for pt in points]
     a_hips = _second_derivative(p[:, root], fps)
     up = np.array([0.0, GRAVITY, 0.0])
     hyp = {
@@ -491,66 +572,83 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
         3: -0.5 * (a_point[0] + a_point[1]),
         0: -up - a_hips,
     }
-    meas = []
-    sat = []
-    for name in names:
-        raw = recording.accelerations[name]
-        sat.append(_saturated(raw, opt.clip_g, recording.acceleration_frame))
-        meas.append(raw)
-    cost = np.zeros((n, 4))
-    scale = 100.0 / fps  # costs are per 10 ms, whatever the frame rate
+    cost = np.zeros((recording.n_frames, 4))
     for state, root_acc in hyp.items():
-        total = np.zeros(n)
+        total = np.zeros(recording.n_frames)
         for k in range(2):
-            world = a_sensor[k] + root_acc
-            if recording.acceleration_frame == "sensor":
-                predicted = np.linalg.norm(world + up, axis=1)
-                measured = np.linalg.norm(meas[k], axis=1)
-                r = measured - predicted
-                r = np.where(sat[k] & (r < 0), 0.0, r)
-                size = np.maximum(np.abs(measured - GRAVITY), np.abs(predicted - GRAVITY))
-            else:
-                r = np.linalg.norm(meas[k] - world, axis=1)
-                size = np.maximum(np.linalg.norm(meas[k], axis=1), np.linalg.norm(world, axis=1))
-            # impacts and swings are large and brief: their exact size matters less than
-            # their presence, so the residual scale grows with the acceleration
-            spread = opt.sigma_acc + opt.relative_sigma_acc * size
             weight = 1.0
             if state not in (0, 1 + k, 3):  # this foot swings in this state
                 weight = opt.swing_weight
             if weight > 0:
+                r, spread = _acceleration_residual(
+                    a_sensor[k] + root_acc, meas[k], sat[k],
+                    recording.acceleration_frame, opt)
                 total += weight * gaussian_filter1d(
                     np.minimum((r / spread) ** 2, opt.residual_cap), sigma, mode="nearest")
         cost[:, state] = total
-    sole = [f.sole(p) for f in feet]
-    excess_l = np.maximum(sole[0] - sole[1] - opt.height_tolerance, 0.0) / opt.sigma_height
-    excess_r = np.maximum(sole[1] - sole[0] - opt.height_tolerance, 0.0) / opt.sigma_height
-    rel_speed = np.linalg.norm(v_point[0] - v_point[1], axis=1)
-    # Suits whose kinematics let two planted feet drift apart (IMU orientation errors) need a
-    # looser double-support test: measure that drift where both accelerometers are at rest.
+    return cost
+
+
+def _acceleration_residual(world: NDArray[np.float64], measured: NDArray[np.float64],
+                           saturated: NDArray[np.bool_], frame: str, opt: ContactOptions
+                           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Residual (F,) of one accelerometer against the predicted world acceleration ``world``
+    (F, 3), m/s², and its scale (F,); a saturated reading below the prediction is no
+    evidence."""
+    if frame == "sensor":
+        up = np.array([0.0, GRAVITY, 0.0])
+        predicted = np.linalg.norm(world + up, axis=1)
+        size_measured = np.linalg.norm(measured, axis=1)
+        r = size_measured - predicted
+        r = np.where(saturated & (r < 0), 0.0, r)
+        size = np.maximum(np.abs(size_measured - GRAVITY), np.abs(predicted - GRAVITY))
+    else:
+        r = np.linalg.norm(measured - world, axis=1)
+        size = np.maximum(np.linalg.norm(measured, axis=1), np.linalg.norm(world, axis=1))
+    # impacts and swings are large and brief: their exact size matters less than
+    # their presence, so the residual scale grows with the acceleration
+    return r, opt.sigma_acc + opt.relative_sigma_acc * size
+
+
+def _relative_speed_scale(meas: list[NDArray[np.float64]], frame: str,
+                          rel_speed: NDArray[np.float64], sigma: float,
+                          opt: ContactOptions) -> float:
+    """Scale of the feet's relative speed in double support, m/s.
+
+    Suits whose kinematics let two planted feet drift apart (IMU orientation errors) need a
+    looser double-support test: measure that drift where both accelerometers are at rest."""
     rest = []
-    for k in range(2):
-        mag = np.linalg.norm(meas[k], axis=1)
-        level = float(np.median(mag)) if recording.acceleration_frame == "sensor" else 0.0
+    for raw in meas:
+        mag = np.linalg.norm(raw, axis=1)
+        level = float(np.median(mag)) if frame == "sensor" else 0.0
         rest.append(gaussian_filter1d(np.abs(mag - level), sigma, mode="nearest")
                     < 0.08 * GRAVITY)
     quiet = rest[0] & rest[1]
     rel_scale = opt.sigma_relative_speed
     if opt.adapt_relative_speed and quiet.mean() > 0.05:
         rel_scale = max(rel_scale, 1.5 * float(np.median(rel_speed[quiet])))
-    rel = rel_speed / rel_scale
+    return rel_scale
+
+
+def _add_state_priors(cost: NDArray[np.float64], sole: list[NDArray[np.float64]],
+                      rel: NDArray[np.float64], opt: ContactOptions) -> None:
+    """Add to ``cost`` (F, 4) what each state costs besides the accelerometers: a swinging
+    foot, a planted foot above the other, feet moving apart in double support (``rel``, in
+    units of their scale), flight."""
+    excess_l = np.maximum(sole[0] - sole[1] - opt.height_tolerance, 0.0) / opt.sigma_height
+    excess_r = np.maximum(sole[1] - sole[0] - opt.height_tolerance, 0.0) / opt.sigma_height
     cost[:, 1] += opt.swing_cost + excess_l ** 2
     cost[:, 2] += opt.swing_cost + excess_r ** 2
     cost[:, 3] += np.minimum(rel ** 2, 4 * opt.residual_cap)
     cost[:, 0] += 2 * opt.swing_cost + opt.flight_cost
-    cost *= scale
+
+
+def _switch_costs(opt: ContactOptions) -> NDArray[np.float64]:
+    """Cost (4, 4) of going from one state to another; left to right directly costs 3×."""
     switch = np.full((4, 4), opt.switch_cost)
     np.fill_diagonal(switch, 0.0)
     switch[1, 2] = switch[2, 1] = 3 * opt.switch_cost
-    states = _viterbi(cost, switch)
-    info = {"saturated_fraction": float(np.mean(np.concatenate(sat))),
-            "relative_speed_scale_m_s": rel_scale}
-    return states, info
+    return switch
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -588,10 +686,33 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
                          progress: Progress
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                     NDArray[np.float64], int]:
+    """Translation (F, 3), floor height (F,), settled floor level under each foot (F, 2,
+    NaN in the air) and number of floor levels, from the contact states."""
     p = recording.positions
-    n = recording.n_frames
     dt = 1.0 / recording.fps
     w_left = _support_weights(states)
+    translation = _horizontal_path(p, feet, states, w_left, root, dt)
+    progress(0.8, "path")
+    # Vertical: each contact sits on its own floor level. A new contact starts at the level
+    # that keeps the body's height continuous, then eases onto a known level within
+    # floor_tolerance (flat floors stay flat, platforms keep their own level).
+    sole = np.stack([f.sole(p) for f in feet], axis=1)
+    ramp = max(1, round(opt.floor_ramp_s * recording.fps))
+    support = _Support(states, w_left, sole, p[:, root, 1], dt)
+    level, settled, n_levels = _contact_levels(support, ramp, opt)
+    y, floor = _contact_heights(support, level)
+    _bridge_flights(support, y, floor)
+    translation[:, 1] = _lift_above_floor(y, sole, settled, floor, ramp)
+    return translation, floor, settled, n_levels
+
+
+def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
+                     states: NDArray[np.int64], w_left: NDArray[np.float64], root: int,
+                     dt: float) -> NDArray[np.float64]:
+    """Translation (F, 3) that keeps the supporting contact points still, with ballistic
+    steps across flights (the take-off velocity of the last 50 ms held); its vertical
+    component is replaced by the caller."""
+    n = p.shape[0]
     in_contact = states != 0
     steps_l, steps_r = feet[0].steps(p), feet[1].steps(p)
     pair_contact = in_contact[:-1] & in_contact[1:]
@@ -599,10 +720,9 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
     steps = -(wl * steps_l + (1 - wl) * steps_r)
     steps[~pair_contact] = 0.0
     hips_steps = p[1:, root] - p[:-1, root]
-    flights = _runs(~pair_contact)
     translation = np.zeros((n, 3))
     np.cumsum(steps, axis=0, out=translation[1:])
-    for start, stop in flights:  # pair indices: pairs start..stop-1 are ballistic
+    for start, stop in _runs(~pair_contact):  # pair indices: pairs start..stop-1 are ballistic
         k = min(start, max(1, round(0.05 / dt)))
         if k >= 1 and start >= k:
             world = p[start - k:start + 1, root] + translation[start - k:start + 1]
@@ -614,46 +734,42 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
         steps[start:stop] = ballistic
         translation[start + 1:] += np.concatenate(
             [np.cumsum(delta, axis=0), np.repeat(delta.sum(axis=0)[None], n - stop - 1, 0)])
-    progress(0.8, "path")
-    # Vertical: each contact sits on its own floor level. A new contact starts at the level
-    # that keeps the body's height continuous, then eases onto a known level within
-    # floor_tolerance (flat floors stay flat, platforms keep their own level).
-    sole = np.stack([f.sole(p) for f in feet], axis=1)
+    return translation
+
+
+class _Support(NamedTuple):
+    """Per-frame support of the body: contact states, the left foot's share, the feet's
+    contact heights (F, 2), the input's hips height and the frame interval."""
+
+    states: NDArray[np.int64]
+    w_left: NDArray[np.float64]
+    sole: NDArray[np.float64]
+    hips_y: NDArray[np.float64]
+    dt: float
+
+    def body(self, level: NDArray[np.float64], t: int) -> float:
+        """World hips height on contact frame t from the floor ``level`` (F, 2) so far."""
+        states = self.states
+        w = self.w_left[t] if states[t] == 3 else 1.0 if states[t] == 1 else 0.0
+        parts = [(w, 0), (1.0 - w, 1)]
+        return float(sum(c * (level[t, k] - self.sole[t, k]) for c, k in parts if c > 0)
+                     + self.hips_y[t])
+
+
+def _contact_levels(support: _Support, ramp: int, opt: ContactOptions
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """Floor level under each foot per frame while it is in contact (F, 2: easing onto its
+    level over ``ramp`` frames; settled level), NaN in the air, and the number of levels."""
+    states = support.states
+    n = states.shape[0]
     level = np.full((n, 2), math.nan)
     settled = np.full((n, 2), math.nan)
     known: list[float] = []
     segments = sorted([(s, e, k) for k in range(2)
                        for s, e in _runs((states == 1 + k) | (states == 3))])
-    y = np.full(n, math.nan)
     last_level: float | None = None
-    ramp = max(1, round(opt.floor_ramp_s * recording.fps))
-    hips_y = p[:, root, 1]
-
-    def body(t: int) -> float:
-        """World hips height on contact frame t from the levels assigned so far."""
-        w = w_left[t] if states[t] == 3 else 1.0 if states[t] == 1 else 0.0
-        parts = [(w, 0), (1.0 - w, 1)]
-        return float(sum(c * (level[t, k] - sole[t, k]) for c, k in parts if c > 0)
-                     + hips_y[t])
-
     for start, stop, k in segments:
-        prev = start - 1
-        if prev >= 0 and not math.isnan(level[prev, 1 - k]):
-            candidate = float(level[prev, 1 - k] - sole[prev, 1 - k] + sole[prev, k])
-        elif not math.isnan(level[start, 1 - k]):
-            candidate = float(level[start, 1 - k] - sole[start, 1 - k] + sole[start, k])
-        elif last_level is not None and start > 0:
-            # Landing after a flight: where the ballistic take-off carries the body.
-            t0 = int(np.flatnonzero((~np.isnan(level[:start])).any(axis=1))[-1])
-            h0 = body(t0)
-            v0 = (h0 - body(t0 - 1)) / dt if t0 >= 1 and in_contact[t0 - 1] else 0.0
-            span = (start - t0) * dt
-            landing = h0 + v0 * span - 0.5 * GRAVITY * span * span
-            candidate = float(landing - hips_y[start] + sole[start, k])
-            if abs(candidate - last_level) > 2 * opt.floor_tolerance:
-                candidate = last_level  # a take-off speed that far off is not to be trusted
-        else:
-            candidate = float(sole[start, k])  # first contact: keep the input's height
+        candidate = _contact_start_level(support, level, start, k, last_level, opt)
         near = [lv for lv in known if abs(lv - candidate) < opt.floor_tolerance]
         target = min(near, key=lambda lv: abs(lv - candidate)) if near else candidate
         if not near:
@@ -664,6 +780,41 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
         level[start:stop, k] = profile
         settled[start:stop, k] = target
         last_level = target
+    return level, settled, len(known)
+
+
+def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,
+                         last_level: float | None, opt: ContactOptions) -> float:
+    """Floor level of foot ``k``'s contact starting at ``start`` that keeps the body's height
+    continuous: from the other foot's level, after a flight from the ballistic take-off,
+    on the first contact the input's own height."""
+    sole, hips_y, dt = support.sole, support.hips_y, support.dt
+    prev = start - 1
+    if prev >= 0 and not math.isnan(level[prev, 1 - k]):
+        return float(level[prev, 1 - k] - sole[prev, 1 - k] + sole[prev, k])
+    if not math.isnan(level[start, 1 - k]):
+        return float(level[start, 1 - k] - sole[start, 1 - k] + sole[start, k])
+    if last_level is not None and start > 0:
+        # Landing after a flight: where the ballistic take-off carries the body.
+        t0 = int(np.flatnonzero((~np.isnan(level[:start])).any(axis=1))[-1])
+        h0 = support.body(level, t0)
+        v0 = (h0 - support.body(level, t0 - 1)) / dt \
+            if t0 >= 1 and support.states[t0 - 1] != 0 else 0.0
+        span = (start - t0) * dt
+        landing = h0 + v0 * span - 0.5 * GRAVITY * span * span
+        candidate = float(landing - hips_y[start] + sole[start, k])
+        if abs(candidate - last_level) > 2 * opt.floor_tolerance:
+            candidate = last_level  # a take-off speed that far off is not to be trusted
+        return candidate
+    return float(sole[start, k])  # first contact: keep the input's height
+
+
+def _contact_heights(support: _Support, level: NDArray[np.float64]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Vertical translation (F,) on contact frames (NaN in flight) and the floor height (F,)
+    under the body."""
+    states, sole, w_left = support.states, support.sole, support.w_left
+    y = np.full(states.shape[0], math.nan)
     for t_arr, k in ((np.flatnonzero(states == 1), 0), (np.flatnonzero(states == 2), 1)):
         y[t_arr] = level[t_arr, k] - sole[t_arr, k]
     both = np.flatnonzero(states == 3)
@@ -675,6 +826,15 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
     if np.isnan(y).all():
         y[:] = 0.0
         floor[:] = float(sole.min())
+    return y, floor
+
+
+def _bridge_flights(support: _Support, y: NDArray[np.float64],
+                    floor: NDArray[np.float64]) -> None:
+    """Fill the flights (NaN runs) of ``y`` in place with ballistic arcs from the take-off
+    height and speed, continuous at both ends, and ``floor`` there linearly."""
+    hips_y, dt = support.hips_y, support.dt
+    n = y.shape[0]
     for start, stop in _runs(np.isnan(y)):
         t = np.arange(start, stop)
         if start > 0 and stop < n:
@@ -703,9 +863,15 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
         f0 = floor[start - 1] if start > 0 else floor[stop]
         f1 = floor[stop] if stop < n else f0
         floor[start:stop] = f0 + (f1 - f0) * (t - start + 1) / (stop - start + 1)
-    # Kinematics that disagree with the floor (a foot of the model reaching below the level
-    # its contact settled on) lift the body rather than sink a foot; the lift is spread over
-    # floor_ramp_s so it makes no jump.
+
+
+def _lift_above_floor(y: NDArray[np.float64], sole: NDArray[np.float64],
+                      settled: NDArray[np.float64], floor: NDArray[np.float64], ramp: int
+                      ) -> NDArray[np.float64]:
+    """``y`` raised where a foot of the model reaches below the level its contact settled on.
+
+    Kinematics that disagree with the floor lift the body rather than sink a foot; the lift
+    is spread over ``ramp`` frames so it makes no jump."""
     under = np.stack([_swing_floor(settled[:, k], floor) for k in range(2)], axis=1)
     need = np.maximum((under - sole - y[:, None]).max(axis=1), 0.0)
     if need.any():
@@ -713,8 +879,7 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
         lift = gaussian_filter1d(maximum_filter1d(need, 2 * width + 1, mode="nearest"),
                                  width / 3.0, mode="nearest")
         y = y + np.maximum(lift, need)
-    translation[:, 1] = y
-    return translation, floor, settled, len(known)
+    return y
 
 
 def _file_states(recording: KinematicsRecording, names: tuple[str, str]) -> NDArray[np.int64]:
@@ -733,6 +898,7 @@ def estimate_translation(
     left_foot: str | None = None,
     right_foot: str | None = None,
     progress: Progress | None = None,
+    options: MethodOptions | None = None,
     **method_options: Any,
 ) -> TranslationResult:
     """Estimate the root path of an inertial-suit recording.
@@ -751,9 +917,13 @@ def estimate_translation(
         Foot joints; default the recording's.
     progress : callable, optional
         ``progress(fraction, stage)``.
+    options : ContactOptions or HachajOptions, optional
+        The method's options as one object (``METHOD_OPTIONS[method]``); default: from
+        ``method_options``.
     **method_options
-        ``hachaj2018``: ``window`` (samples, 100) and ``eps`` (m, 0.05). ``contact``: any
-        field of :class:`ContactOptions`.
+        Instead of ``options``, its fields as keywords: ``hachaj2018``: ``window`` (samples,
+        100) and ``eps`` (m, 0.05) of :class:`HachajOptions`; ``contact``: any field of
+        :class:`ContactOptions`.
 
     Returns
     -------
@@ -762,7 +932,8 @@ def estimate_translation(
     Raises
     ------
     InputError
-        Unknown method or option, an option outside its range (``field`` names it:
+        Unknown method or option, both ``options`` and keywords, an option outside its range
+        (``field`` names it:
         ``CONTACT_OPTION_RANGES``, ``HACHAJ_WINDOW_RANGE``, ``HACHAJ_EPS_RANGE``), a frame
         rate outside ``params.MIN_FPS`` … ``params.MAX_FPS`` (``field="fps"``), unknown foot
         joint.
@@ -771,77 +942,118 @@ def estimate_translation(
 
     Notes
     -----
-    T. Hachaj and M. R. Ogiela, "Heuristic method for calculating the translation of human
-    body recordings using data from an inertial motion capture costume", Journal of
-    Advances in Information Technology 9(4), 2018; reference implementation
-    github.com/browarsoftware/ShadowMoCap. The contact model is this project's: Viterbi
-    decoding (Rabiner 1989) of contact states scored by the foot accelerometers against the
-    accelerations each state predicts from the kinematics.
+    References in the module docstring.
     """
     report = progress or no_progress
     started = _time.perf_counter()
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; use {', '.join(METHODS)}", field="method")
     check_fps(recording.fps)
+    names = _foot_names(recording, left_foot, right_foot)
+    root = recording.index(recording.root)
+    if recording.n_frames < 3:
+        raise EstimationError("need at least 3 frames to estimate a translation",
+                              field="frames")
+    opt = _resolve_options(method, options, method_options)
+    report(0.0, method)
+    timings: dict[str, float] = {}
+    if isinstance(opt, HachajOptions):
+        path = _hachaj_path(recording, names, opt, report)
+    else:
+        path = _contact_path(recording, names, root, opt, report, started)
+        timings["contacts_s"] = path.contacts_s
+    quality = translation_quality(path.corrected, recording.fps, root, path.feet,
+                                  path.contacts, path.floor, path.levels)
+    quality.update(path.extra)
+    timings["estimate_s"] = _time.perf_counter() - started
+    report(1.0, "done")
+    return TranslationResult(root=path.corrected[:, root].copy(),
+                             translation=path.translation, positions=path.corrected,
+                             contacts=path.contacts, floor=path.floor, quality=quality,
+                             method=method, fps=recording.fps, timings=timings)
+
+
+def _foot_names(recording: KinematicsRecording, left_foot: str | None,
+                right_foot: str | None) -> tuple[str, str]:
+    """The foot joints asked for (default the recording's), present with accelerations."""
     lf = left_foot or recording.left_foot
     rf = right_foot or recording.right_foot
-    li, ri = recording.index(lf), recording.index(rf)
+    for foot in (lf, rf):
+        recording.index(foot)  # InputError listing the joints when absent
     for foot in (lf, rf):
         if foot not in recording.accelerations:
             raise InputError(f"no accelerations for foot {foot!r}; sensors: "
                              f"{', '.join(recording.accelerations)}", sensor=foot)
-    root = recording.index(recording.root)
-    n = recording.n_frames
-    if n < 3:
-        raise EstimationError("need at least 3 frames to estimate a translation",
-                              field="frames")
-    report(0.0, method)
-    timings: dict[str, float] = {}
+    return lf, rf
+
+
+def _resolve_options(method: str, options: MethodOptions | None,
+                     values: Mapping[str, Any]) -> MethodOptions:
+    """``options`` when given (then no keyword values), else ``values`` checked."""
+    if options is None:
+        return method_options(method, values)
+    if values:
+        raise InputError("give the method's options either as an options object or as "
+                         f"keywords, not both (got {', '.join(sorted(values))} too)",
+                         field=sorted(values)[0])
+    expected = METHOD_OPTIONS[method]
+    if not isinstance(options, expected):
+        raise InputError(f"options of {method} must be a {expected.__name__}, got "
+                         f"{type(options).__name__}", field="options")
+    return options
+
+
+class _Path(NamedTuple):
+    """What a method found: the translation and what the quality figures need."""
+
+    translation: NDArray[np.float64]  # (F, 3) added to every joint, m
+    corrected: NDArray[np.float64]  # (F, J, 3)
+    contacts: NDArray[np.str_]  # (F,) labels
+    floor: NDArray[np.float64]  # (F,)
+    levels: NDArray[np.float64] | None  # (F, 2) settled level under each foot, or None
+    feet: tuple[_Feet, _Feet]
+    extra: dict[str, Any]  # method-specific quality figures
+    contacts_s: float = 0.0  # seconds from the estimate's start to the contacts
+
+
+def _hachaj_path(recording: KinematicsRecording, names: tuple[str, str], opt: HachajOptions,
+                 report: Progress) -> _Path:
+    """``hachaj2018``'s translation; its floor is the median height of the planted soles."""
+    lf, rf = names
+    li, ri = recording.index(lf), recording.index(rf)
+    feet = _feet(recording, lf, rf, use_toes=True)
+    translation, contacts, ground = _hachaj(recording, li, ri, lf, rf, report,
+                                            window=opt.window, eps=opt.eps)
+    corrected = recording.positions + translation[:, None, :]
+    soles = np.stack([f.sole(corrected) for f in feet], axis=1)
+    planted = np.where(contacts == "right", soles[:, 1], soles[:, 0])
+    floor = np.full(recording.n_frames, float(np.median(planted)))
+    extra = {"ground_m": ground,
+             "window_samples": hachaj_window_length(recording.n_frames, opt.window)}
+    return _Path(translation, corrected, contacts, floor, None, feet, extra)
+
+
+def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,
+                  opt: ContactOptions, report: Progress, started: float) -> _Path:
+    """The contact model's translation: contact states (from the file or decoded), then the
+    path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
+    lf, rf = names
+    feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
     extra: dict[str, Any] = {}
-    if method == "hachaj2018":
-        window, eps = _hachaj_options(method_options)
-        feet = _feet(recording, lf, rf, use_toes=True)
-        translation, contacts, ground = _hachaj(recording, li, ri, lf, rf, report,
-                                                window=window, eps=eps)
-        corrected = recording.positions + translation[:, None, :]
-        soles = np.stack([f.sole(corrected) for f in feet], axis=1)
-        planted = np.where(contacts == "right", soles[:, 1], soles[:, 0])
-        floor = np.full(n, float(np.median(planted)))
-        levels: NDArray[np.float64] | None = None
-        extra["ground_m"] = ground
-        extra["window_samples"] = hachaj_window_length(n, window)
+    if opt.use_file_contacts and all(k in recording.contacts for k in names):
+        states = _file_states(recording, names)
+        extra["contacts_source"] = "file"
     else:
-        fields = set(ContactOptions.__dataclass_fields__)
-        unknown = sorted(set(method_options) - fields)
-        if unknown:
-            raise InputError(f"unknown option(s) for contact: {', '.join(unknown)}; "
-                             f"options: {', '.join(sorted(fields))}", field=unknown[0])
-        opt = ContactOptions(**method_options)
-        feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
-        names = (lf, rf)
-        if opt.use_file_contacts and all(k in recording.contacts for k in names):
-            states = _file_states(recording, names)
-            extra["contacts_source"] = "file"
-        else:
-            states, info = _contact_states(recording, feet, names, root, opt)
-            extra.update(info)
-            extra["contacts_source"] = "accelerometers"
-        report(0.6, "contacts")
-        timings["contacts_s"] = _time.perf_counter() - started
-        translation, floor, levels, n_levels = _contact_translation(
-            recording, feet, states, root, opt, report)
-        contacts = np.asarray(CONTACT_LABELS, dtype="<U5")[states]
-        corrected = recording.positions + translation[:, None, :]
-        extra["floor_levels"] = n_levels
-        extra["toes"] = {name: recording.joints[f.toe] for name, f in zip(names, feet,
-                                                                          strict=True)
-                         if f.toe is not None}
-    quality = translation_quality(corrected, recording.fps, root, feet, contacts, floor,
-                                  levels)
-    quality.update(extra)
-    timings["estimate_s"] = _time.perf_counter() - started
-    report(1.0, "done")
-    return TranslationResult(root=corrected[:, root].copy(), translation=translation,
-                             positions=corrected, contacts=contacts, floor=floor,
-                             quality=quality, method=method, fps=recording.fps,
-                             timings=timings)
+        states, info = _contact_states(recording, feet, names, root, opt)
+        extra.update(info)
+        extra["contacts_source"] = "accelerometers"
+    report(0.6, "contacts")
+    contacts_s = _time.perf_counter() - started
+    translation, floor, levels, n_levels = _contact_translation(
+        recording, feet, states, root, opt, report)
+    contacts = np.asarray(CONTACT_LABELS, dtype="<U5")[states]
+    corrected = recording.positions + translation[:, None, :]
+    extra["floor_levels"] = n_levels
+    extra["toes"] = {name: recording.joints[f.toe] for name, f in zip(names, feet, strict=True)
+                     if f.toe is not None}
+    return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)

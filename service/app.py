@@ -5,12 +5,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import AsyncIterator, Callable, Mapping
 
+import anyio
 from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
-from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from . import problems
 from .kinds import Kind, default_kinds
@@ -54,7 +56,7 @@ class BodyLimit:
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Refuse before the body is read."""
-        if scope["type"] == "http" and scope["path"] != "/v1/recordings":
+        if scope["type"] == "http" and scope["path"] != UPLOAD_PATH:
             length = dict(scope["headers"]).get(b"content-length", b"0")
             if length.isdigit() and int(length) > MAX_JSON_BYTES:
                 problem = Problem(413, "Request too large", f"bodies other than uploads are "
@@ -64,6 +66,116 @@ class BodyLimit:
                 await response(scope, receive, send)
                 return
         await self.app(scope, receive, send)
+
+
+UPLOAD_PATH = "/v1/recordings"
+
+
+class ErrorBoundary:
+    """ASGI middleware just outside the exception handlers: an exception none of them took
+    is answered here with the 503 (outage) or 500 problem, and the connection stays usable.
+
+    Starlette's own last resort, ``ServerErrorMiddleware``, re-raises after answering, and the
+    server then logs a second traceback and drops the keep-alive connection. An error after
+    the response started cannot be answered any more: it goes on up (the server closes)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Run the app; answer what escapes it."""
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracking_send)
+        except Exception as exc:
+            if started:
+                raise
+            problem = problems.error_problem(exc, scope["method"], scope["path"])
+            response = JSONResponse(problem.body(scope["path"]), status_code=problem.status,
+                                    media_type=problems.MEDIA_TYPE, headers=problem.headers)
+            await response(scope, receive, send)
+
+
+class BodyGuard:
+    """ASGI middleware: an idle timeout on request bodies, and a cap on concurrent uploads.
+
+    While a request's body is incomplete, each wait for its next chunk is limited to
+    ``body_timeout`` seconds, and after the first ``body_timeout`` seconds the body must have
+    arrived at ``min_rate`` bytes per second on average (else :class:`problems.BodyTimeout`, a
+    408 problem, and the connection is closed: a client trickling a byte a second is shed).
+    Past ``max_uploads`` uploads in progress, another is answered 503 with ``Retry-After``
+    before its body is read, so slow clients cannot pile up threads, buffers and file
+    descriptors."""
+
+    def __init__(self, app: ASGIApp, *, body_timeout: float, min_rate: float,
+                 max_uploads: int) -> None:
+        self.app = app
+        self.body_timeout = body_timeout
+        self.min_rate = min_rate
+        self.max_uploads = max_uploads
+        self.uploads = 0
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Guard one request."""
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        receive = self._timed(receive)
+        if scope["method"] != "POST" or scope["path"] != UPLOAD_PATH:
+            await self.app(scope, receive, send)
+            return
+        if self.uploads >= self.max_uploads:
+            await self._busy(scope, receive, send)
+            return
+        self.uploads += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.uploads -= 1
+
+    def _timed(self, receive: Receive) -> Receive:
+        complete = False
+        started, received = time.monotonic(), 0
+
+        async def timed_receive() -> Message:
+            nonlocal complete, received
+            if complete:  # e.g. waiting for the client to disconnect: no limit
+                return await receive()
+            try:
+                with anyio.fail_after(self.body_timeout):
+                    message = await receive()
+            except TimeoutError:
+                raise problems.BodyTimeout(self.body_timeout) from None
+            complete = message["type"] != "http.request" or not message.get("more_body")
+            received += len(message.get("body", b""))
+            elapsed = time.monotonic() - started
+            if (not complete and elapsed > self.body_timeout
+                    and received < self.min_rate * elapsed):
+                raise problems.BodyTimeout(self.body_timeout, rate=received / elapsed,
+                                           min_rate=self.min_rate)
+            return message
+
+        return timed_receive
+
+    async def _busy(self, scope: Scope, receive: Receive, send: Send) -> None:
+        log.warning("%d uploads in progress: refusing another with 503", self.uploads)
+        problem = Problem(503, "Too many uploads", f"{self.max_uploads} uploads are in "
+                          "progress, the most this server takes at once; retry later",
+                          slug="too-many-uploads", headers={"Retry-After": "5",
+                                                            "Connection": "close"},
+                          max_concurrent_uploads=self.max_uploads)
+        response = JSONResponse(problem.body(scope["path"]), status_code=503,
+                                media_type=problems.MEDIA_TYPE, headers=problem.headers)
+        await response(scope, receive, send)
 
 
 def create_app(settings: Settings | None = None, *, runtime: Runtime | None = None,
@@ -92,6 +204,10 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
     app.state.kinds = kinds
     app.state.registry, app.state.upload_bytes = build_registry(runtime, sorted(kinds))
     problems.install(app)
+    app.add_middleware(ErrorBoundary)  # innermost: right outside the exception handlers
+    app.add_middleware(BodyGuard, body_timeout=runtime.settings.body_timeout_seconds,
+                       min_rate=runtime.settings.body_min_bytes_per_second,
+                       max_uploads=runtime.settings.max_concurrent_uploads)
     app.add_middleware(BodyLimit)
     app.include_router(v1)
     app.include_router(ops)

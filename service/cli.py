@@ -83,7 +83,9 @@ def serve(args: argparse.Namespace) -> int:
     try:
         uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port,
                                       log_level=settings.log_level, access_log=False,
-                                      timeout_graceful_shutdown=10)).run()
+                                      timeout_graceful_shutdown=10,
+                                      limit_concurrency=settings.max_connections,
+                                      timeout_keep_alive=settings.keep_alive_seconds)).run()
     finally:
         if pool is not None:
             pool.stop()

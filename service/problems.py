@@ -11,6 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.routing import Match
 
 from estimation.errors import BonefitError, EstimationError
 
@@ -66,19 +67,86 @@ def response(problem: Problem, request: Request) -> JSONResponse:
 def _location(loc: tuple[int | str, ...], tags: set[str]) -> str:
     if len(loc) > 1 and loc[0] == "body" and loc[1] in tags:
         loc = loc[:1] + loc[2:]  # the discriminated union's tag is not part of the body
+    if len(loc) == 2 and loc[0] == "header":  # idempotency_key -> Idempotency-Key
+        return "-".join(w.capitalize() for w in str(loc[1]).replace("_", "-").split("-"))
     parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
     return ".".join(parts) or ".".join(str(p) for p in loc)
 
 
-def _is_outage(exc: Exception) -> bool:
-    """Whether ``exc`` says a back-end is down (answered 503, not 500)."""
+def outage_types() -> tuple[type[Exception], ...]:
+    """The exceptions that say a back-end (database, queue, storage) is down: 503, not 500."""
+    import botocore.exceptions
     import redis.exceptions
     import sqlalchemy.exc
 
-    outages = (sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError,
-               sqlalchemy.exc.TimeoutError, redis.exceptions.ConnectionError,
-               redis.exceptions.TimeoutError, ConnectionError, TimeoutError)
-    return isinstance(exc, outages)
+    return (sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError,
+            sqlalchemy.exc.TimeoutError, redis.exceptions.ConnectionError,
+            redis.exceptions.TimeoutError, botocore.exceptions.ConnectionError,
+            botocore.exceptions.ConnectTimeoutError, botocore.exceptions.ReadTimeoutError,
+            ConnectionError, TimeoutError)
+
+
+def is_outage(exc: BaseException) -> bool:
+    """Whether ``exc`` says a back-end is down (answered 503, not 500)."""
+    return isinstance(exc, outage_types())
+
+
+UNAVAILABLE_RETRY_SECONDS = 5
+
+
+def unavailable() -> Problem:
+    """503 for a back-end that is down."""
+    return Problem(503, "Service unavailable", "a back-end (database, queue or storage) is "
+                   "unreachable; retry later", slug="unavailable",
+                   headers={"Retry-After": str(UNAVAILABLE_RETRY_SECONDS)})
+
+
+def internal() -> Problem:
+    """500 for an unexpected error (logged with its traceback, never shown)."""
+    return Problem(500, "Internal server error",
+                   "the server failed to handle the request; it has been logged",
+                   slug="internal")
+
+
+def error_problem(exc: BaseException, method: str, path: str) -> Problem:
+    """Log an exception no handler took, and the 503 (outage) or 500 problem answering it."""
+    if is_outage(exc):
+        log.error("back-end unavailable on %s %s: %s: %s", method, path, type(exc).__name__,
+                  str(exc).splitlines()[0] if str(exc) else "")
+        return unavailable()
+    log.error("unhandled error on %s %s", method, path, exc_info=exc)
+    return internal()
+
+
+class BodyTimeout(StarletteHTTPException):
+    """The client sent nothing of its request body for too long (408).
+
+    An HTTPException so that FastAPI's body reading passes it on instead of turning it into
+    a 400 "error parsing the body"."""
+
+    def __init__(self, seconds: float, *, rate: float | None = None,
+                 min_rate: float | None = None) -> None:
+        if rate is None:
+            detail = f"no byte of the request body arrived for {seconds:g} s"
+        else:
+            detail = (f"the request body arrived at {rate:.0f} bytes/s, under the minimum of "
+                      f"{min_rate:g} bytes/s")
+        super().__init__(408, detail)
+        self.seconds = seconds
+
+
+METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """Every method some route answers on the request's path (for a 405's ``Allow``).
+
+    Each method is tried against the routes: routers included in others hide their routes'
+    methods, but a route of the path matches the method it answers in full."""
+    routes = request.app.router.routes
+    return [method for method in METHODS
+            if any(route.matches({**request.scope, "method": method})[0] is Match.FULL
+                   for route in routes)]
 
 
 def install(app: FastAPI) -> None:
@@ -97,12 +165,29 @@ def install(app: FastAPI) -> None:
         titles = {404: "Not found", 405: "Method not allowed"}
         title = titles.get(exc.status_code, "HTTP error")
         detail = exc.detail if isinstance(exc.detail, str) else title
+        headers = dict(exc.headers or {})
         if exc.status_code == 404 and detail == "Not Found":
             detail = f"no route {request.url.path!r}"
         elif exc.status_code == 405:
-            detail = f"{request.method} is not allowed on {request.url.path!r}"
-        problem = Problem(exc.status_code, title, detail, headers=dict(exc.headers or {}))
+            allowed = allowed_methods(request)
+            headers["Allow"] = ", ".join(allowed)
+            detail = (f"{request.method} is not allowed on {request.url.path!r}; allowed: "
+                      f"{', '.join(allowed)}")
+        problem = Problem(exc.status_code, title, detail, headers=headers)
         return response(problem, request)
+
+    async def on_body_timeout(request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, BodyTimeout)
+        log.info("request body too slow on %s %s: %s; answered 408", request.method,
+                 request.url.path, exc.detail)
+        problem = Problem(408, "Request body timeout", str(exc.detail), slug="body-timeout",
+                          headers={"Connection": "close"}, timeout_seconds=exc.seconds)
+        return response(problem, request)
+
+    async def on_outage(request: Request, exc: Exception) -> JSONResponse:
+        # registered per type so it answers from ExceptionMiddleware: ServerErrorMiddleware
+        # (the Exception handler) re-raises, and the server then drops the connection
+        return response(error_problem(exc, request.method, request.url.path), request)
 
     async def on_validation(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
@@ -125,21 +210,15 @@ def install(app: FastAPI) -> None:
                                 slug="client-disconnected"), request)
 
     async def on_error(request: Request, exc: Exception) -> JSONResponse:
-        if _is_outage(exc):
-            log.error("back-end unavailable on %s %s: %s", request.method, request.url.path,
-                      type(exc).__name__)
-            return response(Problem(503, "Service unavailable", "a back-end (database, queue or "
-                                    "storage) is unreachable; retry later", slug="unavailable",
-                                    headers={"Retry-After": "5"}), request)
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        problem = Problem(500, "Internal server error",
-                          "the server failed to handle the request; it has been logged",
-                          slug="internal")
-        return response(problem, request)
+        # last resort (ServerErrorMiddleware): errors raised outside the ErrorBoundary
+        return response(error_problem(exc, request.method, request.url.path), request)
 
     app.add_exception_handler(Problem, on_problem)
     app.add_exception_handler(BonefitError, on_bonefit)
     app.add_exception_handler(StarletteHTTPException, on_http)
+    app.add_exception_handler(BodyTimeout, on_body_timeout)
+    for outage in outage_types():
+        app.add_exception_handler(outage, on_outage)
     app.add_exception_handler(RequestValidationError, on_validation)
     app.add_exception_handler(ClientDisconnect, on_disconnect)
     app.add_exception_handler(Exception, on_error)

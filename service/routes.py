@@ -23,7 +23,14 @@ from .artifacts import tenant_prefix
 from .auth import metrics_guard, tenant
 from .jobs import TERMINAL, Job, Recording, new_id
 from .kinds import MEDIA_TYPES
-from .problems import MEDIA_TYPE, Problem, not_found
+from .problems import (
+    MEDIA_TYPE,
+    UNAVAILABLE_RETRY_SECONDS,
+    Problem,
+    not_found,
+    outage_types,
+    unavailable,
+)
 from .runtime import Runtime
 from .schemas import (
     JobCreate,
@@ -36,7 +43,7 @@ from .schemas import (
     UploadFormat,
 )
 from .storage import free_bytes, is_storage_full, refuse_when_full, storage_full
-from .uploads import UploadSink, receive_multipart, receive_raw, sniff, too_large
+from .uploads import UploadSink, cap_summary, receive_multipart, receive_raw, sniff, too_large
 
 log = logging.getLogger("bonefit.service")
 
@@ -52,7 +59,7 @@ MULTIPART_OVERHEAD = 64 * 1024
 PROBLEM_RESPONSES: dict[int | str, dict[str, Any]] = {
     code: {"description": "Problem details (RFC 9457)",
            "content": {MEDIA_TYPE: {"schema": {"type": "object"}}}}
-    for code in (400, 401, 403, 404, 409, 413, 422, 503)}
+    for code in (400, 401, 403, 404, 408, 409, 413, 422, 503)}
 
 v1 = APIRouter(prefix="/v1", responses=PROBLEM_RESPONSES)
 ops = APIRouter()
@@ -64,12 +71,36 @@ def runtime_of(request: Request) -> Runtime:
     return runtime
 
 
+MAX_FILENAME_BYTES = 200
+"""Longest stored file name in UTF-8 bytes (file systems allow 255 bytes, not characters)."""
+MAX_CONTENT_TYPE_CHARS = 200
+"""Longest stored media type (the job store's column)."""
+
+
 def _clean_filename(name: str | None) -> str | None:
-    """The base name without control characters (they break logs and some databases)."""
+    """The base name without control characters (they break logs and some databases),
+    cut to ``MAX_FILENAME_BYTES`` UTF-8 bytes, keeping its extension."""
     if not name:
         return None
     name = "".join(c for c in name if c.isprintable()).replace("\\", "/").rsplit("/", 1)[-1]
-    return None if name in ("", ".", "..") else name[:200]
+    if name in ("", ".", ".."):
+        return None
+    if len(name.encode()) > MAX_FILENAME_BYTES:
+        suffix = _suffix(name)
+        stem = name[:len(name) - len(suffix)].encode()[:MAX_FILENAME_BYTES - len(suffix)]
+        name = stem.decode("utf-8", "ignore") + suffix  # "ignore": a character cut in two
+    return name
+
+
+def _stored_content_type(value: str, field: str) -> str:
+    """``value`` if it can be stored as a recording's media type, else the 422 problem."""
+    if len(value) > MAX_CONTENT_TYPE_CHARS or not value.isprintable():
+        what = (f"{len(value)} characters" if len(value) > MAX_CONTENT_TYPE_CHARS
+                else "a control character")
+        raise Problem(422, "Invalid request", f"{field}: expected a media type of at most "
+                      f"{MAX_CONTENT_TYPE_CHARS} printable characters, got {what}",
+                      slug="invalid-request", field=field)
+    return value
 
 
 def _suffix(filename: str | None) -> str:
@@ -118,7 +149,8 @@ async def upload_recording(
     runtime = runtime_of(request)
     settings = runtime.settings
     limit = settings.max_upload_bytes
-    content_type = request.headers.get("content-type", "application/octet-stream")
+    content_type = _stored_content_type(
+        request.headers.get("content-type", "application/octet-stream"), "Content-Type")
     multipart = content_type.lower().startswith("multipart/form-data")
     length = request.headers.get("content-length")
     if length and length.isdigit() and int(length) > limit + (MULTIPART_OVERHEAD if multipart
@@ -137,7 +169,8 @@ async def upload_recording(
         if multipart:
             part_name, part_type = await receive_multipart(request.stream(), content_type, sink)
             filename = filename or _clean_filename(part_name)
-            content_type = part_type or "application/octet-stream"
+            content_type = (_stored_content_type(part_type, "file.Content-Type") if part_type
+                            else "application/octet-stream")
         else:
             await receive_raw(request.stream(), sink)
         await sink.close()
@@ -154,7 +187,7 @@ async def upload_recording(
         rec = Recording(id=rec_id, tenant=who, key=key,
                         filename=filename, content_type=content_type, format=fmt,
                         size=sink.size, sha256=sink.sha256.hexdigest(), created_at=time.time(),
-                        summary=_plain(summary))
+                        summary=cap_summary(_plain(summary)))
         storage = "artifact storage"
         await run_in_threadpool(runtime.artifacts.put_file, rec.key, path)
         try:
@@ -227,7 +260,10 @@ def _job_response(job: Job, status_code: int = 200,
          responses={202: {"headers": {"Location": {"schema": {"type": "string"}}}}})
 async def create_job(
     request: Request, who: Tenant, body: Annotated[JobCreate, Body()],
-    idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
+    idempotency_key: Annotated[str | None, Header(
+        min_length=1, max_length=255, pattern=r"^[\x21-\x7e]([\x20-\x7e]*[\x21-\x7e])?$",
+        description="1 to 255 printable ASCII characters, not starting or ending with a "
+                    "space.")] = None,
 ) -> JSONResponse:
     """Validate params for the kind, check the recordings exist, queue the job."""
     runtime = runtime_of(request)
@@ -339,6 +375,13 @@ async def cancel_job(request: Request, who: Tenant, job_id: str) -> JSONResponse
                   slug="job-finished", job_status=job.status)
 
 
+def _event_version(last_event_id: str | None) -> int:
+    """The job version a reconnecting client has seen, -1 for none or for an id this server
+    never sent (only event ids it sent, decimal versions, skip anything)."""
+    text = (last_event_id or "").strip()
+    return int(text) if text.isascii() and text.isdigit() and len(text) <= 18 else -1
+
+
 @v1.get("/jobs/{job_id}/events", summary="Follow a job (Server-Sent Events)",
         response_class=StreamingResponse,
         responses={200: {"content": {"text/event-stream": {}}}})
@@ -349,12 +392,20 @@ async def job_events(request: Request, who: Tenant, job_id: str,
     a reconnecting client's ``Last-Event-ID`` (a job version) skips what it has seen."""
     await _job(request, who, job_id)
     store = runtime_of(request).store
-    seen = int(last_event_id) if last_event_id and last_event_id.strip().isdigit() else -1
+    seen = _event_version(last_event_id)
 
     async def stream() -> AsyncIterator[str]:
         version, status, quiet_since = seen, None, time.monotonic()
         while True:
-            job = await run_in_threadpool(store.get_job, job_id, who)
+            try:
+                job = await run_in_threadpool(store.get_job, job_id, who)
+            except outage_types():
+                # the response has started: no 503 any more, but an event the client can act
+                # on (reconnect with Last-Event-ID after the hinted delay), not a cut stream
+                problem = unavailable().body(request.url.path)
+                yield f"retry: {UNAVAILABLE_RETRY_SECONDS * 1000}\nevent: error\n" \
+                      f"data: {json.dumps(problem)}\n\n"
+                return
             if job is None:
                 yield "event: end\ndata: {}\n\n"
                 return

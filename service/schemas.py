@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from .jobs import Job, Recording
 from .kinds import RecordingFormat, SkeletonParams, TranslationParams
 from .kinds import ResultFormat as ResultFormat  # re-exported: the API names it here
+from .uploads import cap_summary
 
 UploadFormat = Literal["auto", RecordingFormat]
 Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
@@ -31,14 +32,17 @@ class RecordingOut(BaseModel):
     sha256: str
     format: str
     created_at: datetime
-    summary: dict[str, Any] = Field(description="What a quick sniff found: frames, sensors...")
+    summary: dict[str, Any] = Field(description="What a quick sniff found: frames, sensors... "
+                                    "(at most 16 KiB of JSON; a list cut to its first 256 "
+                                    "items has a <key>_total member)")
 
     @classmethod
     def of(cls, rec: Recording) -> RecordingOut:
         """The representation of ``rec``."""
         return cls(id=rec.id, filename=rec.filename, content_type=rec.content_type,
                    size=rec.size, sha256=rec.sha256, format=rec.format,
-                   created_at=datetime.fromtimestamp(rec.created_at, UTC), summary=rec.summary)
+                   created_at=datetime.fromtimestamp(rec.created_at, UTC),
+                   summary=cap_summary(rec.summary))  # also rows stored before the cap
 
 
 class RecordingPage(BaseModel):

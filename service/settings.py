@@ -27,6 +27,18 @@ class Settings(BaseSettings):
         None, description="Bearer token /metrics requires; unset: open (loopback only "
                           "without API keys).")
     max_upload_bytes: int = Field(2 * 1024**3, gt=0)
+    max_concurrent_uploads: int = Field(
+        16, ge=1, description="Uploads in progress at once per API process; more: 503.")
+    body_timeout_seconds: float = Field(
+        30.0, gt=0, description="Longest wait for the next chunk of a request body; then 408.")
+    body_min_bytes_per_second: float = Field(
+        1024.0, ge=0, description="Average rate a request body must keep after its first "
+                                  "body_timeout_seconds (0: none); slower: 408.")
+    max_connections: int = Field(
+        500, ge=1, description="Open connections and requests per API process (uvicorn "
+                               "limit_concurrency); more: 503.")
+    keep_alive_seconds: int = Field(5, ge=1, description="Idle keep-alive connections are "
+                                                          "closed after this long.")
     lease_seconds: float = Field(30.0, gt=0)
     max_attempts: int = Field(3, ge=1)
     job_timeout_seconds: float = Field(

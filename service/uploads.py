@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import mmap
 import os
 import queue
@@ -17,7 +18,8 @@ import anyio.to_thread
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 
 from estimation.errors import BonefitError, InputError
-from estimation.io.kinematics import sniff_kinematics
+from estimation.io import limits
+from estimation.io.kinematics import acceleration_header, acceleration_sensors, sniff_kinematics
 from estimation.io.sensors import RowCounter, sniff_recording
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
@@ -27,6 +29,10 @@ BLOCK_BYTES = 2 * 1024 * 1024
 POOL_BLOCKS = 6
 DIRECT_ALIGN = 4096  # O_DIRECT writes: whole blocks of the file system at aligned offsets
 _DONE = None
+SUMMARY_BYTES = 16 * 1024
+"""Hard cap on a recording's stored summary, as JSON (documented in docs/service.md)."""
+SUMMARY_ITEMS = 256
+SUMMARY_STRING = 256
 
 
 def _open_direct(path: Path) -> int | None:
@@ -80,12 +86,11 @@ class UploadSink:
         self._buf: mmap.mmap | None = None
         self._fill = 0
         self._free: queue.SimpleQueue[mmap.mmap] = queue.SimpleQueue()
-        for _ in range(POOL_BLOCKS):
-            self._free.put(mmap.mmap(-1, BLOCK_BYTES))  # page-aligned, as O_DIRECT needs
+        self._blocks = 0
         self._error: BaseException | None = None
         self._stopped = False
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        self._direct = _open_direct(path)
+        self._fd = -1
+        self._direct: int | None = None
         self._offset = 0
         stages = [self._hash, *([self._count] if count_rows else []), self._write]
         self._queues: list[queue.SimpleQueue[tuple[mmap.mmap, int] | None]] = [
@@ -94,6 +99,14 @@ class UploadSink:
             threading.Thread(target=self._run_stage, args=(i, stage), daemon=True,
                              name=f"upload{stage.__name__}")
             for i, stage in enumerate(stages)]
+
+    def _start(self) -> None:
+        """Open the file and start the threads, once there is a block to hand on (an upload
+        still waiting for its first ``BLOCK_BYTES``, e.g. a slow client, holds neither)."""
+        if self._fd >= 0 or self._threads[0].is_alive():
+            return
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._direct = _open_direct(self.path)
         for thread in self._threads:
             thread.start()
 
@@ -151,13 +164,18 @@ class UploadSink:
     async def _take(self) -> mmap.mmap:
         try:
             return self._free.get_nowait()
-        except queue.Empty:  # backpressure: the disk is behind the network
+        except queue.Empty:
+            if self._blocks < POOL_BLOCKS:  # the pool grows as the upload does
+                self._blocks += 1
+                return mmap.mmap(-1, BLOCK_BYTES)  # page-aligned, as O_DIRECT needs
+            # backpressure: the disk is behind the network
             return await anyio.to_thread.run_sync(self._free.get)
 
     def _hand_over(self) -> None:
         if self._error is not None:
             raise self._error
         if self._buf is not None and self._fill:
+            self._start()
             self._queues[0].put((self._buf, self._fill))
             self._buf, self._fill = None, 0
 
@@ -182,6 +200,7 @@ class UploadSink:
     async def close(self) -> None:
         """Flush, wait for the threads, and close the file."""
         await self.drain(force=True)
+        self._start()  # an empty upload still makes an (empty) file
         self._queues[0].put(_DONE)
         for thread in self._threads:
             await anyio.to_thread.run_sync(thread.join)
@@ -195,7 +214,8 @@ class UploadSink:
             self._stopped = True  # the threads skip what is still queued
             self._queues[0].put(_DONE)
         for thread in self._threads:
-            thread.join()
+            if thread.ident is not None:  # started
+                thread.join()
         self._close_files()
         self.path.unlink(missing_ok=True)
 
@@ -223,7 +243,7 @@ async def receive_multipart(chunks: AsyncIterator[bytes], content_type: str,
         state["in_file"] = False
 
     def on_header_field(data: bytes, start: int, end: int) -> None:
-        state["field"] += data[start:end]
+        state["field"] += data[start:end]  # bounded by the parser (max_header_size)
 
     def on_header_value(data: bytes, start: int, end: int) -> None:
         state["value"] += data[start:end]
@@ -290,36 +310,97 @@ def clean_spool(spool: Path, max_age: float = 3600.0) -> int:
 
 
 def _sniff_accelerations(path: Path) -> dict[str, Any]:
+    """Columns, sensors and rows of an accelerations CSV, reading one bounded line at a
+    time; InputError unless the header has a time column and a ``.ax/.ay/.az`` sensor."""
     header: list[str] | None = None
+    header_line = 0
     frames = 0
-    with path.open(encoding="utf-8-sig", errors="strict") as fh:
-        for text in fh:
-            line = text.strip()
-            if not line or line.startswith("#"):
+    with path.open(encoding="utf-8-sig", errors="replace", newline="") as fh:
+        for line, text in enumerate(limits.bounded_lines(fh), 1):
+            stripped = text.strip()
+            if not stripped or stripped.startswith("#"):
                 continue
             if header is None:
-                header = [c.strip() for c in line.split(",")]
-                if len(header) < 2 or not any(c[:1].isalpha() for c in header):
-                    raise InputError("expected a header line of column names", line=1,
-                                     field="header")
+                header, header_line = _acceleration_columns(stripped, line), line
                 continue
             frames += 1
     if header is None:
         raise InputError("empty file: no header line", line=1, field="header")
-    return {"format": "accelerations-csv", "frames": frames, "columns": header}
+    limits.check_rows(frames, len(header))
+    names, _ = acceleration_header(header)
+    if not any(n.lower() in ("time", "t") for n in names):
+        raise InputError("not an accelerations CSV: the header has no time column",
+                         line=header_line, field="time")
+    sensors = acceleration_sensors(names)
+    if not sensors:
+        raise InputError("not an accelerations CSV: the header has no <Sensor>.ax,.ay,.az "
+                         "columns", line=header_line, field="header")
+    return {"format": "accelerations-csv", "frames": frames, "columns": header,
+            "sensors": sensors}
+
+
+def _acceleration_columns(line_text: str, line: int) -> list[str]:
+    header = [c.strip() for c in line_text.split(",")]
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
+    if len(header) < 2 or not any(c[:1].isalpha() for c in header):
+        raise InputError("expected a header line of column names", line=line, field="header")
+    for name in header:
+        limits.check_count("characters in a column name", len(name), "MAX_NAME_CHARS",
+                           line=line, field="header")
+    return header
 
 
 def sniff(path: Path, fmt: str, filename: str | None,
           counted_rows: int | None = None) -> tuple[str, dict[str, Any]]:
     """The API format name and quick summary of the file (``counted_rows``: its rows, counted
-    while it was received); InputError when it is unreadable."""
+    while it was received); InputError when it is unreadable or is not the declared ``fmt``
+    (its detail then names the format)."""
     try:
         return _sniff(path, fmt, filename, counted_rows)
-    except BonefitError:
+    except BonefitError as exc:
+        if fmt != "auto" and not exc.detail.startswith("format="):
+            exc.detail = f"format={fmt}: {exc.detail}"
+            exc.args = (exc.detail,)
         raise
     except Exception as exc:  # whatever a reader trips on in a client's file, the file is bad
         raise InputError(f"cannot read the file as {fmt}: {type(exc).__name__}",
                          field="file") from None
+
+
+def cap_summary(summary: dict[str, Any], limit: int = SUMMARY_BYTES) -> dict[str, Any]:
+    """``summary`` cut to at most ``limit`` bytes of JSON, so that a listing never re-serves
+    bulk data whatever a file declares: strings keep their first ``SUMMARY_STRING``
+    characters and lists their first ``SUMMARY_ITEMS`` items, then fewer until it fits; a cut
+    list's ``<key>_total`` member gives its length."""
+    if _json_size(summary) <= limit:
+        return summary
+    items = SUMMARY_ITEMS
+    while True:
+        out: dict[str, Any] = {}
+        for key, value in summary.items():
+            if isinstance(value, list):
+                out[key] = [_cap_scalar(v) for v in value[:items]]
+                if len(value) > items:
+                    out[f"{key}_total"] = len(value)
+            else:
+                out[key] = _cap_scalar(value)
+        if _json_size(out) <= limit:
+            return out
+        if items == 0:
+            return {"truncated": True}
+        items //= 4
+
+
+def _cap_scalar(value: Any) -> Any:
+    if isinstance(value, str) and len(value) > SUMMARY_STRING:
+        return value[:SUMMARY_STRING] + "…"
+    if isinstance(value, dict | list):
+        return None if _json_size(value) > SUMMARY_STRING else value
+    return value
+
+
+def _json_size(value: Any) -> int:
+    return len(json.dumps(value, separators=(",", ":"), default=str).encode())
 
 
 def _sniff(path: Path, fmt: str, filename: str | None,

@@ -82,148 +82,110 @@ def test_worker_preload_loads_what_the_kinds_run() -> None:
     run_fresh(code)
 
 
-# --------------------------------------------------------------------------- module graph
+# ------------------------------------------------- private names and import cycles (issue 18 §3)
 
 PACKAGES = ("estimation", "service")
-
-PRIVATE_IMPORTS_ALLOWED: set[tuple[str, str]] = {
-    # issue 18 §1/§3 (a18-core/a18-skel): slip's shared model reuses the joint equations'
-    # slip basis and noise variance; they become public where slip and joints settle
-    ("estimation.slip", "estimation.joints._slip_basis"),
-    ("estimation.slip", "estimation.joints._white_variance"),
-}
-"""(importing module, imported private name) pairs still to be made public, with the issue."""
-
-CYCLES_ALLOWED: set[frozenset[str]] = {
-    # issue 18 §3 (a18-core): mvnx takes KinematicsRecording and GRAVITY from io/kinematics,
-    # which dispatches to mvnx; they move to a core module
-    frozenset({"estimation.io.kinematics", "estimation.io.mvnx"}),
-    # issue 18 §3 (a18-io, after h16-uploads): tracker takes UNITS and fps_from_time from
-    # io/sensors, which dispatches to tracker; the sensors split gives them their own module
-    frozenset({"estimation.io.sensors", "estimation.io.tracker"}),
-}
-"""Import cycles (the set of their modules) still to be broken, with the issue."""
+# Private helpers of estimation/io still imported elsewhere: the io engineers make them public
+# (issue 18 §3); each entry is (importing module, name). Do not add to this list.
+KNOWN_PRIVATE_IMPORTS: set[tuple[str, str]] = set()
 
 
-def module_name(path: Path, root: Path = ROOT) -> str:
-    parts = list(path.relative_to(root).with_suffix("").parts)
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+def module_files(root: Path) -> dict[str, Path]:
+    """Dotted module name -> file of every module of ``PACKAGES`` under ``root``."""
+    out = {}
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join(parts)] = path
+    return out
 
 
-def project_modules(root: Path = ROOT) -> dict[str, Path]:
-    return {module_name(p, root): p
-            for package in PACKAGES for p in sorted((root / package).rglob("*.py"))}
-
-
-def _type_checking_only(tree: ast.Module) -> set[int]:
-    """ids of the import nodes under ``if TYPE_CHECKING:`` (no run-time dependency)."""
-    skipped: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            skipped.update(id(child) for stmt in node.body for child in ast.walk(stmt))
-    return skipped
-
-
-def imports_of(name: str, path: Path, modules: dict[str, Path]) -> list[tuple[str, str]]:
-    """(imported module, imported name or "") for every run-time import of a project module,
-    at module level or inside a function; relative imports resolved."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    skipped = _type_checking_only(tree)
+def imported_modules(name: str, path: Path, modules: dict[str, Path],
+                     node: ast.ImportFrom) -> list[tuple[str, str]]:
+    """(module, imported name) per name of a ``from ... import`` statement: the module the
+    name comes from, or the submodule itself when the name is one."""
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-    found: list[tuple[str, str]] = []
-    for node in ast.walk(tree):
-        if id(node) in skipped:
-            continue
-        if isinstance(node, ast.Import):
-            found.extend((a.name, "") for a in node.names if a.name.split(".")[0] in PACKAGES)
-        elif isinstance(node, ast.ImportFrom):
-            base = package[:len(package) - node.level + 1] if node.level else []
-            target = ".".join([*base, *([node.module] if node.module else [])])
-            if target.split(".")[0] not in PACKAGES:
-                continue
-            for alias in node.names:
-                sub = f"{target}.{alias.name}"
-                found.append((sub, "") if sub in modules else (target, alias.name))
+    if node.level:
+        parts = package[:len(package) - (node.level - 1)]
+        source = ".".join(parts + ([node.module] if node.module else []))
+    else:
+        source = node.module or ""
+    return [(f"{source}.{a.name}" if f"{source}.{a.name}" in modules else source, a.name)
+            for a in node.names]
+
+
+def private_imports(root: Path) -> set[tuple[str, str]]:
+    """(importing module, name) of every ``_name`` imported from another module (private
+    modules such as ``_rows`` are allowed inside their package), and of every
+    ``module._name`` attribute read through an imported module."""
+    modules = module_files(root)
+    found = set()
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        aliases = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                for source, imported in imported_modules(name, path, modules, node):
+                    alias = next(a.asname or a.name for a in node.names if a.name == imported)
+                    if source.endswith(f".{imported}") or source == imported:
+                        aliases.add(alias)  # a module
+                    elif imported.startswith("_") and not imported.startswith("__"):
+                        found.add((name, imported))
+            elif isinstance(node, ast.Import):
+                aliases.update(a.asname or a.name.split(".")[0] for a in node.names)
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                    and node.value.id in aliases and node.attr.startswith("_")
+                    and not node.attr.startswith("__")):
+                found.add((name, f"{node.value.id}.{node.attr}"))
     return found
 
 
-def private_imports(modules: dict[str, Path]) -> set[tuple[str, str]]:
-    """(module, private name) pairs: a ``_name`` taken from another module. A package's own
-    ``_module`` (``estimation._rows``) is private to that package and may be imported in it."""
-    bad: set[tuple[str, str]] = set()
+def import_cycles(root: Path) -> list[list[str]]:
+    """Cycles (strongly connected groups) of the module-level imports between modules of
+    ``PACKAGES``; imports inside functions or ``if TYPE_CHECKING:`` do not count."""
+    modules = module_files(root)
+    graph: dict[str, set[str]] = {}
     for name, path in modules.items():
-        for target, attr in imports_of(name, path, modules):
-            if attr.startswith("_") and not attr.startswith("__"):
-                bad.add((name, f"{target}.{attr}"))
-            private = [p for p in target.split(".") if p.startswith("_") and p != "__init__"]
-            owner = target.rsplit(".", 1)[0]
-            if private and not (name == owner or name.startswith(owner + ".")):
-                bad.add((name, target))
-    return bad
-
-
-def import_cycles(modules: dict[str, Path]) -> list[frozenset[str]]:
-    """Strongly connected components of more than one module (Tarjan's algorithm)."""
-    graph = {name: {t for t, _ in imports_of(name, path, modules) if t in modules and t != name}
-             for name, path in modules.items()}
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    cycles: list[frozenset[str]] = []
-
-    def visit(node: str) -> None:
-        index[node] = low[node] = len(index)
-        stack.append(node)
-        for nxt in graph[node]:
-            if nxt not in index:
-                visit(nxt)
-                low[node] = min(low[node], low[nxt])
-            elif nxt in stack:
-                low[node] = min(low[node], index[nxt])
-        if low[node] == index[node]:
-            component = set()
-            while True:
-                member = stack.pop()
-                component.add(member)
-                if member == node:
-                    break
-            if len(component) > 1:
-                cycles.append(frozenset(component))
-
-    for name in sorted(graph):
-        if name not in index:
-            visit(name)
-    return cycles
+        deps: set[str] = set()
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.ImportFrom):
+                deps.update(s for s, _ in imported_modules(name, path, modules, node)
+                            if s in modules)
+            elif isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names if a.name in modules)
+        graph[name] = deps - {name}
+    reach: dict[str, set[str]] = {name: set() for name in graph}
+    for start in graph:
+        todo = list(graph[start])
+        while todo:
+            nxt = todo.pop()
+            if nxt not in reach[start]:
+                reach[start].add(nxt)
+                todo.extend(graph[nxt])
+    cycles = {tuple(sorted({m} | {o for o in reach[m] if m in reach[o]}))
+              for m in graph if m in reach[m]}
+    return [list(c) for c in sorted(cycles)]
 
 
 def test_no_private_name_is_imported_across_modules() -> None:
-    found = private_imports(project_modules())
-    assert found <= PRIVATE_IMPORTS_ALLOWED, sorted(found - PRIVATE_IMPORTS_ALLOWED)
-    assert not PRIVATE_IMPORTS_ALLOWED - found, "fixed: remove from the allow-list"
+    assert private_imports(ROOT) - KNOWN_PRIVATE_IMPORTS == set()
 
 
 def test_no_import_cycle() -> None:
-    found = set(import_cycles(project_modules()))
-    assert found <= CYCLES_ALLOWED, [sorted(c) for c in found - CYCLES_ALLOWED]
-    assert not CYCLES_ALLOWED - found, "fixed: remove from the allow-list"
+    assert import_cycles(ROOT) == []
 
 
-def test_checkers_catch_a_cycle_and_a_private_import(tmp_path: Path) -> None:
-    files = {
-        "estimation/__init__.py": "from . import _lazy\n",
-        "estimation/_lazy.py": "",
-        "estimation/a.py": "from .b import public\n",
-        "estimation/b.py": "def public(): from .c import _hidden\n",
-        "estimation/c.py": "from typing import TYPE_CHECKING\nimport estimation.a\n"
-                           "if TYPE_CHECKING:\n    from .d import _typed\n",
-        "estimation/d.py": "",
-        "service/__init__.py": "",
-        "service/x.py": "from estimation import _lazy\nfrom estimation.d import thing\n",
-    }
-    for name, text in files.items():
-        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / name).write_text(text)
-    modules = project_modules(tmp_path)
-    assert import_cycles(modules) == [frozenset({"estimation.a", "estimation.b", "estimation.c"})]
-    assert private_imports(modules) == {("estimation.b", "estimation.c._hidden"),
-                                        ("service.x", "estimation._lazy")}
+def test_checkers_catch_a_private_import_and_a_cycle(tmp_path: Path) -> None:
+    package = tmp_path / "estimation"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "_rows.py").write_text("def helper() -> None: ...\n")
+    (package / "a.py").write_text("from . import _rows as rows\nfrom .b import _secret\n")
+    (package / "b.py").write_text("from . import a\n_secret = 1\n")
+    (package / "c.py").write_text("from . import b\nx = b._secret\n")
+    assert private_imports(tmp_path) == {("estimation.a", "_secret"),
+                                         ("estimation.c", "b._secret")}
+    assert import_cycles(tmp_path) == [["estimation.a", "estimation.b"]]

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
+from ..kinematics import is_end_site_name as is_end_site_name  # defined with the recording
 
 LENGTH_UNITS: Final[dict[str, float]] = {
     "m": 1.0,
@@ -93,11 +94,6 @@ def classify(name: str) -> tuple[str | None, str | None]:
     if _FOOT_WORDS & set(words):
         return side, "foot"
     return side, None
-
-
-def is_end_site_name(name: str) -> bool:
-    """Whether a column joint name is an anonymous end site (``EndSite4``, ``Foot_end``)."""
-    return bool(re.fullmatch(r"(?i)end\s*site\d*|.*_end_*", name))
 
 
 @dataclass(frozen=True)

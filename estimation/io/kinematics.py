@@ -24,8 +24,8 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -42,14 +42,16 @@ from ..bvh import (
     write_bvh,
 )
 from ..errors import InputError
+from ..kinematics import GRAVITY as GRAVITY  # re-exported: callers import it from here
+from ..kinematics import KinematicsRecording as KinematicsRecording
 from ..results import timings_document
 from ..vocabulary import KINEMATICS_FORMATS, TRANSLATION_OUTPUT_FORMATS
+from . import limits
 from .body import (
     Feet,
     find_bvh_feet,
     find_column_feet,
     find_toe,
-    is_end_site_name,
     leg_length,
     match_sensor,
     parse_length_unit,
@@ -61,9 +63,6 @@ if TYPE_CHECKING:
     from ..translation import TranslationResult
 
 PathLike = str | os.PathLike[str]
-
-GRAVITY: Final[float] = 9.80665
-"""Standard gravity, m/s²."""
 
 FORMATS: Final[tuple[str, ...]] = KINEMATICS_FORMATS
 """Input formats of :func:`read_kinematics` (besides ``"auto"``)."""
@@ -84,110 +83,6 @@ accelerometer readings (sensor frame, gravity included); ``free-*`` are gravity-
 positions (file length unit per frame²), accepted only when declared."""
 
 
-@dataclass(frozen=True, eq=False)
-class KinematicsRecording:
-    """Global joint positions of an inertial suit plus its foot accelerometers.
-
-    Attributes
-    ----------
-    joints : tuple of str
-        Joint names, length J, in file order.
-    positions : ndarray, shape (F, J, 3)
-        Global joint positions, metres, world frame with +Y up. They may or may not contain
-        a root translation: both estimators replace it.
-    fps : float
-        Frame rate, Hz.
-    time : ndarray, shape (F,)
-        Frame times, seconds.
-    accelerations : mapping of str to ndarray, shape (F, 3)
-        Foot joint name → acceleration, m/s². Frame given by ``acceleration_frame``.
-    acceleration_frame : {"sensor", "world"}
-        ``"sensor"``: accelerometer readings (specific force) in the sensor frame, gravity
-        included (|a| ≈ 9.81 at rest). ``"world"``: gravity-free acceleration in the world
-        frame (+Y up).
-    left_foot, right_foot : str
-        Names of the foot joints (ankles) in ``joints``.
-    toes : mapping of str to str
-        Foot joint → toe joint (or toe end site) used for heel/toe contacts, when present.
-    contacts : mapping of str to ndarray of bool, shape (F,)
-        Foot joint → contact flags read from the file (MVNX footContacts, ``<Foot>.c``
-        columns); empty when the file has none.
-    source_format : str
-        ``"kinematics-csv"``, ``"bvh"`` or ``"mvnx"``.
-    length_scale : float
-        Metres per length unit of the source file (0.01 for cm).
-    columns : tuple of str
-        Kinematics CSV: every column of the file, in order (for passthrough).
-    table : ndarray, shape (F, C) or None
-        Kinematics CSV: every value of the file, in file units.
-    bvh : BvhMotion or None
-        BVH input: the motion (its root translation is what the writer replaces).
-    root : str
-        Name of the root joint whose path is reported (hips).
-    source_path : str or None
-        Path of the file read (the MVNX writer re-streams it).
-    notes : tuple of str
-        What the reader decided (units, toe joints, contact channels).
-    source_subject : int
-        MVNX: 0-based number of the ``<subject>`` read (the writer corrects its frames).
-    """
-
-    joints: tuple[str, ...]
-    positions: NDArray[np.float64]
-    fps: float
-    time: NDArray[np.float64]
-    accelerations: Mapping[str, NDArray[np.float64]]
-    acceleration_frame: str = "sensor"
-    left_foot: str = "LeftFoot"
-    right_foot: str = "RightFoot"
-    toes: Mapping[str, str] = field(default_factory=dict)
-    contacts: Mapping[str, NDArray[np.bool_]] = field(default_factory=dict)
-    source_format: str = "kinematics-csv"
-    length_scale: float = 0.01
-    columns: tuple[str, ...] = ()
-    table: NDArray[np.float64] | None = None
-    bvh: BvhMotion | None = None
-    root: str = ""
-    source_path: str | None = None
-    notes: tuple[str, ...] = ()
-    source_subject: int = 0
-
-    def __post_init__(self) -> None:
-        pos = self.positions
-        if pos.ndim != 3 or pos.shape[1] != len(self.joints) or pos.shape[2] != 3:
-            raise InputError(f"positions must be (F, {len(self.joints)}, 3), got {pos.shape}",
-                             field="positions")
-        if self.acceleration_frame not in ("sensor", "world"):
-            raise InputError("acceleration_frame must be 'sensor' or 'world'",
-                             field="acceleration_frame")
-        for foot in (self.left_foot, self.right_foot):
-            if foot not in self.joints:
-                raise InputError(f"foot joint {foot!r} not found; joints: "
-                                 f"{', '.join(self.real_joints())}", field=foot)
-            acc = self.accelerations.get(foot)
-            if acc is None or acc.shape != (pos.shape[0], 3):
-                raise InputError(f"no (F, 3) accelerations for foot {foot!r}", sensor=foot)
-        if not self.root:
-            object.__setattr__(self, "root", self.joints[0])
-
-    @property
-    def n_frames(self) -> int:
-        """Number of frames F."""
-        return int(self.positions.shape[0])
-
-    def index(self, joint: str) -> int:
-        """Index of ``joint``; InputError listing the joints present otherwise."""
-        try:
-            return self.joints.index(joint)
-        except ValueError:
-            raise InputError(f"joint {joint!r} not found; joints: "
-                             f"{', '.join(self.real_joints())}", field=joint) from None
-
-    def real_joints(self) -> tuple[str, ...]:
-        """Joint names without end sites (``<joint>_end``, ``EndSite4``), for messages."""
-        return tuple(j for j in self.joints if not is_end_site_name(j))
-
-
 # --------------------------------------------------------------------------- helpers
 
 
@@ -199,7 +94,7 @@ def _kinematics_fps(time: NDArray[np.float64]) -> float:
     if not step > 0 or not np.all(steps > 0):
         bad = int(np.argmax(steps <= 0)) + 2
         raise InputError("time must increase from frame to frame", field="Time", line=bad + 1)
-    fps = 1.0 / step
+    fps = limits.check_fps(1.0 / step, field="Time")
     return round(fps, 6) if abs(fps - round(fps, 6)) < 1e-6 * fps else fps
 
 
@@ -273,34 +168,62 @@ def _resolve_acceleration_units(
 # --------------------------------------------------------------------------- kinematics CSV
 
 
+def _open_csv(path: PathLike) -> io.TextIOWrapper:
+    try:
+        # undecodable bytes become U+FFFD and then fail as a named column or number
+        return open(path, encoding="utf-8-sig", errors="replace", newline="")
+    except (IsADirectoryError, PermissionError) as exc:
+        raise InputError(f"cannot read {os.fspath(path)}: {exc.strerror}",
+                         field="input") from None
+
+
+def _table_header(first: str) -> list[str]:
+    header = [h.strip() for h in next(csv.reader([first]), [])] if first.strip() else []
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=1, field="header")
+    for h in header:
+        limits.check_count("characters in a column name", len(h), "MAX_NAME_CHARS",
+                           line=1, field="header")
+    return header
+
+
 def _read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
     """Header and numeric body of a CSV; a fast parse first, a row-by-row one to name the
-    line and column of a bad value."""
-    with open(path, encoding="utf-8", newline="") as handle:
-        header_line = handle.readline()
+    line and column of a bad value. Lines, columns and rows are bounded by
+    ``estimation.io.limits`` before they are read."""
+    with _open_csv(path) as handle:
+        lines = limits.bounded_lines(handle)
+        header = _table_header(next(lines, ""))
+        if not header:
+            raise InputError("empty file: no header line", line=1, field="header")
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("error")
-                body = np.loadtxt(handle, delimiter=",", dtype=float, ndmin=2)
+                body = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2,
+                                  max_rows=limits.max_rows(len(header)) + 1)
         except (ValueError, UserWarning):
             body = None
-    header = [h.strip() for h in next(csv.reader([header_line]))] if header_line else []
     if body is not None and body.shape[0] and body.shape[1] == len(header):
+        limits.check_rows(body.shape[0], len(header))
+        _check_table(body, header)
         return header, body
     return _read_table_slowly(path)
 
 
 def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
-    with open(path, encoding="utf-8", newline="") as handle:
-        reader = csv.reader(handle)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError("empty file", line=1) from None
+    with _open_csv(path) as handle:
+        lines = limits.bounded_lines(handle)
+        header = _table_header(next(lines, ""))
+        if not header:
+            raise InputError("empty file: no header line", line=1, field="header")
+        reader = csv.reader(lines)
         rows: list[list[float]] = []
-        for lineno, row in enumerate(reader, start=2):
+        lineno = 1
+        for row in _csv_records(reader):
+            lineno = reader.line_num + 1
             if not row or all(not c.strip() for c in row):
                 continue
+            if len(rows) == limits.max_rows(len(header)):
+                limits.check_rows(len(rows) + 1, len(header), line=lineno)
             if len(row) != len(header):
                 raise InputError(f"row has {len(row)} values, the header has {len(header)}",
                                  line=lineno)
@@ -309,11 +232,37 @@ def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
                              for c in row])
             except ValueError:
                 col = next(i for i, c in enumerate(row) if not _is_number(c))
-                raise InputError(f"not a number: {row[col]!r} in column {header[col]!r}",
+                raise InputError(f"not a number: {row[col][:40]!r} in column {header[col]!r}",
                                  line=lineno, column=col + 1, field=header[col]) from None
     if not rows:
         raise InputError("no data rows", line=2)
-    return header, np.array(rows, dtype=float)
+    table = np.array(rows, dtype=float)
+    _check_table(table, header)
+    return header, table
+
+
+def _csv_records(reader: Any) -> Iterator[list[str]]:
+    """The rows of a ``csv.reader``; its errors (a NUL byte, an unclosed quote) as
+    InputError."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InputError(f"unreadable CSV at line {reader.line_num + 1}: {exc}",
+                             line=reader.line_num + 1) from None
+        yield row
+
+
+def _check_table(table: NDArray[np.float64], header: list[str]) -> None:
+    """Refuse an infinite or absurdly large value (NaN is reported by the readers as a
+    missing value), naming its line and column (rows counted from line 2)."""
+    bad = limits.first_bad_value(table)
+    if bad is not None:
+        row, col = bad
+        limits.check_value(float(table[row, col]), line=row + 2, column=col + 1,
+                           field=header[col])
 
 
 def _is_number(text: str) -> bool:
@@ -478,18 +427,7 @@ def read_acceleration_csv(
     unit or None.
     """
     header, table = _read_table(path)
-    unit: str | None = None
-    names: list[str] = []
-    for h in header:
-        base = h
-        for open_, close in (("[", "]"), ("(", ")")):
-            if open_ in h and h.endswith(close):
-                base, _, rest = h.partition(open_)
-                found = _acceleration_unit_key(rest[:-1].strip())
-                if unit is not None and found != unit:
-                    raise InputError("acceleration columns declare different units", field=h)
-                unit = found
-        names.append(base.strip())
+    names, unit = acceleration_header(header)
     col = {h: i for i, h in enumerate(names)}
     tkey = next((h for h in names if h.lower() in ("time", "t")), None)
     if tkey is None:
@@ -506,6 +444,37 @@ def read_acceleration_csv(
             raise InputError(f"sensor {s!r} lacks one of {', '.join(keys)}", sensor=s)
         out[s] = np.stack([table[:, col[k]] for k in keys], axis=-1)
     return table[:, col[tkey]].copy(), out, unit
+
+
+def acceleration_header(header: list[str]) -> tuple[list[str], str | None]:
+    """Column names of an accelerations CSV without their unit suffixes (``LeftFoot.ax [g]``
+    → ``LeftFoot.ax``), and the unit they declare (None when none does).
+
+    Raises
+    ------
+    InputError
+        An unknown unit, or columns declaring different units.
+    """
+    unit: str | None = None
+    names: list[str] = []
+    for h in header:
+        base = h
+        for open_, close in (("[", "]"), ("(", ")")):
+            if open_ in h and h.endswith(close):
+                base, _, rest = h.partition(open_)
+                found = _acceleration_unit_key(rest[:-1].strip())
+                if unit is not None and found != unit:
+                    raise InputError("acceleration columns declare different units", field=h)
+                unit = found
+        names.append(base.strip())
+    return names, unit
+
+
+def acceleration_sensors(names: list[str]) -> list[str]:
+    """Sensors with all three of ``<Sensor>.ax/.ay/.az`` among ``names``."""
+    present = set(names)
+    return [n[:-3] for n in names if n.endswith(".ax")
+            and {f"{n[:-3]}.ay", f"{n[:-3]}.az"} <= present]
 
 
 def bvh_positions_without_root_translation(motion: BvhMotion, root: int | None = None
@@ -713,15 +682,24 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
         return sniff_mvnx(path)
     if fmt == "bvh":
         return _sniff_bvh(path)
-    with open(path, encoding="utf-8", newline="") as handle:
-        reader = csv.reader(handle)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError("empty file", line=1) from None
+    return _sniff_kinematics_csv(path)
+
+
+def _sniff_kinematics_csv(path: PathLike) -> dict[str, Any]:
+    with _open_csv(path) as handle:
+        lines = limits.bounded_lines(handle)
+        header = _table_header(next(lines, ""))
+        if not header:
+            raise InputError("empty file: no header line", line=1, field="header")
+        joints = _position_joints(header)
+        if not joints:
+            raise InputError("not a kinematics CSV: the header has no <Joint>.Dx/.Dy/.Dz "
+                             "position columns", field="header", line=1)
+        limits.check_count("joints", len(joints), "MAX_JOINTS", line=1, field="header")
         tcol = next((i for i, h in enumerate(header) if h.lower() == "time"), None)
+        reader = csv.reader(lines)
         frames, t0, t1 = 0, math.nan, math.nan
-        for row in reader:
+        for row in _csv_records(reader):
             if not row:
                 continue
             frames += 1
@@ -729,40 +707,73 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
                 try:
                     t0, t1 = (float(row[tcol]), t0) if frames == 1 else (t0, float(row[tcol]))
                 except (ValueError, IndexError):
-                    raise InputError("bad Time value", line=frames + 1) from None
+                    raise InputError("bad Time value", line=reader.line_num + 1,
+                                     column=tcol + 1, field=header[tcol]) from None
+    limits.check_rows(frames, len(header))
     fps = 1.0 / (t1 - t0) if frames >= 2 and t1 > t0 else None
-    return {"format": fmt, "frames": frames, "joints": list(_position_joints(header)),
-            "fps": fps,
-            "sensors": [h[:-3] for h in header if h.endswith(".ax")]}
+    return {"format": "kinematics-csv", "frames": frames, "joints": list(joints),
+            "fps": fps if fps is not None and math.isfinite(fps) else None,
+            "sensors": acceleration_sensors(header)}
 
 
 def _sniff_bvh(path: PathLike) -> dict[str, Any]:
-    """Joints, fps and frames (the rows present, at most the header's count) of a BVH."""
+    """Joints, fps and frames (the rows present, at most the header's count) of a BVH;
+    InputError when the file is not a BVH at all (no ``HIERARCHY`` first, no ``ROOT``, no
+    ``MOTION`` section with ``Frames:`` and ``Frame Time:``)."""
     joints: list[str] = []
-    frames = 0
+    frames: int | None = None
     fps: float | None = None
+    seen = {"HIERARCHY": False, "MOTION": False, "FRAME": False}
     with open(path, encoding="utf-8-sig", errors="replace") as handle:
-        for lineno, line in enumerate(handle, 1):
-            parts = line.split()
+        lines = limits.bounded_lines(handle)
+        for line, text in enumerate(lines, 1):
+            parts = text.split()
             if not parts:
                 continue
             key = parts[0].upper()
-            try:
-                if key in ("ROOT", "JOINT") and len(parts) > 1:
-                    joints.append(" ".join(p for p in parts[1:] if p != "{"))
-                elif key == "FRAMES:" and len(parts) > 1:
-                    frames = int(parts[1])
-                elif key == "FRAME" and len(parts) > 2:
-                    step = float(parts[2])
-                    fps = 1.0 / step if step > 0 and math.isfinite(step) else None
-                    break
-            except ValueError:
-                raise InputError(f"bad {parts[0]} line: {line.strip()[:60]!r}",
-                                 line=lineno) from None
-            if len(joints) > MAX_NODES:
-                raise InputError(f"more than {MAX_NODES} joints in the hierarchy", line=lineno)
-        rows = sum(1 for line in handle if not line.isspace())
-    return {"format": "bvh", "frames": min(frames, rows), "joints": joints, "fps": fps}
+            if not seen["HIERARCHY"] and key != "HIERARCHY":
+                raise InputError(f"not a BVH file: line {line} should be HIERARCHY, "
+                                 f"got {_snippet(text)}", line=line, field="format")
+            if key in seen:
+                seen[key] = True
+            if key in ("ROOT", "JOINT") and len(parts) > 1:
+                joints.append(" ".join(p for p in parts[1:] if p != "{")[:limits.MAX_NAME_CHARS])
+                if len(joints) > MAX_NODES:
+                    raise InputError(f"more than {MAX_NODES} joints in the hierarchy",
+                                     line=line)
+            elif key == "FRAMES:" and seen["MOTION"]:
+                frames = _bvh_number(parts, 1, line, int)
+            elif key == "FRAME" and seen["MOTION"]:
+                step = _bvh_number(parts, 2, line, float)
+                fps = (limits.check_fps(1.0 / step, field="Frame Time", line=line)
+                       if step > 0 and math.isfinite(step) else None)
+                break
+        rows = sum(1 for text in lines if not text.isspace())
+    if not joints or frames is None or not seen["FRAME"]:
+        missing = ("a ROOT joint in the HIERARCHY" if not joints else
+                   "Frames: line in the MOTION section" if frames is None else
+                   "Frame Time: line in the MOTION section")
+        raise InputError(f"not a BVH file: no {missing}", field="format")
+    frames = min(frames, rows)  # a header may declare any count: the rows present are read
+    limits.check_count("frames", frames, "MAX_FRAMES")
+    return {"format": "bvh", "frames": frames, "joints": joints, "fps": fps}
+
+
+def _bvh_number(parts: list[str], index: int, line: int, kind: type[int] | type[float]) -> Any:
+    try:
+        value = kind(parts[index])
+    except (ValueError, IndexError, OverflowError):
+        raise InputError(f"bad {parts[0]} line: {' '.join(parts)[:60]!r}", line=line,
+                         field=parts[0].rstrip(":")) from None
+    if kind is int and value < 0:
+        raise InputError(f"bad {parts[0]} line: a negative count", line=line,
+                         field=parts[0].rstrip(":"))
+    return value
+
+
+def _snippet(text: str, limit: int = 40) -> str:
+    text = text.strip()
+    return repr(text if len(text) <= limit else text[:limit] + "…")
 
 
 # --------------------------------------------------------------------------- writers

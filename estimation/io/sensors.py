@@ -30,6 +30,7 @@ from ..errors import InputError
 from ..model import SEGMENTS
 from ..recording import SensorRecording
 from ..vocabulary import SENSOR_FORMATS
+from . import limits
 
 if TYPE_CHECKING:
     from .tracker import TrackerLayout
@@ -126,7 +127,7 @@ def parse_fps(value: Any, field: str = "fps") -> float:
         raise InputError(f"fps must be a number, got {value!r}", field=field) from None
     if not (math.isfinite(fps) and fps > 0):
         raise InputError(f"fps must be positive, got {value!r}", field=field)
-    return fps
+    return limits.check_fps(fps, field=field)
 
 
 def normalise_quaternions(quats: NDArray[np.float64], sensors: tuple[str, ...],
@@ -190,8 +191,9 @@ def fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
         # regular sampling: the overall span is immune to the rounding of single stamps
         rate = float((time.size - 1) / (time[-1] - time[0]))
         # stamps printed to a few decimals: snap to the whole rate they were made from
-        return float(round(rate)) if abs(rate - round(rate)) < 1e-4 * rate else rate
-    return 1.0 / step
+        rate = float(round(rate)) if abs(rate - round(rate)) < 1e-4 * rate else rate
+        return limits.check_fps(rate, field="time", line=line)
+    return limits.check_fps(1.0 / step, field="time", line=line)
 
 
 # --------------------------------------------------------------------------- CSV
@@ -200,6 +202,7 @@ def fps_from_time(time: NDArray[np.float64], line: int | None = None) -> float:
 def _parse_csv_header(header: list[str], line: int) -> tuple[int | None, list[str],
                                                               NDArray[np.int64]]:
     """Time column, sensor names and (S, 7) column indices of a sensor-CSV header."""
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
     time_col: int | None = None
     seen: dict[str, int] = {}
     columns: dict[str, dict[str, int]] = {}
@@ -247,8 +250,9 @@ def _csv_header(rows: Iterator[tuple[int, list[str]]],
 
 
 def _csv_rows(handle: io.TextIOWrapper) -> Iterator[tuple[int, list[str]]]:
-    """(line number, cells) of the non-empty rows, metadata comments excluded."""
-    reader = csv.reader(handle)
+    """(line number, cells) of the non-empty rows, metadata comments excluded; a line longer
+    than ``MAX_LINE_CHARS`` is refused before it is read whole."""
+    reader = csv.reader(limits.bounded_lines(handle))
     start = 1
     while True:
         try:
@@ -313,11 +317,14 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         header, header_line = _csv_header(rows, meta)
         time_col, sensors, index = _parse_csv_header(header, header_line)
         n_cols = len(header)
+        max_rows = limits.max_rows(n_cols)
         data: list[list[float]] = []
         lines: list[int] = []
         for line, row in rows:
             if row[0].lstrip().startswith("#"):
                 continue
+            if len(data) == max_rows:
+                limits.check_rows(len(data) + 1, n_cols, line=line)
             if len(row) != n_cols:
                 raise InputError(f"line {line} has {len(row)} cells, the header has {n_cols}",
                                  line=line, column=min(len(row), n_cols) + 1)
@@ -343,6 +350,7 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
     scale = unit_scale(units)
     table = np.asarray(data, dtype=float)
     line_arr = np.asarray(lines, dtype=np.int64)
+    _check_cells(table, line_arr, header)
     values = table[:, index]  # (F, S, 7)
     values[~np.isfinite(values).all(axis=-1)] = np.nan
     positions = values[..., :3] * scale
@@ -370,6 +378,17 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         raise InputError("no time column: give fps (frame rate, Hz)", field="fps")
     rec = SensorRecording(tuple(sensors), positions, quats, rate, np.asarray(time, dtype=float))
     return check_recording(rec, units)
+
+
+def _check_cells(table: NDArray[np.float64], lines: NDArray[np.int64],
+                 header: list[str]) -> None:
+    """Refuse an infinite or absurdly large cell (NaN is a dropped sample), naming its line
+    and column."""
+    bad = limits.first_bad_value(table)
+    if bad is not None:
+        row, col = bad
+        limits.check_value(float(table[row, col]), line=int(lines[row]), column=col + 1,
+                           field=header[col].strip())
 
 
 def write_sensor_csv(recording: SensorRecording, path: PathLike, *, units: str = "m",
@@ -426,42 +445,19 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
     InputError
         Missing array, wrong shape, unknown sensor name, non-unit quaternion, all-NaN sensor.
     """
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise
-        raise InputError(f"cannot read {os.fspath(path)} as NPZ: {exc}", field="input") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise InputError(f"{os.fspath(path)} is a single .npy array, not an NPZ archive",
-                         field="input")
-    with archive:
-        def get(key: str) -> NDArray[Any]:
-            if key not in archive.files:
-                raise InputError(f"NPZ archive lacks the array {key!r} (has "
-                                 f"{', '.join(archive.files)})", field=key)
-            try:
-                return np.asarray(archive[key])
-            except ValueError as exc:  # object arrays with allow_pickle=False
-                raise InputError(f"array {key!r}: {exc}", field=key) from None
-
-        try:
-            positions = np.array(get("positions"), dtype=float)
-            quats = np.array(get("quaternions"), dtype=float)
-        except (TypeError, ValueError) as exc:
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(f"positions/quaternions must be numeric: {exc}",
-                             field="positions") from None
-        names = get("sensors")
-        if names.dtype.kind not in "US":
-            raise InputError("sensors must be an array of strings", field="sensors")
-        sensors = tuple(str(s) for s in names.reshape(-1))
+    with limits.open_npz(path) as archive:
+        _npz_frames(archive)
+        positions = _npz_floats(archive, "positions")
+        quats = _npz_floats(archive, "quaternions")
+        sensors = tuple(_npz_sensor_names(_npz_small(archive, "sensors", "US")))
+        names = set(archive.namelist())
         if fps is None:
-            fps = parse_fps(get("fps").reshape(-1)[0] if get("fps").size else None)
-        time = np.array(archive["time"], dtype=float) if "time" in archive.files else None
-        if units is None and "units" in archive.files:
-            units = str(get("units").reshape(-1)[0])
+            if "fps.npy" not in names:
+                raise InputError("NPZ archive lacks the array 'fps' (or give fps)", field="fps")
+            fps = _npz_scalar(_npz_small(archive, "fps", "biuf"), "fps")
+        time = _npz_floats(archive, "time") if "time.npy" in names else None
+        if units is None and "units.npy" in names:
+            units = _npz_units(_npz_small(archive, "units", "US"))
     for name in sensors:
         if name not in SEGMENTS:
             raise InputError(f"unknown sensor {name!r}; segments are {', '.join(SEGMENTS)}",
@@ -474,6 +470,18 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
                          f"got {quats.shape}", field="quaternions")
     units = units or "m"
     rate = parse_fps(fps)
+    for key, array in (("positions", positions), ("quaternions", quats)):
+        bad = limits.first_bad_value(array)
+        if bad is not None:
+            limits.check_value(float(array[bad]), field=key, sensor=sensors[bad[1]]
+                               if len(bad) > 1 and bad[1] < len(sensors) else None)
+    if time is not None:
+        if time.shape != positions.shape[:1]:
+            raise InputError(f"time must have shape {positions.shape[:1]}, got {time.shape}",
+                             field="time")
+        bad = limits.first_bad_value(time, nan_ok=False)
+        if bad is not None:
+            limits.check_value(float(time[bad]), field="time", nan_ok=False)
     values = np.concatenate([positions * unit_scale(units), quats], axis=-1)
     values[~np.isfinite(values).all(axis=-1)] = np.nan
     quats_n = normalise_quaternions(values[..., 3:], sensors, None)
@@ -481,6 +489,11 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
         time = time_from_fps(positions.shape[0], rate)
     rec = SensorRecording(sensors, values[..., :3], quats_n, rate, time)
     return check_recording(rec, units)
+
+
+def _npz_floats(archive: zipfile.ZipFile, key: str) -> NDArray[np.float64]:
+    """A numeric member as float64, after its declared shape and size are checked."""
+    return np.asarray(limits.load_npy(archive, key), dtype=np.float64)
 
 
 def write_sensor_npz(recording: SensorRecording, path: PathLike) -> None:
@@ -653,7 +666,8 @@ def _sniff_csv(path: PathLike, meta: dict[str, str],
         time_col, sensors, _ = _parse_csv_header(header, header_line)
         times: list[float] = []
         frames = 0
-        for text in handle:
+        lines = limits.bounded_lines(handle, start=header_line + 1)
+        for text in lines:
             if not _sniff_is_row(text):
                 continue
             frames += 1
@@ -666,8 +680,9 @@ def _sniff_csv(path: PathLike, meta: dict[str, str],
                 one_line = not any("\n" in c or "\r" in c for c in header)
                 counted = _sniff_rows_after(path, header_line, counted_rows) if one_line else None
                 frames = counted if counted is not None else frames + sum(
-                    _sniff_is_row(rest) for rest in handle)
+                    _sniff_is_row(rest) for rest in lines)
                 break
+    limits.check_rows(frames, len(header))
     fps: float | None = None
     if "fps" in meta:
         fps = parse_fps(meta["fps"])
@@ -792,23 +807,57 @@ def _sniff_line_lead(line: bytes) -> bytes:
 
 
 def _sniff_npz(path: PathLike) -> dict[str, Any]:
-    try:
-        with zipfile.ZipFile(path) as archive:
-            names = set(archive.namelist())
-            if "positions.npy" not in names:
-                raise InputError("NPZ archive lacks the array 'positions'", field="positions")
-            with archive.open("positions.npy") as member:
-                version = np.lib.format.read_magic(member)
-                if version == (1, 0):
-                    shape, _, _ = np.lib.format.read_array_header_1_0(member)
-                else:
-                    shape, _, _ = np.lib.format.read_array_header_2_0(member)
-    except zipfile.BadZipFile as exc:
-        raise InputError(f"not an NPZ archive: {exc}", field="input") from None
-    with np.load(path, allow_pickle=False) as npz:
-        sensors = ([str(s) for s in np.asarray(npz["sensors"]).reshape(-1)]
-                   if "sensors" in npz.files else [])
-        fps = float(np.asarray(npz["fps"]).reshape(-1)[0]) if "fps" in npz.files else None
-        units = str(np.asarray(npz["units"]).reshape(-1)[0]) if "units" in npz.files else "m"
-    return {"format": "npz", "frames": int(shape[0]) if shape else 0, "sensors": sensors,
-            "fps": fps, "units": units}
+    """Shapes from the NPY headers, names and scalars from the small members: nothing is
+    decompressed before its declared size is checked (``estimation.io.limits``)."""
+    with limits.open_npz(path) as archive:
+        frames = _npz_frames(archive)
+        names = set(archive.namelist())
+        sensors = (_npz_sensor_names(_npz_small(archive, "sensors", "US"))
+                   if "sensors.npy" in names else [])
+        fps = (_npz_scalar(_npz_small(archive, "fps", "biuf"), "fps")
+               if "fps.npy" in names else None)
+        units = (_npz_units(_npz_small(archive, "units", "US"))
+                 if "units.npy" in names else "m")
+    return {"format": "npz", "frames": frames, "sensors": sensors, "fps": fps, "units": units}
+
+
+def _npz_small(archive: zipfile.ZipFile, key: str, kinds: str) -> NDArray[Any]:
+    """A member holding names or a scalar, within ``MAX_NPZ_SMALL_BYTES``."""
+    return limits.load_npy(archive, key, kinds=kinds, small=True)
+
+
+def _npz_frames(archive: zipfile.ZipFile) -> int:
+    """Frames that ``positions`` declares, within ``MAX_FRAMES`` (its header only)."""
+    shape, _ = limits.check_npy(archive, "positions")
+    frames = shape[0] if shape else 0
+    limits.check_count("frames", frames, "MAX_FRAMES", field="positions")
+    return frames
+
+
+def _npz_sensor_names(names: NDArray[Any]) -> list[str]:
+    """The ``sensors`` array as names, within ``MAX_SENSORS`` and ``MAX_NAME_CHARS``."""
+    flat = names.reshape(-1)
+    limits.check_count("sensors", flat.size, "MAX_SENSORS", field="sensors")
+    out = [str(s) for s in flat]
+    for name in out:
+        limits.check_count("characters in a sensor name", len(name), "MAX_NAME_CHARS",
+                           field="sensors")
+    return out
+
+
+def _npz_scalar(value: NDArray[Any], key: str) -> float:
+    if value.size != 1:
+        raise InputError(f"{key} must be one number, got an array of shape {value.shape}",
+                         field=key)
+    number = float(value.reshape(-1)[0])
+    limits.check_value(number, field=key, nan_ok=False)
+    return number
+
+
+def _npz_units(value: NDArray[Any]) -> str:
+    if value.size != 1:
+        raise InputError(f"units must be one string, got an array of shape {value.shape}",
+                         field="units")
+    text = str(value.reshape(-1)[0])
+    limits.check_count("characters in units", len(text), "MAX_NAME_CHARS", field="units")
+    return text

@@ -239,26 +239,44 @@ def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
     if data.get("units", "m") != "m":
         raise InputError(f"skeleton document units must be 'm', got {data['units']!r}",
                          field="units")
-    joints = {str(k): _array(v, (3,), f"joints.{k}") for k, v in data["joints"].items()}
-    if not joints:
-        raise InputError("skeleton document has no joints", field="joints")
     for key in ("joints", "orientations", "offsets", "bone_lengths", "quality", "timings"):
         if not isinstance(data.get(key, {}), Mapping):
             raise InputError(f"{key} must be an object", field=key)
+    joints = {str(k): _array(v, (3,), f"joints.{k}") for k, v in data["joints"].items()}
+    if not joints:
+        raise InputError("skeleton document has no joints", field="joints")
+    quality = data.get("quality", {})
+    for k, v in quality.items():
+        if not isinstance(v, Mapping):
+            raise InputError(f"quality.{k} must be an object", field=f"quality.{k}")
+    warnings = data.get("warnings", [])
+    if not isinstance(warnings, list):
+        raise InputError("warnings must be a list", field="warnings")
     return SkeletonResult(
         method=str(data["method"]),
-        fps=float(data["fps"]),
+        fps=_number(data["fps"], "fps"),
         joints=joints,
         offsets=offsets_from_dict(data.get("offsets", {})),
-        bone_lengths={str(k): float(v) for k, v in dict(data.get("bone_lengths", {})).items()
-                      if v is not None},
+        bone_lengths={str(k): _number(v, f"bone_lengths.{k}")
+                      for k, v in data.get("bone_lengths", {}).items() if v is not None},
         orientations={str(k): _array(v, (4,), f"orientations.{k}")
                       for k, v in data["orientations"].items()},
-        quality={str(k): dict(v) for k, v in dict(data.get("quality", {})).items()},
-        warnings=tuple(str(w) for w in data.get("warnings", [])),
-        timings={str(k): float(v) for k, v in dict(data.get("timings", {})).items()
-                 if v is not None},
+        quality={str(k): dict(v) for k, v in quality.items()},
+        warnings=tuple(str(w) for w in warnings),
+        timings={str(k): _number(v, f"timings.{k}")
+                 for k, v in data.get("timings", {}).items() if v is not None},
     )
+
+
+def _number(value: Any, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"{field} must be a number, got {_json_type(value)}", field=field)
+    return float(value)
+
+
+def _json_type(value: Any) -> str:
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
+            type(None): "null"}.get(type(value), type(value).__name__)
 
 
 def offsets_from_dict(data: Mapping[str, Any]) -> dict[str, JointOffset]:
@@ -290,6 +308,11 @@ def offsets_from_dict(data: Mapping[str, Any]) -> dict[str, JointOffset]:
 def _read_json(path: PathLike) -> Any:
     try:
         return json.loads(Path(path).read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not a UTF-8 JSON document: byte {exc.start} cannot be decoded",
+                         field="input") from None
+    except RecursionError:
+        raise InputError("JSON nested too deeply", field="input") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"invalid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}",
                          line=exc.lineno, column=exc.colno) from None

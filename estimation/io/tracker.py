@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..model import SEGMENTS
 from ..recording import SensorRecording
+from . import limits
 from .sensors import (
     UNITS,
     PathLike,
@@ -410,8 +411,9 @@ def _is_record(tokens: Sequence[str]) -> bool:
 
 
 def _data_lines(handle: Any, meta: dict[str, str]) -> Iterator[tuple[int, str]]:
-    """(line number, text) of the lines that are neither blank nor ``#`` comments."""
-    for line, text in enumerate(handle, 1):
+    """(line number, text) of the lines that are neither blank nor ``#`` comments; a line
+    over ``MAX_LINE_CHARS`` is refused before it is read whole."""
+    for line, text in enumerate(limits.bounded_lines(handle), 1):
         stripped = text.strip()
         if not stripped:
             continue

@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
 from ..io.body import longest_child, varying_root
-from ..io.kinematics import GRAVITY, KinematicsRecording
+from ..kinematics import GRAVITY, KinematicsRecording
 
 FOOT_NAMES: Final[tuple[tuple[str, str], ...]] = (
     ("LeftFoot", "RightFoot"),
@@ -128,31 +128,17 @@ def simulate_inertial(
     world, rotations = forward_kinematics(motion)
     world = world * length_units_m
     root = varying_root(motion)
-    n = motion.n_frames
-    t_src = np.arange(n) / rate
-    window = max(5, round(0.1 * rate) | 1)
-    if window >= n:
-        raise InputError("clip too short to simulate accelerations", field="frames")
-    accelerations = {}
-    up = np.array([0.0, GRAVITY, 0.0])
-    for foot in (left_foot, right_foot):
-        j = motion.names.index(foot)
-        acc = savgol_filter(world[:, j], window, 3, deriv=2, delta=1.0 / rate, axis=0)
-        mount = Rotation.random(random_state=int(rng.integers(2**31)))
-        sensor = (rotations[j] * mount).inv().apply(acc + up)
-        accelerations[foot] = sensor
+    t_src = np.arange(motion.n_frames) / rate
+    sensor = _mounted_accelerometers(motion, world, rotations, (left_foot, right_foot), rate,
+                                     rng)
     t_new = np.arange(0.0, t_src[-1] + 0.5 / target, 1.0 / target)
     t_new = t_new[t_new <= t_src[-1] + 1e-9]
     stripped = world - (world[:, root] - world[0, root])[:, None, :]
     positions = CubicSpline(t_src, stripped, axis=0)(t_new)
     true_pos = CubicSpline(t_src, world, axis=0)(t_new)
-    out_acc = {}
-    for foot, sensor in accelerations.items():
-        a = CubicSpline(t_src, sensor, axis=0)(t_new) / GRAVITY
-        a = a + rng.normal(0.0, noise_g, a.shape)
-        if clip_g is not None:
-            a = np.clip(a, -clip_g, clip_g)
-        out_acc[foot] = a * GRAVITY
+    out_acc = {foot: _accelerometer_readings(CubicSpline(t_src, acc, axis=0)(t_new), noise_g,
+                                             clip_g, rng)
+               for foot, acc in sensor.items()}
     toes = {}
     for foot in (left_foot, right_foot):
         child = longest_child(motion, motion.names.index(foot))
@@ -167,6 +153,37 @@ def simulate_inertial(
     truth = InertialTruth(root=true_pos[:, root].copy(), positions=true_pos,
                           root_joint=motion.names[root])
     return recording, truth
+
+
+def _mounted_accelerometers(motion: BvhMotion, world: NDArray[np.float64],
+                            rotations: list[Rotation], feet: tuple[str, str], rate: float,
+                            rng: np.random.Generator) -> dict[str, NDArray[np.float64]]:
+    """Noise-free accelerometer readings (F, 3) of each foot at the clip's rate, m/s²:
+    second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the world positions
+    ``world`` (F, J, 3), plus gravity, in the foot frame times a random mounting rotation."""
+    window = max(5, round(0.1 * rate) | 1)
+    if window >= motion.n_frames:
+        raise InputError("clip too short to simulate accelerations", field="frames")
+    accelerations = {}
+    up = np.array([0.0, GRAVITY, 0.0])
+    for foot in feet:
+        j = motion.names.index(foot)
+        acc = savgol_filter(world[:, j], window, 3, deriv=2, delta=1.0 / rate, axis=0)
+        mount = Rotation.random(random_state=int(rng.integers(2**31)))
+        accelerations[foot] = (rotations[j] * mount).inv().apply(acc + up)
+    return accelerations
+
+
+def _accelerometer_readings(exact: NDArray[np.float64], noise_g: float,
+                            clip_g: float | None, rng: np.random.Generator
+                            ) -> NDArray[np.float64]:
+    """``exact`` readings (F, 3, m/s²) with white noise of ``noise_g`` g per axis, clipped at
+    ±``clip_g`` g when given, m/s²."""
+    a = exact / GRAVITY
+    a = a + rng.normal(0.0, noise_g, a.shape)
+    if clip_g is not None:
+        a = np.clip(a, -clip_g, clip_g)
+    return np.asarray(a * GRAVITY)
 
 
 def _min_jerk(u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -200,28 +217,75 @@ def simulate_walker(
         True ``"left"``, ``"right"``, ``"both"`` or ``"none"`` per frame.
     """
     rng = np.random.default_rng(seed)
-    fine = 1000.0
-    total = 7.5
-    t = np.arange(0.0, total + 1e-9, 1.0 / fine)
-    ankle, toe_up, toe_fwd = 0.08, 0.01, 0.15
-    # (foot, start s, end s, target x, target floor level)
-    swings = [
+    t = np.arange(0.0, _WALKER_S + 1e-9, 1.0 / _FINE_HZ)
+    feet, planted = _walker_feet(t, platform)
+    hips = np.stack([gaussian_smooth(0.5 * (feet["L"][:, 0] + feet["R"][:, 0]), 0.1 * _FINE_HZ),
+                     0.9 + gaussian_smooth(0.5 * (feet["L"][:, 1] + feet["R"][:, 1])
+                                           - _ANKLE_M, 0.1 * _FINE_HZ),
+                     np.zeros_like(t)], axis=1)
+    _hop(t, hops=hop, hips=hips, feet=feet, planted=planted)
+    toes = {f: feet[f] + np.array([_TOE_FORWARD_M, _TOE_UP_M - _ANKLE_M, 0.0]) for f in feet}
+    world = np.stack([hips, feet["L"], toes["L"], feet["R"], toes["R"]], axis=1)
+    t_out = np.arange(0.0, _WALKER_S + 1e-9, 1.0 / fps)
+    acc = {f: _resample(t_out, t, np.gradient(np.gradient(feet[f], 1.0 / _FINE_HZ, axis=0),
+                                              1.0 / _FINE_HZ, axis=0))
+           for f in ("L", "R")}
+    world = _resample(t_out, t, world)
+    stripped = world - (world[:, 0] - world[0, 0])[:, None, :]
+    names = ("Hips", "LeftFoot", "LeftToe", "RightFoot", "RightToe")
+    accelerations = {}
+    for f, name in (("L", "LeftFoot"), ("R", "RightFoot")):
+        accelerations[name] = _accelerometer_readings(acc[f] + np.array([0.0, GRAVITY, 0.0]),
+                                                      noise_g, clip_g, rng)
+    nearest = np.clip(np.round(t_out * _FINE_HZ).astype(int), 0, t.shape[0] - 1)
+    left, right = planted["L"][nearest], planted["R"][nearest]
+    labels = np.asarray(("none", "left", "right", "both"), dtype="<U5")[
+        left.astype(int) + 2 * right.astype(int)]
+    recording = KinematicsRecording(
+        joints=names, positions=stripped, fps=fps, time=t_out, accelerations=accelerations,
+        acceleration_frame="sensor", left_foot="LeftFoot", right_foot="RightFoot",
+        toes={"LeftFoot": "LeftToe", "RightFoot": "RightToe"}, source_format="simulated",
+        length_scale=1.0, root="Hips", notes=("procedural walker",))
+    truth = InertialTruth(root=world[:, 0].copy(), positions=world, root_joint="Hips")
+    return recording, truth, labels
+
+
+_FINE_HZ = 1000.0
+"""Rate at which the walker is built before it is sampled at the wanted one, Hz."""
+_WALKER_S = 7.5
+"""Duration of the walker, seconds."""
+_ANKLE_M, _TOE_UP_M, _TOE_FORWARD_M = 0.08, 0.01, 0.15
+"""Heights of a planted ankle and toe above the floor, and the toe ahead of the ankle, m."""
+_TAKE_OFF_S = 4.0
+"""Time of the walker's hop."""
+_PUSH_S = 0.2
+"""Duration of the hop's push-off, of its landing and of each crouch, seconds."""
+
+
+def _walker_swings(platform: float) -> list[tuple[str, float, float, float, float]]:
+    """(foot, start s, end s, target x, target floor level) of every step of the walker."""
+    return [
         ("R", 1.00, 1.40, 0.3, 0.0), ("L", 1.55, 1.95, 0.6, 0.0),
         ("R", 2.10, 2.50, 0.9, 0.0), ("L", 2.65, 3.05, 1.2, 0.0),
         ("R", 3.20, 3.60, 1.2, 0.0),
         ("L", 4.80, 5.20, 1.5, platform), ("R", 5.35, 5.75, 1.8, platform),
         ("L", 5.90, 6.30, 2.1, platform), ("R", 6.45, 6.85, 2.1, platform),
     ]
-    flight = (4.0, 4.35)  # take-off time; the flight lasts 2·sqrt(2·g·hop)/g
+
+
+def _walker_feet(t: NDArray[np.float64], platform: float
+                 ) -> tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.bool_]]]:
+    """Ankle positions (F, 3) and planted flags (F,) of each foot ("L", "R") at times ``t``:
+    minimum-jerk swings with an 8 cm bump, flat on the floor or the platform between."""
     side = {"L": 0.1, "R": -0.1}
     feet = {}
     planted = {}
     for foot in ("L", "R"):
         x = np.zeros_like(t)
-        y = np.full_like(t, ankle)
+        y = np.full_like(t, _ANKLE_M)
         on = np.ones(t.shape, dtype=bool)
         cur_x, cur_level = 0.0, 0.0
-        for f, t0, t1, tx, level in swings:
+        for f, t0, t1, tx, level in _walker_swings(platform):
             if f != foot:
                 continue
             u = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
@@ -230,23 +294,27 @@ def simulate_walker(
             after = t >= t1
             bump = 0.08 * np.sin(np.pi * u) ** 2
             x = np.where(inside, cur_x + (tx - cur_x) * s, np.where(after, tx, x))
-            y = np.where(inside, ankle + cur_level + (level - cur_level) * s + bump,
-                         np.where(after, ankle + level, y))
+            y = np.where(inside, _ANKLE_M + cur_level + (level - cur_level) * s + bump,
+                         np.where(after, _ANKLE_M + level, y))
             on &= ~inside
             cur_x, cur_level = tx, level
         feet[foot] = np.stack([x, y, np.full_like(t, side[foot])], axis=1)
         planted[foot] = on
-    hips = np.stack([gaussian_smooth(0.5 * (feet["L"][:, 0] + feet["R"][:, 0]), 0.1 * fine),
-                     0.9 + gaussian_smooth(0.5 * (feet["L"][:, 1] + feet["R"][:, 1]) - ankle,
-                                           0.1 * fine),
-                     np.zeros_like(t)], axis=1)
-    # Hop: crouch, push off (hips accelerate up over the planted feet), ballistic flight,
-    # absorb the landing, stand up; the take-off speed is what the legs gave the hips.
-    v0 = float(np.sqrt(2.0 * GRAVITY * hop))
+    return feet, planted
+
+
+def _hop(t: NDArray[np.float64], *, hops: float, hips: NDArray[np.float64],
+         feet: dict[str, NDArray[np.float64]], planted: dict[str, NDArray[np.bool_]]) -> None:
+    """Add the hop of ``hops`` metres at ``_TAKE_OFF_S`` to ``hips`` and ``feet`` in place
+    and clear ``planted`` in flight.
+
+    Crouch, push off (hips accelerate up over the planted feet), ballistic flight, absorb
+    the landing, stand up; the take-off speed is what the legs gave the hips."""
+    v0 = float(np.sqrt(2.0 * GRAVITY * hops))
     span = 2.0 * v0 / GRAVITY
-    push = 0.2
+    push = _PUSH_S
     depth = v0 * push / 2.0
-    t_off = flight[0]
+    t_off = _TAKE_OFF_S
     t_on = t_off + span
     crouch = np.zeros_like(t)
     u = np.clip((t - (t_off - 2 * push)) / push, 0.0, 1.0)
@@ -268,40 +336,14 @@ def simulate_walker(
         feet[foot][in_air, 1] += lift
         planted[foot] &= ~in_air
     hips[in_air, 1] += lift
-    toes = {f: feet[f] + np.array([toe_fwd, toe_up - ankle, 0.0]) for f in feet}
-    world = np.stack([hips, feet["L"], toes["L"], feet["R"], toes["R"]], axis=1)
-    t_out = np.arange(0.0, total + 1e-9, 1.0 / fps)
 
-    def sample(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        flat = x.reshape(x.shape[0], -1)
-        cols = [np.interp(t_out, t, flat[:, c]) for c in range(flat.shape[1])]
-        return np.stack(cols, axis=1).reshape((t_out.shape[0], *x.shape[1:]))
 
-    acc = {}
-    for f in ("L", "R"):
-        a = np.gradient(np.gradient(feet[f], 1.0 / fine, axis=0), 1.0 / fine, axis=0)
-        acc[f] = sample(a)
-    world = sample(world)
-    stripped = world - (world[:, 0] - world[0, 0])[:, None, :]
-    names = ("Hips", "LeftFoot", "LeftToe", "RightFoot", "RightToe")
-    accelerations = {}
-    for f, name in (("L", "LeftFoot"), ("R", "RightFoot")):
-        g = (acc[f] + np.array([0.0, GRAVITY, 0.0])) / GRAVITY
-        g = g + rng.normal(0.0, noise_g, g.shape)
-        if clip_g is not None:
-            g = np.clip(g, -clip_g, clip_g)
-        accelerations[name] = g * GRAVITY
-    nearest = np.clip(np.round(t_out * fine).astype(int), 0, t.shape[0] - 1)
-    left, right = planted["L"][nearest], planted["R"][nearest]
-    labels = np.asarray(("none", "left", "right", "both"), dtype="<U5")[
-        left.astype(int) + 2 * right.astype(int)]
-    recording = KinematicsRecording(
-        joints=names, positions=stripped, fps=fps, time=t_out, accelerations=accelerations,
-        acceleration_frame="sensor", left_foot="LeftFoot", right_foot="RightFoot",
-        toes={"LeftFoot": "LeftToe", "RightFoot": "RightToe"}, source_format="simulated",
-        length_scale=1.0, root="Hips", notes=("procedural walker",))
-    truth = InertialTruth(root=world[:, 0].copy(), positions=world, root_joint="Hips")
-    return recording, truth, labels
+def _resample(t_out: NDArray[np.float64], t: NDArray[np.float64], x: NDArray[np.float64]
+              ) -> NDArray[np.float64]:
+    """``x`` (F, ...) sampled at times ``t`` linearly interpolated at ``t_out``."""
+    flat = x.reshape(x.shape[0], -1)
+    cols = [np.interp(t_out, t, flat[:, c]) for c in range(flat.shape[1])]
+    return np.stack(cols, axis=1).reshape((t_out.shape[0], *x.shape[1:]))
 
 
 def gaussian_smooth(x: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:

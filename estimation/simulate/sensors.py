@@ -5,6 +5,12 @@ clip (the rotations of any joints between two model segments are folded into the
 so the true centres are exact), virtual sensors are attached 3–7 cm off each bone with random
 orientations, and the recording is corrupted by white noise, slow soft-tissue slip and dropped
 samples.
+
+Each segment's orientation is the global rotation of its most distal BVH node inside the
+segment, and every joint is a fixed point of the rest pose in its parent segment's frame, so
+the two sensors adjoining a joint agree on its position exactly (before noise). Sensors sit at
+30–70 % along the bone, 3–7 cm off it in a random perpendicular direction, with a uniformly
+random orientation.
 """
 
 from __future__ import annotations
@@ -81,8 +87,8 @@ SKELETON_MAPS: Final[dict[str, dict[str, str]]] = {
         "r_hip": "UpperLeg_R", "r_knee": "LowerLeg_R", "r_ankle": "Foot_R", "r_toe": "Toes_R",
     },
 }
-"""BVH node names of each model role, per data set (see docs/benchmarks.md, "The data").
-``example_motion`` uses the ``cmu_bvh11`` names."""
+"""BVH node names of each model role, per data set of the accuracy benchmarks (CMU, Bandai
+Namco). ``example_motion`` uses the ``cmu_bvh11`` names."""
 
 # segment -> (orientation role, origin joint role, bone start role, bone end role)
 _SEGMENT_DEF: Final[dict[str, tuple[str, str, str, str]]] = {
@@ -310,12 +316,69 @@ def simulate_sensors(
 
     Notes
     -----
-    Evaluation protocol of docs/benchmarks.md. Each segment's orientation is the global rotation of
-    its most distal BVH node inside the segment, and every joint is a fixed point of the rest
-    pose in its parent segment's frame, so the two sensors adjoining a joint agree on its
-    position exactly (before noise). Sensors sit at 30–70 % along the bone, 3–7 cm off it in a
-    random perpendicular direction, with a uniformly random orientation.
+    The body and the sensors' placement are described in the module docstring.
     """
+    segments = _sensor_segments(n_sensors, segments)
+    rng = np.random.default_rng(seed)
+    origins, rotations, joints, bones = rigid_body_model(motion, units_m=units_m,
+                                                         mapping=mapping)
+    rate = float(fps) if fps is not None else motion.fps
+    n_frames = motion.n_frames
+    time = np.arange(n_frames) / rate
+    local, offsets_rot = _place_sensors(bones, rng, offset_range_m)
+    slip = _smooth_slip(rng, time, slip_m, len(segments))
+    dropped = _drop_mask(rng, n_frames, len(segments), drop_fraction)
+    positions, quats = _sensor_poses(segments, (origins, rotations), (local, offsets_rot),
+                                     slip, rng, orientation_noise_deg)
+    if position_noise_m > 0:
+        positions += rng.normal(scale=position_noise_m, size=positions.shape)
+    positions[dropped] = np.nan
+    quats[dropped] = np.nan
+    recording = SensorRecording(segments, positions, quats, rate, time)
+    all_joints = dict(joints)
+    all_joints.update(derived_joints(joints))
+    return recording, SimulationTruth(
+        joints={j: all_joints[j] for j in JOINTS}, segment_rotations=rotations,
+        sensor_local=local,
+        bone_lengths={seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
+                      for seg in _TRUE_BONES},
+        dataset=detect_skeleton(motion) if mapping is None else "custom")
+
+
+_TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
+                      "l_thigh", "l_shank", "r_thigh", "r_shank")
+"""Segments whose length ``SimulationTruth.bone_lengths`` gives."""
+
+
+def _sensor_poses(segments: Sequence[str],
+                  body: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
+                  placement: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
+                  slip: NDArray[np.float64], rng: np.random.Generator,
+                  orientation_noise_deg: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Positions (F, S, 3, metres) and scalar-first quaternions (F, S, 4) of the sensors on
+    ``segments``: the segments' ``body`` pose (origins, rotations) carrying each sensor's
+    ``placement`` (local origin, mounting rotation) displaced by ``slip`` (F, S, 3), with
+    white orientation noise (degrees per rotation-vector axis)."""
+    origins, rotations = body
+    local, offsets_rot = placement
+    n_frames = slip.shape[0]
+    positions = np.empty((n_frames, len(segments), 3))
+    quats = np.empty((n_frames, len(segments), 4))
+    for k, seg in enumerate(segments):
+        rot = rotations[seg]
+        positions[:, k] = origins[seg] + rot.apply(local[seg] + slip[:, k])
+        sensor_rot = rot * offsets_rot[seg]
+        if orientation_noise_deg > 0:
+            noise = Rotation.from_rotvec(
+                rng.normal(scale=np.deg2rad(orientation_noise_deg), size=(n_frames, 3)))
+            sensor_rot = sensor_rot * noise
+        quats[:, k] = sensor_rot.as_quat(scalar_first=True)
+    return positions, quats
+
+
+def _sensor_segments(n_sensors: int, segments: Sequence[str] | None) -> tuple[str, ...]:
+    """The segments carrying a sensor: ``segments``, else the 15- or 11-sensor suit."""
     if segments is None:
         if n_sensors == 15:
             segments = SEGMENTS
@@ -327,14 +390,16 @@ def simulate_sensors(
     unknown = [s for s in segments if s not in SEGMENTS]
     if unknown:
         raise InputError(f"unknown segment(s) {', '.join(unknown)}", field="segments")
-    rng = np.random.default_rng(seed)
-    origins, rotations, joints, bones = rigid_body_model(motion, units_m=units_m,
-                                                         mapping=mapping)
-    rate = float(fps) if fps is not None else motion.fps
-    n_frames = motion.n_frames
-    time = np.arange(n_frames) / rate
+    return segments
 
-    # placement is drawn for all 15 segments so the 11-sensor suit shares the 15's sensors
+
+def _place_sensors(bones: Mapping[str, tuple[NDArray[np.float64], NDArray[np.float64]]],
+                   rng: np.random.Generator, offset_range_m: tuple[float, float]
+                   ) -> tuple[dict[str, NDArray[np.float64]], dict[str, Rotation]]:
+    """Each segment's sensor origin in the segment frame (30–70 % along the bone, offset in
+    a random perpendicular direction) and its random mounting rotation.
+
+    Drawn for all 15 segments, so the 11-sensor suit shares the 15's sensors."""
     local: dict[str, NDArray[np.float64]] = {}
     offsets_rot: dict[str, Rotation] = {}
     for seg in SEGMENTS:
@@ -348,39 +413,7 @@ def simulate_sensors(
         u = rng.uniform(0.3, 0.7)
         local[seg] = start + u * (end - start) + rng.uniform(*offset_range_m) * perp
         offsets_rot[seg] = Rotation.random(rng=rng)
-    slip = _smooth_slip(rng, time, slip_m, len(segments))
-    dropped = _drop_mask(rng, n_frames, len(segments), drop_fraction)
-    positions = np.empty((n_frames, len(segments), 3))
-    quats = np.empty((n_frames, len(segments), 4))
-    for k, seg in enumerate(segments):
-        rot = rotations[seg]
-        positions[:, k] = origins[seg] + rot.apply(local[seg] + slip[:, k])
-        sensor_rot = rot * offsets_rot[seg]
-        if orientation_noise_deg > 0:
-            noise = Rotation.from_rotvec(
-                rng.normal(scale=np.deg2rad(orientation_noise_deg), size=(n_frames, 3)))
-            sensor_rot = sensor_rot * noise
-        quats[:, k] = sensor_rot.as_quat(scalar_first=True)
-    if position_noise_m > 0:
-        positions += rng.normal(scale=position_noise_m, size=positions.shape)
-    positions[dropped] = np.nan
-    quats[dropped] = np.nan
-    recording = SensorRecording(segments, positions, quats, rate, time)
-    all_joints = dict(joints)
-    all_joints.update(derived_joints(joints))
-    bone_lengths = {
-        seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
-        for seg in ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
-                    "l_thigh", "l_shank", "r_thigh", "r_shank")
-    }
-    truth = SimulationTruth(
-        joints={j: all_joints[j] for j in JOINTS},
-        segment_rotations=rotations,
-        sensor_local=local,
-        bone_lengths=bone_lengths,
-        dataset=detect_skeleton(motion) if mapping is None else "custom",
-    )
-    return recording, truth
+    return local, offsets_rot
 
 
 _EXAMPLE_HIERARCHY: Final = (

@@ -25,6 +25,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.service_fuzz import Ids, run_schemathesis
 from service.app import create_app
 from service.jobs import JobStore, SqlJobStore
 from service.settings import Settings
@@ -318,6 +319,26 @@ def test_a_real_server_never_answers_5xx(live: tuple[ServerProcess, list[str]]) 
         assert response.status_code < 500, (request, response.status_code, response.text[:500])
 
     check()
+    assert_alive(server)
+    assert "Traceback" not in server.log()
+
+
+def test_schemathesis_gets_no_server_error(live: tuple[ServerProcess, list[str]],
+                                           tmp_path: Path) -> None:
+    """A bounded run of the harness `benchmarks/service_fuzz.py` runs in full."""
+    server, (rec_id, job_id) = live
+    with server.client(headers={"Authorization": f"Bearer {KEY}"}) as client:
+        deletable = seed(client.request)[:1]
+    ids = Ids(recordings=(rec_id,), jobs=(job_id,), deletable=tuple(deletable))
+    runs = [run_schemathesis(server.base_url, tmp_path / "key", ids, key=KEY, max_examples=5,
+                             timeout=600),
+            run_schemathesis(server.base_url, tmp_path / "none", ids, key=None, max_examples=8,
+                             phases="fuzzing", timeout=600)]
+    for run in runs:
+        assert run.requests > 0, run.output[-3000:]
+        assert run.ok, (run.server_errors[:10], run.output[-3000:])
+    assert runs[0].statuses[200] > 0
+    assert runs[1].statuses[401] > 0  # no key: refused (the probes and /metrics answer)
     assert_alive(server)
     assert "Traceback" not in server.log()
 

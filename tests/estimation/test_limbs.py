@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation import limbs
 from estimation.errors import InputError
+from estimation.least_squares import levenberg_marquardt, normal_from_residuals
 from estimation.limbs import estimate_limb, paper_cost, standard_lengths, torso_length
 
 THIGH, SHANK = 0.42, 0.40
@@ -184,8 +185,8 @@ def numeric_jacobian(fun: Callable[[NDArray[np.float64]], NDArray[np.float64]],
 
 def test_paper_jacobian_matches_finite_differences() -> None:
     leg = make_leg(n=80, noise_m=0.002, seed=6)
-    limb = limbs._prepare(*leg.args())
-    fun, jac = limbs._paper_residuals(limb, (0.4, 0.38), 0.01, 0.01)
+    limb = limbs.limb_in_upper_frame(*leg.args())
+    fun, jac = limbs.paper_residuals(limb, (0.4, 0.38), 0.01, 0.01)
     x = np.concatenate([leg.knee_local, leg.ankle_local]) + 0.03
     r = fun(x)
     assert r @ r == pytest.approx(paper_cost(x, *leg.args(), standard_lengths=(0.4, 0.38)))
@@ -194,9 +195,9 @@ def test_paper_jacobian_matches_finite_differences() -> None:
 
 def test_paper_normal_equations_match_residual_form_and_exact_hessian() -> None:
     leg = make_leg(n=80, noise_m=0.002, seed=6)
-    limb = limbs._prepare(*leg.args())
-    fun, jac = limbs._paper_residuals(limb, (0.4, 0.38), 0.01, 0.02)
-    cost, normal, lengths = limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.02)
+    limb = limbs.limb_in_upper_frame(*leg.args())
+    fun, jac = limbs.paper_residuals(limb, (0.4, 0.38), 0.01, 0.02)
+    cost, normal, lengths = limbs.paper_normal(limb, (0.4, 0.38), 0.01, 0.02)
     x = np.concatenate([leg.knee_local, leg.ankle_local]) + 0.03
     r, j = fun(x), jac(x)
     e, g, h, k = normal(x)
@@ -210,7 +211,7 @@ def test_paper_normal_equations_match_residual_form_and_exact_hessian() -> None:
     assert np.allclose(h, j.T @ j, rtol=1e-10, atol=1e-15)
     # k is half the Hessian of E: the derivative of g = ½∇E
     assert np.allclose(k, numeric_jacobian(lambda t: normal(t)[1], x), rtol=1e-5, atol=1e-9)
-    assert len(limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.02, exact=False)[1](x)) == 3
+    assert len(limbs.paper_normal(limb, (0.4, 0.38), 0.01, 0.02, exact=False)[1](x)) == 3
 
 
 @pytest.mark.parametrize("robust", [None, 0.01])
@@ -218,25 +219,23 @@ def test_levenberg_marquardt_reaches_scipy_minimum(robust: float | None) -> None
     """The normal-equation LM reaches the minimum scipy's MINPACK LM finds, on the improved
     objective (robust, with bounds rows) and on the paper's E."""
     leg = make_leg(n=300, noise_m=0.002, noise_deg=0.5, seed=8)
-    limb = limbs._prepare(*leg.args())
-    fun, jac = limbs._improved_problem(limb, (0.4, 0.38), leg.axis_local, 0.03, 3e-4, 1e-4,
+    limb = limbs.limb_in_upper_frame(*leg.args())
+    fun, jac = limbs.improved_problem(limb, (0.4, 0.38), leg.axis_local, 0.03, 3e-4, 1e-4,
                                        3e-4, robust, 0.2)
     x0 = np.concatenate([leg.knee_local + 0.03, leg.ankle_local - 0.02, [0.35]])
     ref = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", ftol=1e-12,
                         xtol=1e-12, gtol=1e-12)
-    x, n_eval, ok = limbs._levenberg_marquardt(*limbs._normal_from_residuals(fun, jac), x0,
-                                               damping=1e-3)
+    x, n_eval, ok = levenberg_marquardt(*normal_from_residuals(fun, jac), x0, damping=1e-3)
     assert ok
     assert 0 < n_eval < 200
     e_ref, e = float(ref.fun @ ref.fun), float(fun(x) @ fun(x))
     assert e <= e_ref * (1 + 1e-9)
     assert np.allclose(x, ref.x, atol=1e-6)
-    p_fun, p_jac = limbs._paper_residuals(limb, (0.4, 0.38), 0.01, 0.01)
+    p_fun, p_jac = limbs.paper_residuals(limb, (0.4, 0.38), 0.01, 0.01)
     ref = least_squares(p_fun, x0[:6], jac=p_jac, method="lm", x_scale="jac", ftol=1e-12,
                         xtol=1e-12, gtol=1e-12)
-    objective = limbs._paper_normal(limb, (0.4, 0.38), 0.01, 0.01)
-    x, _, ok = limbs._levenberg_marquardt(objective.cost, objective.normal, x0[:6],
-                                          damping=1e-3)
+    objective = limbs.paper_normal(limb, (0.4, 0.38), 0.01, 0.01)
+    x, _, ok = levenberg_marquardt(objective.cost, objective.normal, x0[:6], damping=1e-3)
     assert ok
     assert float(p_fun(x) @ p_fun(x)) <= float(ref.fun @ ref.fun) * (1 + 1e-9)
     assert np.allclose(x, ref.x, atol=1e-6)
@@ -247,9 +246,9 @@ def test_levenberg_marquardt_reaches_scipy_minimum(robust: float | None) -> None
 def test_improved_jacobian_matches_finite_differences(robust: float | None,
                                                       bounds_active: bool) -> None:
     leg = make_leg(n=80, noise_m=0.002, seed=7)
-    limb = limbs._prepare(*leg.args())
+    limb = limbs.limb_in_upper_frame(*leg.args())
     axis = np.array([0.6, 0.0, 0.8])
-    fun, jac = limbs._improved_problem(limb, (0.4, 0.38), axis, 0.03, 3e-4, 1e-4, 3e-4, robust,
+    fun, jac = limbs.improved_problem(limb, (0.4, 0.38), axis, 0.03, 3e-4, 1e-4, 3e-4, robust,
                                        0.2)
     x = np.concatenate([leg.knee_local + 0.02, leg.ankle_local - 0.01, [0.37]])
     if bounds_active:  # shank 58 % too long, ankle 0.3 m from its sensor

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from estimation.errors import InputError
 from estimation.model import SEGMENTS
-from estimation.orientations import _quat_from_xy, estimate_orientations
+from estimation.orientations import estimate_orientations, quat_from_xy
 
 # Upright rest pose, facing +z, left = +x, metres.
 REST = {
@@ -200,7 +200,7 @@ def test_limb_frame_quaternions_match_scipy_for_every_direction() -> None:
     y /= np.linalg.norm(y, axis=0)
     x = rng.normal(size=(3, 400))
     x[:, :4] = [[1.0, 1.0, -1.0, -1.0], [0.3, 0.0, 0.0, 0.2], [0.0, 0.0, 0.0, 0.0]]
-    q = _quat_from_xy(x, y, np.empty((400, 4)))
+    q = quat_from_xy(x, y, np.empty((400, 4)))
     assert np.all(q[:, 0] >= 0)
     xu = x - np.einsum("ij,ij->j", x, y) * y
     xu /= np.linalg.norm(xu, axis=0)
@@ -208,7 +208,7 @@ def test_limb_frame_quaternions_match_scipy_for_every_direction() -> None:
     truth = Rotation.from_matrix(frames).as_quat(scalar_first=True)
     np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", q, truth)), 1.0, atol=1e-14)
     # x along the bone leaves the twist arbitrary but the frame valid
-    along = _quat_from_xy(y[:, :5].copy(), y[:, :5], np.empty((5, 4)))
+    along = quat_from_xy(y[:, :5].copy(), y[:, :5], np.empty((5, 4)))
     np.testing.assert_allclose(np.linalg.norm(along, axis=1), 1.0, atol=1e-14)
     y_axis = Rotation.from_quat(along, scalar_first=True).apply([0.0, 1.0, 0.0])
     np.testing.assert_allclose(y_axis, y[:, :5].T, atol=1e-14)

@@ -157,11 +157,11 @@ def test_row_helpers_for_rotation_matrices_match_scipy() -> None:
 
 def test_relative_on_component_rows_and_as_a_matrix(rots: tuple[Rotation, Rotation]) -> None:
     """``relative(..., axis=0)`` on (4, N) rows equals the (N, 4) result bit for bit, and
-    ``_relative_matrix(q) @ p`` is ``relative(q, p)``."""
+    ``relative_matrix(q) @ p`` is ``relative(q, p)``."""
     a, b = _wxyz(rots[0]), _wxyz(rots[1])
     np.testing.assert_array_equal(quat.relative(a.T, b.T, axis=0), quat.relative(a, b).T)
     np.testing.assert_array_equal(quat.relative(a[0], b[1]), quat.relative(a[:1], b[1:2])[0])
-    np.testing.assert_allclose(quat._relative_matrix(a[0]) @ b.T, quat.relative(a[0], b).T,
+    np.testing.assert_allclose(quat.relative_matrix(a[0]) @ b.T, quat.relative(a[0], b).T,
                                atol=1e-15)
     with pytest.raises(ValueError, match="4 components along axis 0"):
         quat.relative(a, b, axis=0)

@@ -8,10 +8,16 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.joints import estimate_joint
+from estimation.joints import estimate_joint, slip_basis
 from estimation.simulate.sensors import example_motion, simulate_sensors
 from estimation.skeleton import estimate_skeleton
-from estimation.slip import EIV_SIGNAL_SHARE, estimate_slip, rotation_noise_variance
+from estimation.slip import (
+    EIV_SIGNAL_SHARE,
+    SlipLayout,
+    estimate_slip,
+    joint_block,
+    rotation_noise_variance,
+)
 
 FPS = 60.0
 N = 600  # 10 s
@@ -289,3 +295,40 @@ def test_slips_do_not_drift_together_on_a_long_precise_recording() -> None:
         common = np.mean([rot[s].apply(fit.slip[s]) for s in pos], axis=0)
         rms = float(np.sqrt(np.mean(np.sum(common**2, axis=1))))
         assert rms < 0.006, (seed, rms)
+
+
+def test_slip_layout_puts_every_sensors_slip_first_and_the_centres_last() -> None:
+    layout = SlipLayout.of(["hub", "left", "top"], 2, N, FPS, 0.5)
+    k = slip_basis(N, FPS / 0.5).shape[1]
+    assert layout.k == k
+    assert layout.index == {"hub": 0, "left": 3 * k, "top": 6 * k}
+    assert (layout.n_s, layout.size) == (9 * k, 9 * k + 12)
+    no_slip = SlipLayout.of(["hub", "left"], 1, N, FPS, 0.0)
+    assert (no_slip.k, no_slip.n_s, no_slip.size, no_slip.unmodelled) == (0, 0, 6, 1.0)
+
+
+def test_a_joint_block_is_symmetric_touches_its_unknowns_and_fits_a_clean_joint() -> None:
+    """Noise-free, slip-free joint: the block is symmetric positive semi-definite over the
+    joint's centres and its two sensors' slips, and the true centres with zero slip solve its
+    normal equations (the right-hand side is the block times that solution)."""
+    rng = np.random.default_rng(3)
+    hub_rot = Rotation.from_rotvec(smooth_signal(rng, N, (0.2, 0.8), 0.3))
+    rel = Rotation.from_rotvec(smooth_signal(rng, N, (0.5, 1.5), np.radians(20.0)))
+    limb_rot = hub_rot * rel
+    in_hub, in_limb = np.array([0.1, -0.05, 0.02]), np.array([0.0, 0.12, -0.03])
+    hub_pos = smooth_signal(rng, N, (0.1, 0.5), 0.3)
+    centre = hub_pos + hub_rot.apply(in_hub)
+    limb_pos = centre - limb_rot.apply(in_limb)
+    layout = SlipLayout.of(["hub", "limb"], 2, N, FPS, 0.5)
+    block = joint_block(layout, 1, ("hub", "limb"), (hub_rot.as_matrix(), limb_rot.as_matrix()),
+                        limb_pos - hub_pos, np.ones(N), 0.0)
+    k = layout.k
+    assert block.eiv is None
+    assert block.share == 1.0
+    assert list(block.idx[:6]) == list(range(layout.n_s + 6, layout.n_s + 12))
+    assert list(block.idx[6:]) == list(range(6 * k))
+    assert np.allclose(block.normal, block.normal.T)
+    assert np.linalg.eigvalsh(block.normal).min() > -1e-9 * np.abs(block.normal).max()
+    truth = np.concatenate([in_hub, in_limb, np.zeros(6 * k)])
+    assert np.allclose(block.normal @ truth, block.rhs, rtol=1e-9,
+                       atol=1e-9 * np.abs(block.rhs).max())

@@ -14,11 +14,14 @@ from estimation.io.kinematics import KinematicsRecording, read_kinematics
 from estimation.simulate.inertial import simulate_walker
 from estimation.translation import (
     HACHAJ_EPS_M,
+    METHOD_OPTIONS,
     ContactOptions,
+    HachajOptions,
     TranslationResult,
     estimate_translation,
     hachaj_smooth,
     hachaj_window_length,
+    method_options,
 )
 
 SHADOW = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "shadow"
@@ -270,6 +273,55 @@ def test_hachaj2018_takes_an_integral_window_given_as_a_float() -> None:
     as_float = estimate_translation(rec, method="hachaj2018", window=50.0)
     as_int = estimate_translation(rec, method="hachaj2018", window=50)
     assert as_float.quality["window_samples"] == as_int.quality["window_samples"] == 50
+
+
+@pytest.mark.parametrize(("options", "field"), [
+    ({"window": 0}, "window"), ({"window": 2.5}, "window"), ({"eps": 0.0}, "eps"),
+    ({"eps": 2.0}, "eps")])
+def test_hachaj_options_refuse_values_out_of_range(options: dict[str, object],
+                                                   field: str) -> None:
+    with pytest.raises(InputError) as info:
+        HachajOptions(**options)  # type: ignore[arg-type]
+    assert info.value.field == field
+
+
+def test_hachaj_options_keep_an_integral_window_given_as_a_float_as_an_int() -> None:
+    window = HachajOptions(window=50.0).window  # type: ignore[arg-type]
+    assert window == 50
+    assert isinstance(window, int)
+
+
+@pytest.mark.parametrize(("method", "options"), [
+    ("hachaj2018", {"window": 40, "eps": 0.03}),
+    ("contact", {"switch_cost": 3.0, "use_toes": False})])
+def test_an_options_object_gives_the_same_path_as_keywords(method: str,
+                                                            options: dict[str, object]) -> None:
+    rec, _, _ = simulate_walker(fps=30)
+    by_keywords = estimate_translation(rec, method=method, **options)
+    by_object = estimate_translation(rec, method=method,
+                                     options=METHOD_OPTIONS[method](**options))  # type: ignore[arg-type]
+    assert np.array_equal(by_keywords.root, by_object.root)
+    assert by_keywords.quality == by_object.quality
+
+
+def test_options_are_given_one_way_and_of_the_method() -> None:
+    rec, _, _ = simulate_walker(fps=30)
+    with pytest.raises(InputError) as info:
+        estimate_translation(rec, method="hachaj2018", options=HachajOptions(), window=40)
+    assert info.value.field == "window"
+    with pytest.raises(InputError) as info:
+        estimate_translation(rec, method="hachaj2018", options=ContactOptions())
+    assert info.value.field == "options"
+    assert "HachajOptions" in str(info.value)
+
+
+@pytest.mark.parametrize("method", ["contact", "hachaj2018"])
+def test_method_options_name_an_unknown_option_and_list_the_known(method: str) -> None:
+    with pytest.raises(InputError) as info:
+        method_options(method, {"bogus": 1, "zzz": 2})
+    assert info.value.field == "bogus"
+    assert ", ".join(sorted(METHOD_OPTIONS[method].__dataclass_fields__)) in str(info.value)
+    assert method_options(method, {}) == METHOD_OPTIONS[method]()
 
 
 @pytest.mark.parametrize(("option", "value"), [

@@ -267,7 +267,8 @@ def test_translation_inputs_must_exist(client: TestClient) -> None:
     r = client.post("/v1/jobs", json={"kind": "translation", "recording_id": rec["id"],
                                       "inputs": {"accelerations": "0000missing"}})
     assert assert_problem(r, 422)["field"] == "inputs.accelerations"
-    acc = upload(client, b"time,LeftFoot.ax,LeftFoot.ay\n0,1,2\n", format="accelerations-csv")
+    acc = upload(client, b"time,LeftFoot.ax,LeftFoot.ay,LeftFoot.az\n0,1,2,3\n",
+                 format="accelerations-csv")
     assert acc["format"] == "accelerations-csv"
     assert acc["summary"]["frames"] == 1
     r = client.post("/v1/jobs", json={"kind": "translation", "recording_id": rec["id"],
