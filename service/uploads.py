@@ -20,7 +20,7 @@ from python_multipart.multipart import MultipartParser, MultipartState, parse_op
 from estimation.errors import BonefitError, InputError
 from estimation.io import limits
 from estimation.io.kinematics import acceleration_header, acceleration_sensors, sniff_kinematics
-from estimation.io.sensors import RowCounter, sniff_recording
+from estimation.io.sniff import RowCounter, sniff_recording
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
 from .problems import Problem

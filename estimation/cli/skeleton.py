@@ -10,8 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..io.sensors import FORMATS, UNITS, detect_format, example_path
+from ..io.sensor_common import UNITS, example_path
 from ..io.skeleton import read_skeleton_offsets
+from ..io.sniff import FORMATS, detect_format
 from ..io.tracker import (
     TrackerLayout,
     detect_tracker_layout,
