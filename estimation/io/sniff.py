@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 
 from ..errors import InputError
-from ..vocabulary import SENSOR_FORMATS
+from ..vocabulary import KINEMATICS_FORMATS, SENSOR_FORMATS
 from . import limits
 
 if TYPE_CHECKING:
@@ -21,6 +21,9 @@ if TYPE_CHECKING:
 from .sensor_common import PathLike, fps_from_time, open_text, parse_fps
 from .sensor_csv import csv_header, csv_rows, parse_csv_header
 from .sensor_npz import sniff_npz
+
+ACCELERATIONS_FORMAT: Final[str] = "accelerations-csv"
+"""Format name of a CSV of foot accelerations (``time,<Sensor>.ax,.ay,.az,...``)."""
 
 FORMATS: Final[tuple[str, ...]] = SENSOR_FORMATS
 """Recording formats ``read_recording`` understands (besides ``"auto"``)."""
@@ -278,3 +281,99 @@ def _sniff_line_lead(line: bytes) -> bytes:
     return lead[0].encode() if lead else decoder.getstate()[0]
 
 
+def sniff_accelerations(path: PathLike) -> dict[str, Any]:
+    """Columns, sensors and rows of an accelerations CSV, reading one bounded line at a
+    time; InputError unless the header has a time column and a ``.ax/.ay/.az`` sensor."""
+    from .kinematics import acceleration_header, acceleration_sensors
+
+    header: list[str] | None = None
+    header_line = 0
+    frames = 0
+    with open(path, encoding="utf-8-sig", errors="replace", newline="") as fh:
+        for line, text in enumerate(limits.bounded_lines(fh), 1):
+            stripped = text.strip()
+            if not stripped or stripped.startswith("#"):
+                continue
+            if header is None:
+                header, header_line = acceleration_columns(stripped, line), line
+                continue
+            frames += 1
+    if header is None:
+        raise InputError("empty file: no header line", line=1, field="header")
+    limits.check_rows(frames, len(header))
+    names, _ = acceleration_header(header)
+    if not any(n.lower() in ("time", "t") for n in names):
+        raise InputError("not an accelerations CSV: the header has no time column",
+                         line=header_line, field="time")
+    sensors = acceleration_sensors(names)
+    if not sensors:
+        raise InputError("not an accelerations CSV: the header has no <Sensor>.ax,.ay,.az "
+                         "columns", line=header_line, field="header")
+    return {"format": "accelerations-csv", "frames": frames, "columns": header,
+            "sensors": sensors}
+
+
+def acceleration_columns(line_text: str, line: int) -> list[str]:
+    """The column names of an accelerations CSV's header line, their count and length bounded."""
+    header = [c.strip() for c in line_text.split(",")]
+    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
+    if len(header) < 2 or not any(c[:1].isalpha() for c in header):
+        raise InputError("expected a header line of column names", line=line, field="header")
+    for name in header:
+        limits.check_count("characters in a column name", len(name), "MAX_NAME_CHARS",
+                           line=line, field="header")
+    return header
+
+
+def sniff_file(path: PathLike, format: str = "auto", *, filename: str | None = None,
+               counted_rows: int | None = None) -> tuple[str, dict[str, Any]]:
+    """The format of any recording bonefit reads and a quick summary of it.
+
+    Parameters
+    ----------
+    path : path
+    format : str
+        ``"auto"``, a sensor format (``"csv"``, ``"tracker"``, ``"npz"``), a kinematics format
+        (``"kinematics-csv"``, ``"bvh"``, ``"mvnx"``) or ``"accelerations-csv"``.
+    filename : str, optional
+        The file's original name: a ``.bvh`` or ``.mvnx`` suffix is read as kinematics.
+    counted_rows : int, optional
+        As in :func:`sniff_recording`.
+
+    Returns
+    -------
+    (str, dict)
+        The format found (``format`` itself when given) and the summary of
+        :func:`sniff_recording`, ``sniff_kinematics`` or :func:`sniff_accelerations`.
+
+    Raises
+    ------
+    InputError
+        The file is not in ``format`` (or, with ``"auto"``, in any: the sensor readers' error).
+    """
+    from .kinematics import sniff_kinematics
+
+    if format == ACCELERATIONS_FORMAT:
+        return format, sniff_accelerations(path)
+    if format in SENSOR_FORMATS:
+        return format, sniff_recording(path, format, counted_rows=counted_rows)
+    if format in KINEMATICS_FORMATS:
+        return format, dict(sniff_kinematics(path, format))
+    suffix = Path(filename or "").suffix.lower()
+    if suffix in (".bvh", ".mvnx"):
+        summary = dict(sniff_kinematics(path, "auto"))
+        return _kinematics_name(summary, suffix[1:]), summary
+    try:
+        summary = sniff_recording(path, "auto", counted_rows=counted_rows)
+        return str(summary["format"]), summary
+    except InputError as first:
+        try:
+            summary = dict(sniff_kinematics(path, "auto"))
+        except InputError:
+            raise first from None
+        return _kinematics_name(summary, "kinematics-csv"), summary
+
+
+def _kinematics_name(summary: dict[str, Any], default: str) -> str:
+    found = str(summary.get("format"))
+    return found if found in KINEMATICS_FORMATS else default
