@@ -39,6 +39,7 @@ RUN python3 -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['
 print('\n'.join(p['dependencies'] + p['optional-dependencies']['service']))" > requirements.txt \
     && pip install --no-cache-dir -r requirements.txt
 
+COPY bonefit ./bonefit
 COPY estimation ./estimation
 COPY service ./service
 # The project itself ("."), not a registry package: its pins live in pyproject.toml.

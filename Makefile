@@ -20,7 +20,7 @@ run: $(STAMP)
 test: $(STAMP) lint typecheck pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff check estimation service tests benchmarks
+	$(BIN)/ruff check bonefit estimation service tests benchmarks
 
 typecheck: $(STAMP)
 	$(BIN)/mypy

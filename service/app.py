@@ -14,7 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from . import problems
+from . import problems, studio
 from .kinds import Kind, default_kinds
 from .metrics import build_registry
 from .problems import Problem
@@ -197,7 +197,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
                     await task
 
     app = FastAPI(
-        title="bonefit", version="0.1.0", lifespan=lifespan,
+        title="bonefit", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
         description="Skeletons and root paths from body-worn motion-capture sensors: upload "
                     "recordings, run estimation jobs, download JSON, BVH and CSV results.")
     app.state.runtime = runtime
@@ -211,4 +211,5 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
     app.add_middleware(BodyLimit)
     app.include_router(v1)
     app.include_router(ops)
+    studio.install(app)
     return app

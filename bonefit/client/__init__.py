@@ -1,0 +1,45 @@
+"""The Python client of the bonefit REST service.
+
+``pip install 'bonefit[client]'`` (httpx and numpy; not the service stack)::
+
+    from bonefit.client import Client
+
+    with Client("http://127.0.0.1:8000", api_key=None) as client:
+        result = client.run("walk.csv", "skeleton", {"method": "auto"})
+        print(result.bone_lengths["l_thigh"], result.joints["l_knee"].shape)
+
+:class:`AsyncClient` offers the same calls to ``await``. Every problem answer of the
+service is a :class:`ProblemError` carrying the RFC 9457 document.
+"""
+
+from __future__ import annotations
+
+from .aio import AsyncClient
+from .errors import ProblemError
+from .results import (
+    Job,
+    JointOffset,
+    JointQuality,
+    Recording,
+    Result,
+    SkeletonResult,
+    TranslationResult,
+    parse_result,
+)
+from .sync import Client
+from .transport import RetryPolicy
+
+__all__ = [
+    "AsyncClient",
+    "Client",
+    "Job",
+    "JointOffset",
+    "JointQuality",
+    "ProblemError",
+    "Recording",
+    "Result",
+    "RetryPolicy",
+    "SkeletonResult",
+    "TranslationResult",
+    "parse_result",
+]
