@@ -23,8 +23,8 @@ from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
 
 if TYPE_CHECKING:
-    from .io.kinematics import KinematicsRecording
     from .io.tracker import TrackerLayout
+    from .kinematics import KinematicsRecording
     from .translation import TranslationResult
 
 PathLike = str | Path
@@ -196,7 +196,8 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
     OSError
         A file could not be read or written.
     """
-    from .io.kinematics import read_kinematics, write_translation_files
+    from .io.kinematics import read_kinematics
+    from .io.translation_files import write_translation_files
     from .translation import estimate_translation
 
     _stage(stages, "reading")

@@ -12,7 +12,7 @@ from ..vocabulary import KINEMATICS_FORMATS, TRANSLATION_METHODS
 from .progress import ProgressBar
 
 if TYPE_CHECKING:
-    from ..io.kinematics import KinematicsRecording
+    from ..kinematics import KinematicsRecording
 
 EXAMPLES = """\
 examples:
