@@ -26,8 +26,13 @@ if TYPE_CHECKING:
     from .orientations import estimate_orientations
     from .progress import Progress
     from .recording import SensorRecording
-    from .results import JointOffset, SkeletonResult
-    from .skeleton import estimate_chest, estimate_root, estimate_skeleton
+    from .results import JointOffset, JointQuality, SkeletonResult
+    from .skeleton import (
+        estimate_chest,
+        estimate_root,
+        estimate_skeleton,
+        estimate_skeleton_from_offsets,
+    )
     from .slip import SlipFit, estimate_slip, rotation_noise_variance
     from .translation import (
         ContactOptions,
@@ -49,6 +54,7 @@ __all__ = [
     "InputError",
     "JointFit",
     "JointOffset",
+    "JointQuality",
     "KinematicsRecording",
     "LimbFit",
     "LimitError",
@@ -63,6 +69,7 @@ __all__ = [
     "estimate_orientations",
     "estimate_root",
     "estimate_skeleton",
+    "estimate_skeleton_from_offsets",
     "estimate_slip",
     "estimate_translation",
     "fill_gaps",
@@ -86,8 +93,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "orientations": ("estimate_orientations",),
     "progress": ("Progress",),
     "recording": ("SensorRecording",),
-    "results": ("JointOffset", "SkeletonResult"),
-    "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton"),
+    "results": ("JointOffset", "JointQuality", "SkeletonResult"),
+    "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton",
+                 "estimate_skeleton_from_offsets"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
     "translation": ("ContactOptions", "HachajOptions", "TranslationResult",
                     "estimate_translation"),

@@ -274,10 +274,10 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
         dev = nines
     # the percentile of the squared norms, and the square root of its two order statistics
     squared = rows.dots(dev.T, dev.T)
-    return float(2.0 * np.degrees(_percentile(squared, 95.0, np.sqrt)) / n_avg)
+    return float(2.0 * np.degrees(percentile(squared, 95.0, np.sqrt)) / n_avg)
 
 
-def _percentile(x: NDArray[np.float64], q: float,
+def percentile(x: NDArray[np.float64], q: float,
                 of: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None
                 ) -> float:
     """``np.percentile(x, q)`` (linear interpolation) by one partial sort: a quarter of the
@@ -382,6 +382,488 @@ def _axis_shift(rule_points: tuple[NDArray[np.float64] | None, NDArray[np.float6
     r1, r2 = radii
     target = (r2 * coords[0] + r1 * coords[1]) / max(r1 + r2, 1e-9)
     return float(np.mean(target[use])), "straight-limb"
+
+
+@dataclass(frozen=True, eq=False)
+class JointData:
+    """The two sensors' samples, ready for the joint equation ``R_a c_a + p_a = R_b c_b + p_b``.
+
+    Attributes
+    ----------
+    pa, pb : ndarray, shape (F, 3)
+        Sensor origins in the world frame, dropped (NaN) samples interpolated, metres.
+    ra, rb : ndarray, shape (F, 3, 3)
+        Sensor → world rotation matrices.
+    d : ndarray, shape (F, 3)
+        ``p_b − p_a``, metres.
+    ok_a, ok_b : ndarray of bool, shape (F,)
+        Samples measured (finite) and marked valid, per sensor.
+    both : ndarray of bool, shape (F,)
+        Frames in which both samples are usable: the frames fitted.
+    excluded : ndarray of int, shape (E,)
+        The other frames.
+    w0 : ndarray, shape (F,)
+        Unit weight in the fitted frames, 0 elsewhere.
+    """
+
+    pa: NDArray[np.float64]
+    pb: NDArray[np.float64]
+    ra: NDArray[np.float64]
+    rb: NDArray[np.float64]
+    d: NDArray[np.float64]
+    ok_a: NDArray[np.bool_]
+    ok_b: NDArray[np.bool_]
+    both: NDArray[np.bool_]
+    excluded: NDArray[np.intp]
+    w0: NDArray[np.float64]
+
+    @property
+    def n(self) -> int:
+        """Number of frames F."""
+        return int(self.pa.shape[0])
+
+    @property
+    def n_both(self) -> int:
+        """Number of frames fitted."""
+        return self.n - int(self.excluded.size)
+
+    @property
+    def unit_excluded(self) -> NDArray[np.intp] | None:
+        """``excluded`` when few enough that the normal equations at unit weights are
+        cheaper as every frame less these (see ``_llsf_system``), else None."""
+        return self.excluded if 2 * self.excluded.size <= self.n else None
+
+
+def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation,
+               positions_b: NDArray[np.float64], rotations_b: Rotation,
+               valid: NDArray[np.bool_] | None = None) -> JointData:
+    """Check and prepare two sensors' samples (arguments as in ``estimate_joint``).
+
+    Raises
+    ------
+    InputError
+        Positions not (F, 3) or rotations not of length F, or a sensor with no finite
+        position.
+    EstimationError
+        Fewer than 3 frames in which both sensors are valid.
+    """
+    pa_raw = np.asarray(positions_a, dtype=float)
+    pb_raw = np.asarray(positions_b, dtype=float)
+    n = pa_raw.shape[0]
+    if pa_raw.shape != (n, 3) or pb_raw.shape != (n, 3) or len(rotations_a) != n \
+            or len(rotations_b) != n:
+        raise InputError("positions must be (F, 3) and rotations of length F for both sensors",
+                         field="positions")
+    pa, ok_a = _fill_nan_positions(pa_raw)
+    pb, ok_b = _fill_nan_positions(pb_raw)
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool)
+        if v.ndim == 2:
+            ok_a &= v[:, 0]
+            ok_b &= v[:, 1]
+        else:
+            ok_a &= v
+            ok_b &= v
+    both = ok_a & ok_b
+    excluded = np.flatnonzero(~both)
+    if n - excluded.size < 3:
+        raise EstimationError("fewer than 3 frames where both sensors are valid",
+                              field="positions")
+    return JointData(pa, pb, rotations_a.as_matrix(), rotations_b.as_matrix(), pb - pa,
+                     ok_a, ok_b, both, excluded, both.astype(float))
+
+
+@dataclass(frozen=True, eq=False)
+class SlipModel:
+    """A joint's slow-slip model (``estimate_joint(slip_period=...)``): the cosine terms
+    and the ridge (white variance over the coefficients' prior variance, per unit weight)."""
+
+    terms: _SlipTerms
+    ridge: float
+
+    @property
+    def basis(self) -> NDArray[np.float64]:
+        """Cosines φ (F, K)."""
+        return self.terms.basis
+
+
+def slip_model(data: JointData, slip_period: float) -> SlipModel | None:
+    """The slip model of cosines down to ``slip_period`` frames, its prior variance per
+    coefficient ``v / (2K)`` from the slow part ``v`` of a plain LLSF fit's residual
+    variance; None when no cosine fits in the recording."""
+    basis = slip_basis(data.n, slip_period)
+    if basis.shape[1] == 0:
+        return None
+    c0 = _solve(*_llsf_system(data.ra, data.rb, data.d, data.w0, data.unit_excluded))[0]
+    r0 = rows.apply(data.ra, c0[:3]) - rows.apply(data.rb, c0[3:]) - data.d
+    white = white_variance(r0, data.both)
+    white = max(float(np.mean(r0[data.both] ** 2)) if white is None else white, 1e-12)
+    slow = max(float(np.mean(r0[data.both] ** 2)) - white, white)
+    ridge = white / (0.5 * slow / basis.shape[1])
+    return SlipModel(_SlipTerms.of(data.ra, data.rb, data.d, basis), ridge)
+
+
+class HighpassSystem(NamedTuple):
+    """The joint equation ``A_t c = y_t`` less its moving average (``highpass`` frames)."""
+
+    a: NDArray[np.float64]  # (F, 3, 6) [R_a  −R_b], filtered
+    y: NDArray[np.float64]  # (F, 3) p_b − p_a, filtered
+
+
+def highpass_system(data: JointData, highpass: int) -> HighpassSystem:
+    """``A c = y`` holds frame by frame, so it holds for any linear filter of ``A`` and
+    ``y``; removing the moving average drops slow drifts (soft-tissue slip) but keeps the
+    motion."""
+    big_a = np.concatenate([data.ra, -data.rb], axis=2)
+    big_a = big_a - uniform_filter1d(big_a, highpass, axis=0, mode="nearest")
+    big_y = data.d - uniform_filter1d(data.d, highpass, axis=0, mode="nearest")
+    return HighpassSystem(big_a, big_y)
+
+
+class NormalEquations(NamedTuple):
+    """Normal equations of the centre ``c = [c_a; c_b]`` at some frame weights."""
+
+    normal: NDArray[np.float64]  # (6, 6), normalised by the total weight
+    rhs: NDArray[np.float64]  # (6,)
+    # (6K, 7) ``n_bb⁻¹ [n_bc | rhs_b]``, which recovers the slip coefficients; (0, 7) without
+    back: NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class JointModel:
+    """What every step of ``estimate_joint`` fits: the data and the variant of the joint
+    equation (plain, with a slip model, or high-pass filtered; at most one of the two)."""
+
+    data: JointData
+    slip: SlipModel | None = None
+    highpass: HighpassSystem | None = None
+
+    def normal_equations(self, w: NDArray[np.float64], *, first: bool = False
+                         ) -> NormalEquations:
+        """The weighted normal equations at frame weights ``w`` (F,); ``first``: ``w`` is
+        ``data.w0`` (the unit-weight shortcut applies)."""
+        data = self.data
+        if self.highpass is not None:
+            total = float(w.sum())
+            wa = (self.highpass.a * w[:, None, None]).reshape(-1, 6)
+            normal = wa.T @ self.highpass.a.reshape(-1, 6) / total
+            rhs = wa.T @ self.highpass.y.reshape(-1) / total
+            return NormalEquations(normal, rhs, np.zeros((0, 7)))
+        if self.slip is not None:
+            return NormalEquations(*_slip_system(data.ra, data.rb, data.d, w, self.slip.terms,
+                                                 self.slip.ridge))
+        normal, rhs = _llsf_system(data.ra, data.rb, data.d, w,
+                                   data.unit_excluded if first else None)
+        return NormalEquations(normal, rhs, np.zeros((0, 7)))
+
+    def residual(self, c: NDArray[np.float64], back: NDArray[np.float64]
+                 ) -> NDArray[np.float64]:
+        """Per-frame residual (F, 3) of the (unfiltered) joint equation at centre ``c``,
+        with the slip that goes with it (``back`` from its normal equations) when modelled."""
+        data = self.data
+        res = rows.apply(data.ra, c[:3]) + data.pa - rows.apply(data.rb, c[3:]) - data.pb
+        if self.slip is not None:
+            res = res + _slip_displacement(data.ra, data.rb, self.slip.basis,
+                                           slip_coefficients(back, c))
+        return np.asarray(res)
+
+    def frame_residuals(self, c: NDArray[np.float64], back: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+        """Per-frame residual norms (F,) of the system solved (filtered, if high-passed)."""
+        if self.highpass is not None:
+            return rows.norms(self.highpass.a @ c - self.highpass.y)
+        return rows.norms(self.residual(c, back))
+
+    def variance_per_information(self, c: NDArray[np.float64], w: NDArray[np.float64],
+                                 back: NDArray[np.float64]) -> float:
+        """``σ²/N_eff`` at ``c``: the residual variance per axis over the effective number
+        of samples (slow slip counts as few), the variance of the centre per unit of the
+        normalised system's eigenvalue along a direction."""
+        res_vec = self.residual(c, back)
+        sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * float(w.sum()))
+        return sigma2 / effective_samples(res_vec, w)
+
+
+def joint_model(data: JointData, *, method: str = "auto", highpass: int = 0,
+                slip_period: float = 0.0) -> JointModel:
+    """The variant of the joint equation ``estimate_joint``'s options ask for."""
+    if highpass > 1:
+        return JointModel(data, highpass=highpass_system(data, highpass))
+    if slip_period > 0 and method != "gdke":
+        return JointModel(data, slip=slip_model(data, slip_period))
+    return JointModel(data)
+
+
+def slip_coefficients(back: NDArray[np.float64], c: NDArray[np.float64]
+                      ) -> NDArray[np.float64]:
+    """The slip coefficients (6K,) that go with centre ``c`` (``back`` from
+    ``NormalEquations``)."""
+    return np.asarray(back[:, 6] - back[:, :6] @ c)
+
+
+class Priors(NamedTuple):
+    """Anatomical knowledge ``estimate_joint`` adds to the data (see its parameters)."""
+
+    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    symmetry_weight: float = 0.01
+    prior: tuple[NDArray[np.float64], float] | None = None
+
+
+def with_priors(model: JointModel, system: NormalEquations, c: NDArray[np.float64],
+                w: NDArray[np.float64], priors: Priors) -> tuple[NDArray[np.float64], float]:
+    """The centre (6,) with the priors added to the data's normal equations, and the prior's
+    weight against the normalised data term (0 without a prior); ``c`` unchanged when
+    there is no prior."""
+    reg_normal = np.zeros((6, 6))
+    reg_rhs = np.zeros(6)
+    prior_weight = 0.0
+    if priors.symmetry is not None:
+        # soft plane constraint u·(c_a − m) = 0 (Tikhonov, weight symmetry_weight)
+        point, normal_u = priors.symmetry
+        g = np.concatenate([normal_u, np.zeros(3)])
+        reg_normal += priors.symmetry_weight * np.outer(g, g)
+        reg_rhs += priors.symmetry_weight * g * float(normal_u @ point)
+    if priors.prior is not None:
+        # Gaussian prior on the centre (in both frames): its weight against the normalised
+        # data term is σ²/(N_eff s0²), so it only moves the centre along directions the
+        # motion leaves as uncertain as the prior itself
+        data = model.data
+        x0 = np.asarray(priors.prior[0], dtype=float)
+        prior_weight = model.variance_per_information(c, w, system.back) / priors.prior[1] ** 2
+        x0_b = np.einsum("t,ti->i", w, np.einsum(
+            "tji,tj->ti", data.rb, rows.apply(data.ra, x0) + data.pa - data.pb)) / w.sum()
+        reg_normal += prior_weight * np.eye(6)
+        reg_rhs += prior_weight * np.concatenate([x0, x0_b])
+    if priors.symmetry is None and priors.prior is None:
+        return c, prior_weight
+    solved = np.linalg.solve(system.normal + reg_normal + 1e-12 * np.eye(6),
+                             system.rhs + reg_rhs)
+    return np.asarray(solved, dtype=np.float64), prior_weight
+
+
+class RobustFit(NamedTuple):
+    """Outcome of the robust (IRLS) loop."""
+
+    c: NDArray[np.float64]  # (6,) centre with the priors
+    c_data: NDArray[np.float64]  # (6,) centre from the data alone (last iteration)
+    w: NDArray[np.float64]  # (F,) final frame weights
+    sv: NDArray[np.float64]  # (6,) singular values of the normal matrix, ascending
+    weak: NDArray[np.float64]  # (6,) weakest direction, sign fixed
+    prior_weight: float
+    back: NDArray[np.float64]  # slip recovery of the last normal equations
+
+
+def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "huber",
+               huber_k: float = 2.0, n_iterations: int = 4) -> RobustFit:
+    """Iteratively reweighted least squares of the joint equation with ``priors``:
+    ``n_iterations`` reweightings by ``loss`` (none for ``"linear"``) of the per-frame
+    residual, scaled by ``huber_k`` robust standard deviations."""
+    priors = Priors() if priors is None else priors
+    w0 = model.data.w0
+    w = w0  # replaced, never changed in place
+    iterations = n_iterations if loss != "linear" else 0
+    for it in range(iterations + 1):
+        system = model.normal_equations(w, first=it == 0)
+        c_data, sv, weak = _solve(system.normal, system.rhs)
+        c, prior_weight = with_priors(model, system, c_data, w, priors)
+        if it == iterations:
+            break
+        w = _weights(model.frame_residuals(c, system.back), w0, loss, huber_k)
+    return RobustFit(c, c_data, w, sv, weak, prior_weight, system.back)
+
+
+def hinge_value(sv: NDArray[np.float64]) -> float:
+    """Smallest over second smallest singular value (``sv`` ascending), 0 when the second
+    is 0: below ``estimate_joint``'s ``hinge_ratio`` the joint is a hinge."""
+    return float(sv[0] / sv[1]) if sv[1] > 0 else 0.0
+
+
+class HingeDecision(NamedTuple):
+    """Where a hinge's centre goes along its axis (see ``estimate_joint``, Notes)."""
+
+    c: NDArray[np.float64]  # (6,) centre after the rule
+    rule: str | None  # "straight-limb", "foot-of-perpendicular", "bone-length" or None
+    rejected: str | None  # a rule the data contradicted
+    shift: float  # applied shift along the axis, metres
+    blend: float  # the data's weight β along the axis
+
+
+class HingeRule(NamedTuple):
+    """The hinge rule's inputs (``estimate_joint``'s ``neighbours``, ``bone_length``,
+    ``hinge_prior``)."""
+
+    neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None)
+    bone_length: float | None = None
+    hinge_prior: float = 0.005
+
+
+def hinge_decision(model: JointModel, fit: RobustFit, c: NDArray[np.float64],
+                   rule_in: HingeRule) -> HingeDecision:
+    """Fix a hinge's centre ``c`` along its axis (the weakest direction ``fit.weak``) by the
+    rule its neighbours give, blended with the data by ``λ / (λ + hinge_prior)``."""
+    none = HingeDecision(c, None, None, 0.0, 1.0)
+    if rule_in.neighbours[0] is None and rule_in.neighbours[1] is None:
+        return none
+    data = model.data
+    # world direction in which the centre moves per unit of the weakest singular vector
+    move = 0.5 * (rows.apply(data.ra, fit.weak[:3]) + rows.apply(data.rb, fit.weak[3:]))
+    move_norm = rows.norms(move)
+    step = float(np.mean(move_norm[data.both]))
+    if step <= 1e-9:
+        return none
+    axis_world = move / np.maximum(move_norm, 1e-12)[:, None]
+    centre = 0.5 * (rows.apply(data.ra, c[:3]) + data.pa + rows.apply(data.rb, c[3:]) + data.pb)
+    shift, rule = _axis_shift(rule_in.neighbours, centre, axis_world, fit.w)
+    if rule == "foot-of-perpendicular":
+        shift, rule = _along_bone(data, rule_in, centre, axis_world, shift)
+    rejected = None
+    lam0 = float(fit.sv[0] ** 2)
+    if rule == "foot-of-perpendicular":
+        # the rule assumes the bone perpendicular to the axis; its shift is the distance
+        # from the data's centre to the foot, |bone|·cos(bone, axis) of the data's own
+        # estimate. A shift far beyond the data's uncertainty along the axis (σ²/(N_eff λ)
+        # in the centre's coordinates) means the data contradict that hypothesis (a short
+        # clip whose relative rotation is no flexion about a perpendicular axis): the data
+        # alone decide
+        sd_axis = step * np.sqrt(model.variance_per_information(c, fit.w, fit.back)
+                                 / max(lam0, 1e-300))
+        if abs(shift) > RULE_GATE_SIGMA * sd_axis:
+            rule, shift, rejected = None, 0.0, "foot-of-perpendicular"
+    if rule is None:
+        return HingeDecision(c, None, rejected, shift, 1.0)
+    # Tikhonov prior on the weak coordinate: data weight lam0, prior weight tau
+    blend = lam0 / (lam0 + rule_in.hinge_prior)
+    shift *= 1.0 - blend
+    return HingeDecision(c + (shift / step) * fit.weak, rule, rejected, shift, blend)
+
+
+def _along_bone(data: JointData, rule_in: HingeRule, centre: NDArray[np.float64],
+                axis_world: NDArray[np.float64], shift: float) -> tuple[float, str | None]:
+    """The foot-of-perpendicular rule's (shift, rule), or, when the axis runs along the bone
+    (a wrist twisting about the forearm), the bone-length rule's, or no rule."""
+    near, far_side = rule_in.neighbours
+    pt = near if near is not None else far_side
+    assert pt is not None
+    bone = centre - pt
+    cos = np.abs(rows.dots(bone, axis_world)) / np.maximum(rows.norms(bone), 1e-12)
+    if float(np.median(cos[data.both])) <= 0.5:
+        return shift, "foot-of-perpendicular"
+    if rule_in.bone_length is None:
+        return 0.0, None
+    # the axis runs along the bone: put the centre at the given distance, on the side of
+    # the neighbour where the other body's sensor lies (the hand sensor is beyond the wrist,
+    # seen from the elbow). The side of the data's own centre is no guide: along an exact
+    # hinge it is arbitrary.
+    h0 = rows.dots(bone, axis_world)
+    rho2 = rows.dots(bone, bone) - h0**2
+    far = data.pb if near is not None else data.pa
+    side = np.sign(np.median(rows.dots(far - pt, axis_world)[data.both]))
+    target = side * np.sqrt(np.maximum(rule_in.bone_length**2 - rho2, 0.0))
+    return float(np.mean((target - h0)[data.both])), "bone-length"
+
+
+def gdke_centre(data: JointData, w: NDArray[np.float64], *, bias_compensation: bool = True,
+                point_m: float = 0.1) -> NDArray[np.float64]:
+    """The centre ``[c_a; c_b]`` (6,) by GDKE in frame a, ``c_b`` the weighted mean of
+    ``R_bᵀ (R_a c_a + p_a − p_b)``."""
+    ca = _gdke(data.ra, data.rb, data.pa, data.pb, w, bias_compensation, point_m)
+    cb_t = np.einsum("tji,tj->ti", data.rb, rows.apply(data.ra, ca) + data.pa - data.pb)
+    return np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
+
+
+class Reconstruction(NamedTuple):
+    """The joint's world path from a centre."""
+
+    positions: NDArray[np.float64]  # (F, 3) mean of the two reconstructions (or the measured)
+    residuals: NDArray[np.float64]  # (F,) distance between the two, metres
+    squared: NDArray[np.float64]  # (F,) its square
+
+
+def reconstruct(model: JointModel, c: NDArray[np.float64], back: NDArray[np.float64]
+                ) -> Reconstruction:
+    """``R_a (c_a − s_a) + p_a`` and ``R_b (c_b − s_b) + p_b`` (slip ``s`` with the slip
+    model): their mean, or the one whose sensor was measured."""
+    data = model.data
+    ra, rb = data.ra, data.rb
+    if model.slip is not None:
+        beta = slip_coefficients(back, c).reshape(2, -1, 3)
+        rec_a = np.einsum("tij,tj->ti", ra, c[:3] - model.slip.basis @ beta[0]) + data.pa
+        rec_b = np.einsum("tij,tj->ti", rb, c[3:] - model.slip.basis @ beta[1]) + data.pb
+    else:
+        rec_a = rows.transform(ra, c[:3], data.pa)
+        rec_b = rows.transform(rb, c[3:], data.pb)
+    one_sided = np.flatnonzero(data.ok_a != data.ok_b)
+    measured = np.where(data.ok_a[one_sided, None], rec_a[one_sided], rec_b[one_sided])
+    gap = np.subtract(rec_a, rec_b, out=rec_b)
+    squared = rows.dots(gap, gap)
+    residuals = np.sqrt(squared)
+    gap *= 0.5
+    positions = np.subtract(rec_a, gap, out=rec_a)
+    positions[one_sided] = measured
+    return Reconstruction(positions, residuals, squared)
+
+
+def _motion_range(rotations_a: Rotation, rotations_b: Rotation, both: NDArray[np.bool_], *,
+                  measured: float | None, min_range_deg: float, warn_range_deg: float
+                  ) -> tuple[float, list[str]]:
+    """The range of motion (degrees) and its warnings; EstimationError below the minimum."""
+    rom = range_of_motion(rotations_a, rotations_b, both) if measured is None else measured
+    if rom < min_range_deg:
+        raise EstimationError(
+            f"the two segments rotate only {rom:.1f}° relative to each other; at least "
+            f"{min_range_deg:g}° of motion is needed to locate the joint", field="motion")
+    if rom < warn_range_deg:
+        return rom, [f"small range of motion ({rom:.0f}°): the joint centre is uncertain"]
+    return rom, []
+
+
+def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,
+                   decision: HingeDecision | None, *, estimator: str, loss: str, rom: float,
+                   hinge_ratio: float, prior: Priors, bias_compensation: bool,
+                   centre: NDArray[np.float64]) -> dict[str, Any]:
+    """``JointFit.quality`` (see there) of the final centre ``centre`` (6,)."""
+    sv = fit.sv
+    ratio = hinge_value(sv)
+    quality: dict[str, Any] = {
+        "estimator": estimator,
+        "rms_residual_m": float(np.sqrt(rec.squared @ data.w0 / data.n_both)),
+        "singular_value_ratio": float(sv[0] / sv[-1]),
+        "hinge_ratio": ratio,
+        "range_of_motion_deg": rom,
+        "hinge": bool(ratio < hinge_ratio),
+        "loss": loss,
+        # w is 0 wherever not both are valid
+        "outlier_fraction": (np.count_nonzero(fit.w < 0.5) - data.excluded.size) / data.n_both,
+    }
+    if estimator == "gdke":
+        quality["bias_compensation"] = bias_compensation
+    if prior.prior is not None:
+        lam0 = float(sv[0] ** 2)
+        quality["prior_sigma_m"] = float(prior.prior[1])
+        quality["prior_weight"] = fit.prior_weight
+        quality["prior_shift_m"] = float(np.linalg.norm(centre[:3] - fit.c_data[:3]))
+        quality["data_weight"] = lam0 / (lam0 + fit.prior_weight)
+    if decision is not None:
+        weak = fit.weak[:3]
+        quality["axis"] = [float(x) for x in weak / max(float(np.linalg.norm(weak)), 1e-12)]
+        quality["hinge_rule"] = decision.rule
+        if decision.rejected is not None:
+            quality["hinge_rule_rejected"] = decision.rejected
+        quality["axis_shift_m"] = decision.shift
+        quality["data_weight"] = decision.blend
+    return quality
+
+
+def _hinge(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: HingeRule,
+           priors: Priors, hinge: bool) -> HingeDecision | None:
+    """The hinge decision: None for no hinge; with a prior (which replaces the rule) no rule
+    and the prior's blend; else ``hinge_decision``."""
+    if not hinge:
+        return None
+    if priors.prior is not None:
+        lam0 = float(fit.sv[0] ** 2)
+        return HingeDecision(c, None, None, 0.0, lam0 / (lam0 + fit.prior_weight))
+    return hinge_decision(model, fit, c, rule_in)
 
 
 def estimate_joint(
@@ -552,231 +1034,27 @@ def estimate_joint(
     if loss not in _LOSSES:
         raise InputError(f"unknown loss {loss!r}; use one of {', '.join(_LOSSES)}",
                          field="loss")
-    pa_raw = np.asarray(positions_a, dtype=float)
-    pb_raw = np.asarray(positions_b, dtype=float)
-    n = pa_raw.shape[0]
-    if pa_raw.shape != (n, 3) or pb_raw.shape != (n, 3) or len(rotations_a) != n \
-            or len(rotations_b) != n:
-        raise InputError("positions must be (F, 3) and rotations of length F for both sensors",
-                         field="positions")
-    pa, ok_a = _fill_nan_positions(pa_raw)
-    pb, ok_b = _fill_nan_positions(pb_raw)
-    if valid is not None:
-        v = np.asarray(valid, dtype=bool)
-        if v.ndim == 2:
-            ok_a &= v[:, 0]
-            ok_b &= v[:, 1]
-        else:
-            ok_a &= v
-            ok_b &= v
-    both = ok_a & ok_b
-    excluded = np.flatnonzero(~both)
-    n_both = n - excluded.size
-    if n_both < 3:
-        raise EstimationError("fewer than 3 frames where both sensors are valid",
-                              field="positions")
-    ra = rotations_a.as_matrix()
-    rb = rotations_b.as_matrix()
-    d = pb - pa
-
-    w0 = both.astype(float)
-    # at unit weights the normal equations sum every frame less the few excluded ones
-    unit = excluded if 2 * excluded.size <= n else None
-    rom = (range_of_motion(rotations_a, rotations_b, both) if range_of_motion_deg is None
-           else range_of_motion_deg)
-    warnings: list[str] = []
-    if rom < min_range_deg:
-        raise EstimationError(
-            f"the two segments rotate only {rom:.1f}° relative to each other; at least "
-            f"{min_range_deg:g}° of motion is needed to locate the joint", field="motion")
-    if rom < warn_range_deg:
-        warnings.append(f"small range of motion ({rom:.0f}°): the joint centre is uncertain")
-
-    slip_ridge = 0.0
-    basis = np.zeros((n, 0))
-    if slip_period > 0 and highpass <= 1 and method != "gdke":
-        basis = slip_basis(n, slip_period)
-        if basis.shape[1] > 0:
-            c0 = _solve(*_llsf_system(ra, rb, d, w0, unit))[0]
-            r0 = rows.apply(ra, c0[:3]) - rows.apply(rb, c0[3:]) - d
-            white = white_variance(r0, both)
-            white = max(float(np.mean(r0[both] ** 2)) if white is None else white, 1e-12)
-            slow = max(float(np.mean(r0[both] ** 2)) - white, white)
-            slip_ridge = white / (0.5 * slow / basis.shape[1])
-    slip_terms = _SlipTerms.of(ra, rb, d, basis) if basis.shape[1] > 0 else None
-    back = np.zeros((0, 7))
-
-    def slip_coefficients(c: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The slip coefficients that go with centre ``c`` (6K,)."""
-        return np.asarray(back[:, 6] - back[:, :6] @ c)
-
-    def residual(c: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Per-frame residual of the joint equation (with the fitted slip, when modelled)."""
-        res = rows.apply(ra, c[:3]) + pa - rows.apply(rb, c[3:]) - pb
-        if slip_terms is not None:
-            res = res + _slip_displacement(ra, rb, basis, slip_coefficients(c))
-        return np.asarray(res)
-
-    def variance_per_information(c: NDArray[np.float64]) -> float:
-        """``σ²/N_eff`` at ``c``: the residual variance per axis over the effective number of
-        samples (slow slip counts as few), the variance of the centre per unit of the
-        normalised system's eigenvalue along a direction."""
-        res_vec = residual(c)
-        sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * float(w.sum()))
-        return sigma2 / effective_samples(res_vec, w)
-
-    w = w0  # replaced, never changed in place
-    c = np.zeros(6)
-    prior_weight = 0.0
-    sv = np.ones(6)
-    weak = np.zeros(6)
-    iterations = n_iterations if loss != "linear" else 0
-    if highpass > 1:
-        # A c = y holds frame by frame, so it holds for any linear filter of A and y; removing
-        # the moving average drops slow drifts (soft-tissue slip) but keeps the motion
-        big_a = np.concatenate([ra, -rb], axis=2)
-        big_a = big_a - uniform_filter1d(big_a, highpass, axis=0, mode="nearest")
-        big_y = d - uniform_filter1d(d, highpass, axis=0, mode="nearest")
-    for it in range(iterations + 1):
-        if highpass > 1:
-            total = float(w.sum())
-            wa = (big_a * w[:, None, None]).reshape(-1, 6)
-            normal = wa.T @ big_a.reshape(-1, 6) / total
-            rhs = wa.T @ big_y.reshape(-1) / total
-        elif slip_terms is not None:
-            normal, rhs, back = _slip_system(ra, rb, d, w, slip_terms, slip_ridge)
-        else:
-            normal, rhs = _llsf_system(ra, rb, d, w, unit if it == 0 else None)
-        c, sv, weak = _solve(normal, rhs)
-        c_data = c
-        reg_normal = np.zeros((6, 6))
-        reg_rhs = np.zeros(6)
-        if symmetry is not None:
-            # soft plane constraint u·(c_a − m) = 0 (Tikhonov, weight symmetry_weight)
-            g = np.concatenate([symmetry[1], np.zeros(3)])
-            reg_normal += symmetry_weight * np.outer(g, g)
-            reg_rhs += symmetry_weight * g * float(symmetry[1] @ symmetry[0])
-        if prior is not None:
-            # Gaussian prior on the centre (in both frames): its weight against the
-            # normalised data term is σ²/(N_eff s0²), so it only moves the centre along
-            # directions the motion leaves as uncertain as the prior itself
-            x0 = np.asarray(prior[0], dtype=float)
-            prior_weight = variance_per_information(c) / prior[1] ** 2
-            x0_b = np.einsum("t,ti->i", w, np.einsum(
-                "tji,tj->ti", rb, rows.apply(ra, x0) + pa - pb)) / w.sum()
-            reg_normal += prior_weight * np.eye(6)
-            reg_rhs += prior_weight * np.concatenate([x0, x0_b])
-        if symmetry is not None or prior is not None:
-            c = np.linalg.solve(normal + reg_normal + 1e-12 * np.eye(6), rhs + reg_rhs)
-        if it == iterations:
-            break
-        r = rows.norms(big_a @ c - big_y if highpass > 1 else residual(c))
-        w = _weights(r, w0, loss, huber_k)
-    hinge_value = float(sv[0] / sv[1]) if sv[1] > 0 else 0.0
-    hinge = hinge_value < hinge_ratio
+    data = joint_data(positions_a, rotations_a, positions_b, rotations_b, valid)
+    rom, warnings = _motion_range(rotations_a, rotations_b, data.both,
+                                  measured=range_of_motion_deg, min_range_deg=min_range_deg,
+                                  warn_range_deg=warn_range_deg)
+    model = joint_model(data, method=method, highpass=highpass, slip_period=slip_period)
+    priors = Priors(symmetry, symmetry_weight, prior)
+    fit = robust_fit(model, priors, loss=loss, huber_k=huber_k, n_iterations=n_iterations)
     estimator = "gdke" if method == "gdke" else "llsf"
-    lam0 = float(sv[0] ** 2)
-    if estimator == "gdke":
-        ca = _gdke(ra, rb, pa, pb, w, bias_compensation, gdke_point_m)
-        cb_t = np.einsum("tji,tj->ti", rb, rows.apply(ra, ca) + pa - pb)
-        c = np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
-    axis_a = weak[:3] / max(float(np.linalg.norm(weak[:3])), 1e-12)
-    rule = None
-    rejected: str | None = None  # a rule the data contradicted
-    shift = 0.0
-    blend = 1.0
-    step = 0.0
-    if hinge and prior is None and (neighbours[0] is not None or neighbours[1] is not None):
-        # world direction in which the centre moves per unit of the weakest singular vector
-        # (only a rule about the neighbouring joints can use it)
-        move = 0.5 * (rows.apply(ra, weak[:3]) + rows.apply(rb, weak[3:]))
-        move_norm = rows.norms(move)
-        step = float(np.mean(move_norm[both]))
-        axis_world = move / np.maximum(move_norm, 1e-12)[:, None]
-    if hinge and step > 1e-9 and prior is None:
-        centre = 0.5 * (rows.apply(ra, c[:3]) + pa + rows.apply(rb, c[3:]) + pb)
-        shift, rule = _axis_shift(neighbours, centre, axis_world, w)
-        if rule == "foot-of-perpendicular":
-            # a bone along the axis (e.g. a wrist twisting about the forearm) gives no rule
-            pt = neighbours[0] if neighbours[0] is not None else neighbours[1]
-            assert pt is not None
-            bone = centre - pt
-            cos = np.abs(rows.dots(bone, axis_world)) / np.maximum(
-                rows.norms(bone), 1e-12)
-            if float(np.median(cos[both])) > 0.5:
-                if bone_length is None:
-                    rule, shift = None, 0.0
-                else:
-                    # the axis runs along the bone: put the centre at the given distance,
-                    # on the side of the neighbour where the other body's sensor lies (the
-                    # hand sensor is beyond the wrist, seen from the elbow). The side of the
-                    # data's own centre is no guide: along an exact hinge it is arbitrary.
-                    h0 = rows.dots(bone, axis_world)
-                    rho2 = rows.dots(bone, bone) - h0**2
-                    far = pb if neighbours[0] is not None else pa
-                    side = np.sign(np.median(rows.dots(far - pt, axis_world)[both]))
-                    target = side * np.sqrt(np.maximum(bone_length**2 - rho2, 0.0))
-                    shift = float(np.mean((target - h0)[both]))
-                    rule = "bone-length"
-        if rule == "foot-of-perpendicular":
-            # the rule assumes the bone perpendicular to the axis; its shift is the distance
-            # from the data's centre to the foot, |bone|·cos(bone, axis) of the data's own
-            # estimate. A shift far beyond the data's uncertainty along the axis (σ²/(N_eff λ)
-            # in the centre's coordinates) means the data contradict that hypothesis (a
-            # short clip whose relative rotation is no flexion about a perpendicular axis):
-            # the data alone decide
-            sd_axis = step * np.sqrt(variance_per_information(c) / max(lam0, 1e-300))
-            if abs(shift) > RULE_GATE_SIGMA * sd_axis:
-                rule, shift, rejected = None, 0.0, "foot-of-perpendicular"
-        if rule is not None:
-            # Tikhonov prior on the weak coordinate: data weight lam0, prior weight tau
-            blend = lam0 / (lam0 + hinge_prior)
-            shift *= 1.0 - blend
-            c = c + (shift / step) * weak
+    c = (gdke_centre(data, fit.w, bias_compensation=bias_compensation, point_m=gdke_point_m)
+         if estimator == "gdke" else fit.c)
+    hinge = hinge_value(fit.sv) < hinge_ratio
+    decision = _hinge(model, fit, c, HingeRule(neighbours, bone_length, hinge_prior), priors,
+                      hinge)
+    if decision is not None:
+        c = decision.c
+        if decision.rule is not None:
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
-                            f"{rule} rule")
-
-    if slip_terms is not None and estimator == "llsf":
-        beta = slip_coefficients(c).reshape(2, -1, 3)
-        rec_a = np.einsum("tij,tj->ti", ra, c[:3] - basis @ beta[0]) + pa
-        rec_b = np.einsum("tij,tj->ti", rb, c[3:] - basis @ beta[1]) + pb
-    else:
-        rec_a = rows.transform(ra, c[:3], pa)
-        rec_b = rows.transform(rb, c[3:], pb, out=d)  # d is no longer needed
-    # the mean of the two reconstructions, or the one whose sensor was measured
-    one_sided = np.flatnonzero(ok_a != ok_b)
-    measured = np.where(ok_a[one_sided, None], rec_a[one_sided], rec_b[one_sided])
-    gap = np.subtract(rec_a, rec_b, out=rec_b)
-    squared = rows.dots(gap, gap)
-    residuals = np.sqrt(squared)
-    gap *= 0.5
-    positions = np.subtract(rec_a, gap, out=rec_a)
-    positions[one_sided] = measured
-    quality: dict[str, Any] = {
-        "estimator": estimator,
-        "rms_residual_m": float(np.sqrt(squared @ w0 / n_both)),
-        "singular_value_ratio": float(sv[0] / sv[-1]),
-        "hinge_ratio": hinge_value,
-        "range_of_motion_deg": rom,
-        "hinge": bool(hinge),
-        "loss": loss,
-        # w is 0 wherever not both are valid
-        "outlier_fraction": (np.count_nonzero(w < 0.5) - excluded.size) / n_both,
-    }
-    if estimator == "gdke":
-        quality["bias_compensation"] = bias_compensation
-    if prior is not None:
-        blend = lam0 / (lam0 + prior_weight)
-        quality["prior_sigma_m"] = float(prior[1])
-        quality["prior_weight"] = prior_weight
-        quality["prior_shift_m"] = float(np.linalg.norm(c[:3] - c_data[:3]))
-        quality["data_weight"] = blend
-    if hinge:
-        quality["axis"] = [float(x) for x in axis_a]
-        quality["hinge_rule"] = rule
-        if rejected is not None:
-            quality["hinge_rule_rejected"] = rejected
-        quality["axis_shift_m"] = shift
-        quality["data_weight"] = blend
-    return JointFit(c[:3].copy(), c[3:].copy(), positions, residuals, quality,
+                            f"{decision.rule} rule")
+    rec = reconstruct(model, c, fit.back)
+    quality = _joint_quality(data, fit, rec, decision, estimator=estimator, loss=loss, rom=rom,
+                             hinge_ratio=hinge_ratio, prior=priors,
+                             bias_compensation=bias_compensation, centre=c)
+    return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals, quality,
                     tuple(warnings))

@@ -52,7 +52,8 @@ class SensorSource:
 @dataclass(frozen=True)
 class SkeletonRunOptions:
     """Options of :func:`estimation.skeleton.estimate_skeleton` a run passes on (its
-    defaults). ``up`` is the source frame's up direction; ``offsets`` a calibration."""
+    defaults). ``up`` is the source frame's up direction; ``offsets`` a calibration: the run
+    then calls ``estimate_skeleton_from_offsets`` (``up``, ``i0`` and ``smooth`` only)."""
 
     method: str = "auto"
     optimizer: str = "least-squares"
@@ -115,7 +116,7 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     """
     from .io.sensors import read_recording
     from .io.skeleton import write_skeleton_files
-    from .skeleton import estimate_skeleton
+    from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
 
     _stage(stages, "reading")
     started = time.perf_counter()
@@ -125,10 +126,16 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     read_s = time.perf_counter() - started
     if on_read is not None:
         on_read(recording)
-    result = estimate_skeleton(
-        recording, method=options.method, optimizer=options.optimizer, torso=options.torso,
-        up=options.up, i0=options.i0, anthropometry=options.anthropometry, w_s=options.w_s,
-        w_l=options.w_l, smooth=options.smooth, offsets=options.offsets, progress=progress)
+    if options.offsets is None:
+        result = estimate_skeleton(
+            recording, method=options.method, optimizer=options.optimizer, torso=options.torso,
+            up=options.up, i0=options.i0, anthropometry=options.anthropometry, w_s=options.w_s,
+            w_l=options.w_l, smooth=options.smooth, progress=progress)
+    else:
+        # a calibration's offsets leave nothing to fit: the method's options do not apply
+        result = estimate_skeleton_from_offsets(recording, options.offsets, up=options.up,
+                                                i0=options.i0, smooth=bool(options.smooth),
+                                                progress=progress)
     _stage(stages, "writing")
     result = replace(result, timings={**result.timings, "read_s": read_s})
     result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, fields
 from typing import Any, Final
 
 import numpy as np
@@ -55,6 +55,77 @@ class JointOffset:
 
 
 @dataclass(frozen=True, eq=False)
+class JointQuality(Mapping[str, Any]):
+    """Quality figures of one joint (``SkeletonResult.quality[joint]``).
+
+    The figures every located joint may carry are typed attributes (None: not reported for
+    this joint); the estimator's own figures are in ``details`` (see ``joints.JointFit`` and
+    ``limbs.LimbFit``). It is also a read-only mapping of every reported figure by its JSON
+    key (``quality["hinge"]``, ``quality.get("data_sd_m")``), so the JSON document's
+    ``quality[joint]`` object keeps its keys: the writer takes ``dict(quality)``, the reader
+    and ``SkeletonResult`` build one with :meth:`of`.
+
+    Attributes
+    ----------
+    estimator : str or None
+        How the joint was located (``"llsf"``, ``"llsf-shared-slip"``, ``"gdke"``,
+        ``"limb-improved"``, ``"given offset"``, ...).
+    reliability : str or None
+        ``"data"``, ``"prior-assisted"`` or ``"prior"`` (see ``estimate_skeleton``).
+    rms_residual_m : float or None
+        RMS distance between the joint's two reconstructions, metres.
+    range_of_motion_deg : float or None
+        Range of the relative rotation of its two sensors, degrees.
+    hinge : bool or None
+        Whether the joint behaved as a hinge.
+    data_weight : float or None
+        The data's share against the priors along their weakest direction.
+    data_sd_m : float or None
+        How well the recording alone locates the centre, metres (shared slip model).
+    details : mapping of str to Any
+        Every other figure, by key.
+    """
+
+    estimator: str | None = None
+    reliability: str | None = None
+    rms_residual_m: float | None = None
+    range_of_motion_deg: float | None = None
+    hinge: bool | None = None
+    data_weight: float | None = None
+    data_sd_m: float | None = None
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, figures: Mapping[str, Any]) -> JointQuality:
+        """The quality of a mapping of figures by key (a ``JointQuality`` is returned
+        as is)."""
+        if isinstance(figures, JointQuality):
+            return figures
+        typed = {k: figures[k] for k in _TYPED_QUALITY if figures.get(k) is not None}
+        rest = {k: v for k, v in figures.items() if k not in typed}
+        return cls(**typed, details=rest)
+
+    def __getitem__(self, key: str) -> Any:
+        if key in _TYPED_QUALITY:
+            value = getattr(self, key)
+            if value is not None:
+                return value
+        return self.details[key]
+
+    def __iter__(self) -> Iterator[str]:
+        yield from (k for k in _TYPED_QUALITY if getattr(self, k) is not None)
+        yield from (k for k in self.details if k not in _TYPED_QUALITY
+                    or getattr(self, k) is None)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+_TYPED_QUALITY: Final[tuple[str, ...]] = tuple(
+    f.name for f in fields(JointQuality) if f.name != "details")
+
+
+@dataclass(frozen=True, eq=False)
 class SkeletonResult:
     """Joint centres, bone lengths and segment orientations of one recording.
 
@@ -74,9 +145,10 @@ class SkeletonResult:
     orientations : mapping of str to ndarray, shape (F, 4)
         Segment frame → source frame rotation per frame, scalar-first quaternions.
         Segment frames: x left, y up (along the bone for limbs), z forward.
-    quality : mapping of str to mapping
-        Per-joint figures: ``rms_residual_m``, ``singular_value_ratio``, ``range_of_motion_deg``,
-        ``hinge`` (bool), ``estimator``, and any method-specific ones.
+    quality : mapping of str to JointQuality
+        Per-joint figures (:class:`JointQuality`; any mapping given is converted):
+        ``rms_residual_m``, ``singular_value_ratio``, ``range_of_motion_deg``, ``hinge``
+        (bool), ``estimator``, and any method-specific ones.
     warnings : tuple of str
         Human-readable warnings (small range of motion, ill-conditioned joints, filled gaps).
     timings : mapping of str to float
@@ -91,9 +163,14 @@ class SkeletonResult:
     offsets: Mapping[str, JointOffset]
     bone_lengths: Mapping[str, float]
     orientations: Mapping[str, NDArray[np.float64]]
-    quality: Mapping[str, Mapping[str, Any]]
+    quality: Mapping[str, JointQuality]
     warnings: tuple[str, ...] = ()
     timings: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # typed per joint, whatever mapping the producer (or a JSON reader) gave
+        object.__setattr__(self, "quality", {
+            name: JointQuality.of(figures) for name, figures in self.quality.items()})
 
     @property
     def n_frames(self) -> int:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import time as _time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
-from typing import Any, Final
+from dataclasses import dataclass, field, replace
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,30 +17,15 @@ from .errors import EstimationError, InputError
 from .gaps import component_major, fill_sensor_major, sensor_major
 from .joints import JointFit, estimate_joint, range_of_motion
 from .limbs import estimate_limb, standard_lengths, torso_length
-from .model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
+from .model import BONES, JOINT_SEGMENTS, JOINTS, LIMBS, REDUCED_SEGMENTS, SEGMENTS, Limb
 from .orientations import estimate_orientations
 from .params import WEIGHT_MAX, check_fps, check_integer, check_number
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
-from .results import JointOffset, SkeletonResult
+from .results import JointOffset, JointQuality, SkeletonResult
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
-from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
-METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
-
-BONES: Final[dict[str, tuple[str, str]]] = {
-    "pelvis": ("root", "waist"),
-    "chest": ("waist", "neck"),
-    "l_upperarm": ("l_shoulder", "l_elbow"),
-    "l_forearm": ("l_elbow", "l_wrist"),
-    "r_upperarm": ("r_shoulder", "r_elbow"),
-    "r_forearm": ("r_elbow", "r_wrist"),
-    "l_thigh": ("l_hip", "l_knee"),
-    "l_shank": ("l_knee", "l_ankle"),
-    "r_thigh": ("r_hip", "r_knee"),
-    "r_shank": ("r_knee", "r_ankle"),
-}
-"""Segment → (proximal joint, distal joint) whose mean distance is the segment's bone length."""
+METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
 
 HUMAN_RANGE_M: Final[dict[str, tuple[float, float]]] = {
     "torso": (0.2, 1.0),
@@ -52,18 +37,6 @@ HUMAN_RANGE_M: Final[dict[str, tuple[float, float]]] = {
 }
 """Plausible adult bone lengths, metres; outside them the units are probably wrong."""
 
-# limb name -> (proximal joint, middle joint, distal joint, upper seg, middle seg, distal seg,
-#               standard-length keys)
-_LIMBS: Final[dict[str, tuple[str, str, str, str, str, str, tuple[str, str]]]] = {
-    "l_arm": ("l_shoulder", "l_elbow", "l_wrist", "l_upperarm", "l_forearm", "l_hand",
-              ("upperarm", "forearm")),
-    "r_arm": ("r_shoulder", "r_elbow", "r_wrist", "r_upperarm", "r_forearm", "r_hand",
-              ("upperarm", "forearm")),
-    "l_leg": ("l_hip", "l_knee", "l_ankle", "l_thigh", "l_shank", "l_foot",
-              ("thigh", "shank")),
-    "r_leg": ("r_hip", "r_knee", "r_ankle", "r_thigh", "r_shank", "r_foot",
-              ("thigh", "shank")),
-}
 _TORSO_JOINTS: Final[tuple[str, ...]] = ("l_hip", "r_hip", "l_shoulder", "r_shoulder",
                                          "waist", "neck")
 # left/right joint pairs mirrored about the mid-sagittal plane of the segment carrying them
@@ -264,7 +237,7 @@ def _reflect(point: NDArray[np.float64], plane: tuple[NDArray[np.float64], NDArr
 
 
 @dataclass(frozen=True)
-class _Anchor:
+class Anchor:
     """How uncertain the estimated joints are that a prior is built from, in sensor a's
     frame: the covariance (3, 3) of the prior's point and the variance (m²) of a symmetry
     plane's position across it. A prior is only as certain as what it is anchored to."""
@@ -273,12 +246,12 @@ class _Anchor:
     plane: float = 0.0
 
 
-def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
+def shared_fit(fit: JointFit, shared: SlipFit, j: int,
                 pa_true: NDArray[np.float64], ra_rot: Rotation, pb_true: NDArray[np.float64],
                 rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_], *,
                 symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
                 prior: tuple[NDArray[np.float64], float] | None,
-                anchor: _Anchor | None = None,
+                anchor: Anchor | None = None,
                 hinge_axis: NDArray[np.float64] | None = None,
                 ) -> tuple[JointFit, NDArray[np.float64]]:
     """The joint's centre from the shared slip model (posterior mean and covariance of its
@@ -288,12 +261,7 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     estimated slip (``pa_true``, ``pb_true``). Along ``hinge_axis`` (in frame a) the model's
     precision is dropped: there it counts orientation noise as rotation. Also returns the
     posterior covariance of the centre in frame a (3, 3)."""
-    cov = shared.covariances[j]
     mean = shared.centres[j].reshape(6)
-    scale = float(np.trace(cov)) / 6.0
-    # the data precision (a flat prior leaves static directions with ~zero precision)
-    lam, vec = np.linalg.eigh(cov / scale)
-    precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
     count = max(int(both.sum()), 1)
@@ -301,23 +269,15 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
              if prior is not None or hinge_axis is not None else np.eye(3))
-    if hinge_axis is not None:
-        g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
-        g /= np.linalg.norm(g)
-        keep = np.eye(6) - np.outer(g, g)
-        precision = keep @ precision @ keep
+    precision = _data_precision(shared.covariances[j], n_bar, hinge_axis)
     normal = precision.copy()
     rhs = precision @ mean
     prior_precision = np.zeros((6, 6))
     if prior is not None:
-        x0 = np.asarray(prior[0], dtype=float)
-        x0_b = n_bar @ x0 + rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
-        spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
-        base = prior[1] ** 2 * np.eye(3)
-        prior_precision[:3, :3] = np.linalg.inv(base + spread)
-        prior_precision[3:, 3:] = np.linalg.inv(base + n_bar @ spread @ n_bar.T)
+        offset_b = rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
+        prior_precision, point = _prior_terms(prior, anchor, n_bar, offset_b)
         normal += prior_precision
-        rhs += prior_precision @ np.concatenate([x0, x0_b])
+        rhs += prior_precision @ point
     if symmetry is not None:
         var = SYMMETRY_SIGMA_M**2 + (0.0 if anchor is None else anchor.plane)
         g = np.concatenate([symmetry[1], np.zeros(3)])
@@ -335,21 +295,61 @@ def _shared_fit(fit: JointFit, shared: SlipFit, j: int,
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
     quality["signal_share"] = shared.signal_share[j]
     if prior is not None:
-        # the data's share along their weakest direction
-        lam_data, vec_data = np.linalg.eigh(precision)
-        tau = float(vec_data[:, 0] @ prior_precision @ vec_data[:, 0])
-        quality["data_weight"] = float(lam_data[0]) / (float(lam_data[0]) + tau)
-        quality["prior_sigma_m"] = float(prior[1])
-        quality["prior_shift_m"] = float(np.linalg.norm(c[:3] - mean[:3]))
-        if anchor is not None and anchor.point is not None:
-            quality["prior_anchor_sd_m"] = float(np.sqrt(np.trace(anchor.point) / 3.0))
+        quality.update(_prior_quality(precision, prior_precision, prior, anchor,
+                                      float(np.linalg.norm(c[:3] - mean[:3]))))
     fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
                      positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
                      quality=quality)
-    return fitted, np.linalg.inv(normal)[:3, :3]
+    return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
 
 
-def _rotations(quaternions: NDArray[np.float64], norms2: NDArray[np.float64]) -> list[Rotation]:
+def _data_precision(cov: NDArray[np.float64], n_bar: NDArray[np.float64],
+                    hinge_axis: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The data's precision (6, 6) of the centre from its covariance ``cov`` (a flat prior
+    leaves static directions with ~zero precision), none along ``hinge_axis`` (frame a;
+    ``n_bar`` carries it to frame b)."""
+    scale = float(np.trace(cov)) / 6.0
+    lam, vec = np.linalg.eigh(cov / scale)
+    precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
+    if hinge_axis is not None:
+        g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
+        g /= np.linalg.norm(g)
+        keep = np.eye(6) - np.outer(g, g)
+        precision = keep @ precision @ keep
+    return np.asarray(precision, dtype=np.float64)
+
+
+def _prior_terms(prior: tuple[NDArray[np.float64], float], anchor: Anchor | None,
+                 n_bar: NDArray[np.float64], offset_b: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The prior's precision (6, 6, block-diagonal: frame a, frame b) and point (6,):
+    ``s0² I`` widened by the anchor's covariance, the point carried to frame b by
+    ``c_b = N̄ c_a + o``."""
+    x0 = np.asarray(prior[0], dtype=float)
+    x0_b = n_bar @ x0 + offset_b
+    spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
+    base = prior[1] ** 2 * np.eye(3)
+    prior_precision = np.zeros((6, 6))
+    prior_precision[:3, :3] = np.linalg.inv(base + spread)
+    prior_precision[3:, 3:] = np.linalg.inv(base + n_bar @ spread @ n_bar.T)
+    return prior_precision, np.concatenate([x0, x0_b])
+
+
+def _prior_quality(precision: NDArray[np.float64], prior_precision: NDArray[np.float64],
+                   prior: tuple[NDArray[np.float64], float], anchor: Anchor | None,
+                   shift: float) -> dict[str, Any]:
+    """The quality figures of a prior: the data's share along their weakest direction, the
+    prior's sd, the shift it caused (metres) and its anchor's sd."""
+    lam_data, vec_data = np.linalg.eigh(precision)
+    tau = float(vec_data[:, 0] @ prior_precision @ vec_data[:, 0])
+    quality: dict[str, Any] = {"data_weight": float(lam_data[0]) / (float(lam_data[0]) + tau),
+                               "prior_sigma_m": float(prior[1]), "prior_shift_m": shift}
+    if anchor is not None and anchor.point is not None:
+        quality["prior_anchor_sd_m"] = float(np.sqrt(np.trace(anchor.point) / 3.0))
+    return quality
+
+
+def unit_rotations(quaternions: NDArray[np.float64], norms2: NDArray[np.float64]) -> list[Rotation]:
     """``Rotation.from_quat(q.T, scalar_first=True)`` of each sensor's quaternions ``q`` in
     rows 0 to 3 of ``quaternions`` (S, 5, F), given their squared norms (S, F) as
     ``FilledGaps.norms2`` sums them: the same rotations bit for bit. The quaternions are
@@ -366,7 +366,7 @@ def _rotations(quaternions: NDArray[np.float64], norms2: NDArray[np.float64]) ->
 
 
 @dataclass(frozen=True)
-class _SensorPoses:
+class SensorPoses:
     """The poses of the sensors used, gaps filled, by segment name."""
 
     positions: dict[str, NDArray[np.float64]]  # (F, 3) each, rows of ``stacked``
@@ -378,7 +378,7 @@ class _SensorPoses:
 
     @classmethod
     def of(cls, recording: SensorRecording, use: Sequence[str],
-           warnings: list[str]) -> _SensorPoses:
+           warnings: list[str]) -> SensorPoses:
         """Fill the gaps of the sensors ``use``; warn about gaps longer than 0.5 s; raise
         InputError naming a sensor with no valid sample."""
         cols = [recording.index(s) for s in use]
@@ -400,9 +400,444 @@ class _SensorPoses:
                 warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
                                 "interpolated")
         return cls(positions={s: pos[k] for k, s in enumerate(use)},
-                   rotations=dict(zip(use, _rotations(quat, gaps.norms2), strict=True)),
+                   rotations=dict(zip(use, unit_rotations(quat, gaps.norms2), strict=True)),
                    ok={s: gaps.valid[k] for k, s in enumerate(use)},
                    quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
+
+
+@dataclass(frozen=True)
+class SkeletonOptions:
+    """The checked options of one ``estimate_skeleton`` call (see there)."""
+
+    method: str = "auto"
+    optimizer: str = "least-squares"
+    torso: str = "llsf"
+    up: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    i0: int = 0
+    anthropometry: str | Mapping[str, float] = "aist"
+    w_s: float = 0.01
+    w_l: float = 0.01
+    smooth: bool = True
+    highpass_s: float = 0.0
+    slip_hz: float = 0.5
+    min_range_deg: float = 2.0
+
+    @property
+    def plain(self) -> bool:
+        """Every joint by one published estimator (``llsf`` or ``gdke``)."""
+        return self.method in ("llsf", "gdke")
+
+    @property
+    def estimator(self) -> str:
+        """``estimate_joint``'s method for the joints between two sensors."""
+        return self.method if self.plain else (self.torso if self.method == "reduced"
+                                               else "llsf")
+
+    @property
+    def loss(self) -> str:
+        """``estimate_joint``'s loss: robust for ``auto``."""
+        return "huber" if self.method == "auto" else "linear"
+
+    def highpass(self, fps: float) -> int:
+        """``estimate_joint``'s high-pass length, frames (``auto`` only)."""
+        return round(self.highpass_s * fps) if self.method == "auto" else 0
+
+
+def skeleton_options(recording: SensorRecording, *, method: str = "auto",
+                     optimizer: str = "least-squares", torso: str = "llsf",
+                     up: ArrayLike = (0.0, 1.0, 0.0), i0: int = 0,
+                     anthropometry: str | Mapping[str, float] = "aist", w_s: float = 0.01,
+                     w_l: float = 0.01, smooth: bool | None = None, highpass_s: float = 0.0,
+                     slip_hz: float = 0.5, min_range_deg: float = 2.0) -> SkeletonOptions:
+    """``estimate_skeleton``'s options for ``recording``, checked (InputError naming the
+    option, EstimationError for fewer than 10 frames)."""
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; use one of {', '.join(METHODS)}",
+                         field="method")
+    if optimizer not in ("least-squares", "nelder-mead"):
+        raise InputError(f"unknown optimizer {optimizer!r}; use least-squares or nelder-mead",
+                         field="optimizer")
+    if torso not in ("llsf", "gdke"):
+        raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
+    up_vec = _parse_up(up)
+    _check_options(recording.fps, i0=i0, w_s=w_s, w_l=w_l, highpass_s=highpass_s,
+                   slip_hz=slip_hz, min_range_deg=min_range_deg)
+    _check_frames(recording, i0)
+    return SkeletonOptions(method, optimizer, torso, up_vec, i0, anthropometry, w_s, w_l,
+                           (method == "auto") if smooth is None else smooth, highpass_s,
+                           slip_hz, min_range_deg)
+
+
+def _check_frames(recording: SensorRecording, i0: int) -> None:
+    n_frames = recording.n_frames
+    if not 0 <= i0 < max(n_frames, 1):
+        raise InputError(f"i0={i0} is outside the recording's {n_frames} frames", field="i0")
+    if n_frames < 10:
+        raise EstimationError(f"the recording has {n_frames} frames; at least 10 are needed",
+                              field="frames")
+
+
+def sensors_used(recording: SensorRecording, method: str, warnings: list[str]) -> SensorPoses:
+    """The poses of the sensors ``method`` uses (every one present; the 11 of the reduced
+    suit for ``reduced``), gaps filled; InputError naming a missing sensor, EstimationError
+    when no sensor moves."""
+    required: Sequence[str] = SEGMENTS if method in ("llsf", "gdke") else REDUCED_SEGMENTS
+    for seg in required:
+        recording.index(seg)  # raises InputError naming the missing sensor
+    use = list(REDUCED_SEGMENTS) if method == "reduced" else [
+        s for s in SEGMENTS if s in recording.sensors]
+    sensors = SensorPoses.of(recording, use, warnings)
+    # every sample equal to its sensor's first one: one elementwise pass
+    stacked = sensors.stacked
+    if not (np.any(stacked[:, -1] != stacked[:, 0]) or np.any(stacked != stacked[:, :1])):
+        raise EstimationError("no sensor moves: a recording with motion of every joint is "
+                              "needed", field="motion")
+    return sensors
+
+
+class JointMotion(NamedTuple):
+    """How much each joint between two sensors of a recording rotates."""
+
+    pairs: list[str]  # the joints fitted between two sensors, in model order
+    rom: dict[str, float]  # range of motion, degrees (``joints.range_of_motion``)
+    static: list[str]  # the joints rotating less than ``min_range_deg``
+
+
+def joint_motion(sensors: SensorPoses, method: str, min_range_deg: float) -> JointMotion:
+    """Every two-sensor joint's range of motion (the torso's only for ``reduced``): a joint
+    that barely rotates is located from priors and flagged; only a recording in which most
+    joints barely rotate is refused (EstimationError)."""
+    positions, quat, ok = sensors.positions, sensors.quaternions, sensors.ok
+    pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
+             and (method != "reduced" or j in _TORSO_JOINTS)]
+    rom = {j: range_of_motion(quat[a], quat[b], ok[a] & ok[b])
+           for j in pairs for a, b in (JOINT_SEGMENTS[j],)}
+    static = [j for j in pairs if rom[j] < min_range_deg]
+    if 2 * len(static) > len(pairs):
+        raise EstimationError(
+            f"too little motion: {len(static)} of {len(pairs)} joints rotate less than "
+            f"{min_range_deg:g}° ({', '.join(static)}); record a calibration motion of every "
+            "joint", field="motion")
+    return JointMotion(pairs, rom, static)
+
+
+@dataclass(frozen=True, eq=False)
+class SharedSlip:
+    """Every sensor's soft-tissue slip from all the joint equations at once
+    (``slip.estimate_slip``): the torso joints take their centres from it, the wrists are
+    fitted on the positions without it."""
+
+    fit: SlipFit
+    without_slip: dict[str, NDArray[np.float64]]  # each sensor's p − R s, (F, 3)
+    index: dict[str, int]  # joint -> its row in ``fit``
+
+
+def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz: float
+                ) -> SharedSlip:
+    """The shared slip model of the joints ``pairs``, corrected for orientation noise."""
+    by_sensor = {s: sensors.quaternions[s] for s in sensors.positions}
+    # orientation noise biases the centres of joints that rotate a few degrees toward their
+    # sensors (errors in variables); the shared model corrects for it
+    fit = estimate_slip(sensors.positions, by_sensor, sensors.ok,
+                        [JOINT_SEGMENTS[j] for j in pairs], fps=fps, slip_hz=slip_hz,
+                        rotation_noise=rotation_noise_variance(by_sensor, sensors.ok))
+    without = {s: sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(), slip)
+               for s, slip in fit.slip.items()}
+    return SharedSlip(fit, without, {j: i for i, j in enumerate(pairs)})
+
+
+@dataclass(frozen=True, eq=False)
+class SkeletonContext:
+    """What every joint's fit in one ``estimate_skeleton`` call shares."""
+
+    sensors: SensorPoses
+    options: SkeletonOptions
+    motion: JointMotion
+    shared: SharedSlip | None
+    highpass: int  # frames
+
+
+def skeleton_context(sensors: SensorPoses, options: SkeletonOptions, fps: float
+                     ) -> SkeletonContext:
+    """The context of a fit: each joint's motion, and the shared slip model when ``auto``
+    uses it (``slip_hz`` > 0 and no high-pass)."""
+    motion = joint_motion(sensors, options.method, options.min_range_deg)
+    highpass = options.highpass(fps)
+    shared = (shared_slip(sensors, motion.pairs, fps, options.slip_hz)
+              if options.method == "auto" and options.slip_hz > 0 and highpass <= 1 else None)
+    return SkeletonContext(sensors, options, motion, shared, highpass)
+
+
+@dataclass(frozen=True, eq=False)
+class JointPlan:
+    """How one joint between two sensors is located: its estimator and what
+    ``joints.estimate_joint`` and the shared model get for it."""
+
+    name: str
+    estimator: str
+    neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None)
+    bone_length: float | None = None
+    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    prior: tuple[NDArray[np.float64], float] | None = None
+    anchor: Anchor | None = None
+    quiet: bool = False  # its warnings wait for a refit
+
+
+def shared_role(ctx: SkeletonContext, name: str) -> str | None:
+    """Whether and how a joint joins the shared slip model: ``"torso"`` (its centre from
+    the model with its anatomical priors), ``"limb"`` (a limb joint moving well above the
+    orientation noise: the model's centre with its own robust fit as a prior) or None."""
+    shared = ctx.shared
+    if shared is None:
+        return None
+    if name in _TORSO_JOINTS:
+        return "torso"
+    if name in _LIMB_SHARED and name in shared.index \
+            and shared.fit.signal_share[shared.index[name]] >= EIV_SIGNAL_SHARE:
+        return "limb"
+    return None
+
+
+def own_fit(ctx: SkeletonContext, plan: JointPlan) -> JointFit:
+    """``joints.estimate_joint`` of the joint (on the positions without slip for the
+    wrists when the shared model runs); EstimationError naming the joint."""
+    a, b = JOINT_SEGMENTS[plan.name]
+    sensors, opt = ctx.sensors, ctx.options
+    pa, pb = sensors.positions[a], sensors.positions[b]
+    if ctx.shared is not None and plan.name in _DESLIPPED:
+        pa, pb = ctx.shared.without_slip[a], ctx.shared.without_slip[b]
+    try:
+        return estimate_joint(
+            pa, sensors.rotations[a], pb, sensors.rotations[b], method=plan.estimator,
+            loss=opt.loss, valid=np.column_stack([sensors.ok[a], sensors.ok[b]]),
+            neighbours=plan.neighbours, hinge_prior=0.0 if opt.plain else 0.01,
+            highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
+            symmetry=plan.symmetry, prior=plan.prior if opt.method == "auto" else None,
+            range_of_motion_deg=ctx.motion.rom.get(plan.name))
+    except EstimationError as exc:
+        raise EstimationError(f"{plan.name}: {exc.detail}", field=plan.name) from None
+
+
+class LocatedJoint(NamedTuple):
+    """A joint's final fit, ``estimate_joint``'s own one and, with the shared model, the
+    posterior covariance (3, 3) of its centre in the first sensor's frame."""
+
+    fit: JointFit
+    own: JointFit
+    posterior: NDArray[np.float64] | None
+
+
+def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = None
+                 ) -> LocatedJoint:
+    """Locate a joint by its plan. ``own``: its earlier ``estimate_joint`` fit, reused for
+    a torso joint whose centre comes from the shared model (a refit with another prior
+    would not change its quality figures)."""
+    role = shared_role(ctx, plan.name)
+    if role != "torso" or own is None:
+        own = own_fit(ctx, plan)
+    fit, posterior = own, None
+    if ctx.shared is not None and role is not None:
+        a, b = JOINT_SEGMENTS[plan.name]
+        sensors, without = ctx.sensors, ctx.shared.without_slip
+        axis = own.quality.get("axis") if own.quality.get("hinge") else None
+        fit, posterior = shared_fit(
+            own, ctx.shared.fit, ctx.shared.index[plan.name], without[a], sensors.rotations[a],
+            without[b], sensors.rotations[b], sensors.ok[a], sensors.ok[b],
+            symmetry=plan.symmetry if role == "torso" else None,
+            prior=plan.prior if role == "torso" else (own.local_a, LIMB_PRIOR_SIGMA_M),
+            anchor=plan.anchor if role == "torso" else None,
+            hinge_axis=None if role == "torso" or axis is None
+            else np.asarray(axis, dtype=float))
+    return LocatedJoint(_with_reliability(ctx, plan, _with_data_sd(ctx, plan.name, fit)), own,
+                        posterior)
+
+
+def _with_data_sd(ctx: SkeletonContext, name: str, fit: JointFit) -> JointFit:
+    """How well the recording alone locates the centre: the shared model's posterior with a
+    flat prior (every sensor's slip integrated out), in frame a."""
+    if ctx.shared is None or name not in ctx.shared.index:
+        return fit
+    cov_a = ctx.shared.fit.covariances[ctx.shared.index[name]][:3, :3]
+    return replace(fit, quality={**fit.quality, "data_sd_m": float(np.sqrt(np.trace(cov_a)))})
+
+
+def _with_reliability(ctx: SkeletonContext, plan: JointPlan, fit: JointFit) -> JointFit:
+    """``quality["reliability"]``, and the warning of a joint that barely rotates."""
+    name = plan.name
+    if name in ctx.motion.static:
+        source = ("anatomical priors" if plan.prior is not None or plan.neighbours[0] is not None
+                  else "the few frames available")
+        note = (f"rotates only {ctx.motion.rom[name]:.1f}° (< {ctx.options.min_range_deg:g}°): "
+                f"located from {source}, unreliable")
+        return replace(fit, quality={**fit.quality, "reliability": "prior"},
+                       warnings=(note, *(w for w in fit.warnings
+                                         if not w.startswith("small range"))))
+    assisted = fit.quality.get("data_weight", 1.0) < 0.5
+    return replace(fit, quality={**fit.quality, "reliability":
+                                 "prior-assisted" if assisted else "data"})
+
+
+@dataclass(eq=False)
+class LocatedJoints:
+    """The joints located so far in one ``estimate_skeleton`` call, and its warnings."""
+
+    warnings: list[str]
+    fits: dict[str, JointFit] = field(default_factory=dict)
+    own: dict[str, JointFit] = field(default_factory=dict)  # estimate_joint's own fits
+    # the shared model's posterior covariance of each centre, frame a
+    posterior: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    joints: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    offsets: dict[str, JointOffset] = field(default_factory=dict)
+    quality: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def locate(self, ctx: SkeletonContext, plan: JointPlan) -> JointFit:
+        """Locate a joint by its plan, keep its own fit and posterior, and warn (unless
+        ``plan.quiet``); the fit is not recorded (``record``)."""
+        found = locate_joint(ctx, plan, self.own.get(plan.name))
+        self.own[plan.name] = found.own
+        if found.posterior is not None:
+            self.posterior[plan.name] = found.posterior
+        if not plan.quiet:
+            self.warnings.extend(f"{plan.name}: {w}" for w in found.fit.warnings)
+        return found.fit
+
+    def record(self, name: str, fit: JointFit) -> None:
+        """Take ``fit`` as the joint's result."""
+        self.fits[name] = fit
+        self.joints[name] = fit.positions
+        self.offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
+        self.quality[name] = fit.quality
+
+
+def torso_plan(ctx: SkeletonContext, located: LocatedJoints, name: str) -> JointPlan:
+    """The first plan of a torso joint: with ``auto``, the waist and neck on the mid-plane
+    of the hips (shoulders), as uncertain as the pair's midpoint, and the neck's prior."""
+    auto = ctx.options.method == "auto"
+    sym = None
+    anchor = None
+    if name in _MIDLINE and auto:
+        pair = _MIDLINE[name]
+        left, right = (located.fits[j].local_a for j in pair)
+        across = left - right
+        sym = (0.5 * (left + right), across / max(float(np.linalg.norm(across)), 1e-9))
+        if all(j in located.posterior for j in pair):
+            # the mid-plane and the neck prior are as uncertain as the pair's midpoint
+            spread = 0.25 * (located.posterior[pair[0]] + located.posterior[pair[1]])
+            anchor = Anchor(point=spread if name == "neck" else None,
+                            plane=float(sym[1] @ spread @ sym[1]))
+    prior = _neck_prior(located.fits) if name == "neck" and auto else None
+    # shoulders and hips are refitted with their mirror priors: warn only then
+    return JointPlan(name, ctx.options.estimator, symmetry=sym, prior=prior, anchor=anchor,
+                     quiet=auto and name in _MIRRORED)
+
+
+def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress) -> None:
+    """The six torso joints, in ``_TORSO_JOINTS`` order."""
+    for k, name in enumerate(_TORSO_JOINTS):
+        located.record(name, located.locate(ctx, torso_plan(ctx, located, name)))
+        report(0.05 + 0.25 * (k + 1) / len(_TORSO_JOINTS), "torso")
+
+
+def mirror_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
+    """Left/right symmetry: each shoulder (hip) refitted with a prior toward the mirror image
+    of the other about the trunk's mid-sagittal plane, along its weakly excited
+    directions."""
+    fits = located.fits
+    for pair, seg in _MIRRORED_PAIRS.items():
+        plane = _sagittal_plane(seg, fits)
+        mirrored = {a: _reflect(fits[b].local_a, plane) for a, b in (pair, pair[::-1])}
+        # the mirror image is as uncertain as the joint it mirrors
+        flip = np.eye(3) - 2.0 * np.outer(plane[1], plane[1])
+        anchors = {a: Anchor(point=flip @ located.posterior[b] @ flip)
+                   for a, b in (pair, pair[::-1]) if b in located.posterior}
+        for name in pair:
+            plan = JointPlan(name, ctx.options.estimator,
+                             prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]),
+                             anchor=anchors.get(name))
+            located.record(name, located.locate(ctx, plan))
+
+
+def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
+    """Root and chest from the torso joints (Miura et al. 2015, §2.1 and eq. 1)."""
+    joints, offsets = located.joints, located.offsets
+    joints["root"] = estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"])
+    joints["chest"] = estimate_chest(joints["waist"], joints["neck"], joints["l_shoulder"],
+                                     joints["r_shoulder"])
+    offsets["root"] = JointOffset("pelvis", (offsets["waist"].local + offsets["l_hip"].local
+                                             + offsets["r_hip"].local) / 3.0)
+    # the mean of R_tᵀ (C − p) over the frames: the chest joint in the chest sensor's frame
+    sensors = ctx.sensors
+    chest_local = rows.sum_transposed(sensors.rotations["chest"].as_matrix(),
+                                      joints["chest"] - sensors.positions["chest"]
+                                      ) / joints["chest"].shape[0]
+    offsets["chest"] = JointOffset("chest", chest_local)
+    located.quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
+    located.quality["chest"] = {"estimator": "eq. 1 of the paper", "alpha_m": float(
+        rows.norms(joints["chest"] - joints["waist"]).mean())}
+
+
+def locate_limb_joints(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
+                       std: Mapping[str, float]) -> None:
+    """A limb with its middle sensor: the distal joint, the middle one (with the straight-limb
+    rule), and for ``auto`` arms the wrist again with its hinge rule."""
+    prox, mid, dist = limb.joints
+    estimator = ctx.options.estimator
+    plain = ctx.options.plain
+    refit_wrist = not plain and limb.is_arm
+    d_fit = located.locate(ctx, JointPlan(dist, estimator, quiet=refit_wrist))
+    neighbours = (None, None) if plain else (located.joints[prox], d_fit.positions)
+    m_fit = located.locate(ctx, JointPlan(mid, estimator, neighbours))
+    if refit_wrist and mid in ctx.motion.static:
+        # an elbow located from priors would carry its error into the wrist's rule
+        located.warnings.extend(f"{dist}: {w}" for w in d_fit.warnings)
+    elif refit_wrist:
+        # the wrist's own hinge rule needs the elbow, and the forearm length when the wrist
+        # mostly twists about the forearm: the measured upper arm times the table's forearm /
+        # upper-arm ratio
+        upper_len = float(rows.norms(m_fit.positions - located.joints[prox]).mean())
+        forearm = upper_len * std["forearm"] / std["upperarm"]
+        d_fit = located.locate(ctx, JointPlan(dist, estimator, (m_fit.positions, None),
+                                              bone_length=forearm))
+    located.record(mid, m_fit)
+    located.record(dist, d_fit)
+
+
+def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
+                            std: Mapping[str, float], stage: Progress) -> None:
+    """A limb without its middle sensor (or ``reduced``): ``limbs.estimate_limb``."""
+    _, mid, dist = limb.joints
+    upper, _, distal = limb.segments
+    sensors, opt = ctx.sensors, ctx.options
+    keys = limb.length_keys
+    lf = estimate_limb(
+        located.joints[limb.joints[0]], sensors.positions[upper], sensors.rotations[upper],
+        sensors.positions[distal], sensors.rotations[distal],
+        standard_lengths=(std[keys[0]], std[keys[1]]),
+        method="paper" if opt.method == "reduced" else "improved",
+        optimizer=opt.optimizer, w_s=opt.w_s, w_l=opt.w_l, progress=stage,
+        valid=sensors.ok[upper] & sensors.ok[distal] if opt.method == "auto" else None)
+    located.joints[mid] = lf.middle
+    located.joints[dist] = lf.distal
+    located.offsets[mid] = JointOffset(upper, lf.middle_local)
+    located.offsets[dist] = JointOffset(distal, lf.distal_local)
+    lq = dict(lf.quality)
+    lq.update({"estimator": f"limb-{lq.get('method', '')}", "cost": lf.cost,
+               "n_evaluations": lf.n_evaluations})
+    located.quality[mid] = lq
+    located.quality[dist] = dict(lq)
+
+
+def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str, float],
+                 report: Progress) -> None:
+    """The four limbs, each by its joints or by the variance cost."""
+    for k, limb in enumerate(LIMBS.values()):
+        stage = scaled(report, 0.3 + 0.6 * k / 4, 0.3 + 0.6 * (k + 1) / 4)
+        stage(0.0, "limbs")
+        if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
+            locate_limb_joints(ctx, located, limb, std)
+        else:
+            locate_limb_by_variance(ctx, located, limb, std, stage)
+        stage(1.0, "limbs")
 
 
 def estimate_skeleton(
@@ -420,7 +855,6 @@ def estimate_skeleton(
     highpass_s: float = 0.0,
     slip_hz: float = 0.5,
     min_range_deg: float = 2.0,
-    offsets: Mapping[str, JointOffset] | None = None,
     progress: Progress | None = None,
 ) -> SkeletonResult:
     """Joint centres, bone lengths and segment orientations from a sensor recording.
@@ -481,18 +915,9 @@ def estimate_skeleton(
         ``"auto"`` has them, but flagged: ``quality[joint]["reliability"] == "prior"`` and a
         warning naming it. When more than half of the two-sensor joints are that still, the
         recording as a whole is refused (EstimationError, ``field="motion"``).
-    offsets : mapping of str to JointOffset, optional
-        Every joint's offset in a sensor's frame from an earlier estimate with the same sensor
-        placement (``SkeletonResult.offsets`` of a calibration recording in which every joint
-        moves; from a file: ``io.read_skeleton_offsets(path)``). The joints are
-        then placed at those offsets and nothing is fitted: ``method``, ``optimizer``,
-        ``torso``, the weights, ``slip_hz`` and ``min_range_deg`` are ignored, the result's
-        method is ``"offsets"``, and ``smooth`` defaults to off. For takes in which some
-        joints barely move: no recording locates a joint that does not rotate, but a
-        calibration does, and applying it costs one rigid transform per frame.
     progress : callable, optional
         ``progress(fraction, stage)`` with stages ``gaps``, ``torso``, ``limbs``,
-        ``orientations`` (with ``offsets``: ``gaps``, ``joints``, ``orientations``).
+        ``orientations``.
 
     Returns
     -------
@@ -503,8 +928,7 @@ def estimate_skeleton(
     ------
     InputError
         A required sensor is missing (naming it and the sensors present), a sensor has no
-        valid sample, an unknown option, an offset missing or malformed (``field``
-        ``offsets.<joint>``).
+        valid sample, an unknown option.
     EstimationError
         No sensor moves, or most joints rotate less than ``min_range_deg`` (too little
         motion in the recording as a whole), or bone lengths outside human range (wrong
@@ -548,265 +972,119 @@ def estimate_skeleton(
     """
     started = _time.perf_counter()
     report = progress or no_progress
-    if method not in METHODS:
-        raise InputError(f"unknown method {method!r}; use one of {', '.join(METHODS)}",
-                         field="method")
-    if optimizer not in OPTIMIZERS:
-        raise InputError(f"unknown optimizer {optimizer!r}; use least-squares or nelder-mead",
-                         field="optimizer")
-    if torso not in TORSO_ESTIMATORS:
-        raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
-    up_vec = _parse_up(up)
-    _check_options(recording.fps, i0=i0, w_s=w_s, w_l=w_l, highpass_s=highpass_s,
-                   slip_hz=slip_hz, min_range_deg=min_range_deg)
-    n_frames = recording.n_frames
-    if not 0 <= i0 < max(n_frames, 1):
-        raise InputError(f"i0={i0} is outside the recording's {n_frames} frames", field="i0")
-    if n_frames < 10:
-        raise EstimationError(f"the recording has {n_frames} frames; at least 10 are needed",
-                              field="frames")
-    if offsets is not None:
-        return _skeleton_at_offsets(recording, offsets, up=up_vec, i0=i0,
-                                    smooth=bool(smooth), report=report, started=started)
-    required: Sequence[str] = SEGMENTS if method in ("llsf", "gdke") else REDUCED_SEGMENTS
-    for seg in required:
-        recording.index(seg)  # raises InputError naming the missing sensor
-    use = [s for s in SEGMENTS if s in recording.sensors]
-    if method == "reduced":
-        use = list(REDUCED_SEGMENTS)
-    warnings: list[str] = list(recording.warnings)
+    options = skeleton_options(
+        recording, method=method, optimizer=optimizer, torso=torso, up=up, i0=i0,
+        anthropometry=anthropometry, w_s=w_s, w_l=w_l, smooth=smooth, highpass_s=highpass_s,
+        slip_hz=slip_hz, min_range_deg=min_range_deg)
+    located = LocatedJoints(warnings=list(recording.warnings))
     report(0.0, "gaps")
-    sensors = _SensorPoses.of(recording, use, warnings)
-    positions, rotations, ok, quat = (sensors.positions, sensors.rotations, sensors.ok,
-                                      sensors.quaternions)
-    # every sample equal to its sensor's first one: one elementwise pass
-    stacked = sensors.stacked
-    if not (np.any(stacked[:, -1] != stacked[:, 0]) or np.any(stacked != stacked[:, :1])):
-        raise EstimationError("no sensor moves: a recording with motion of every joint is "
-                              "needed", field="motion")
-
-    # per-joint range of motion: a joint that barely rotates is located from priors and
-    # flagged; only a recording in which most joints barely rotate is refused
-    pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
-             and (method != "reduced" or j in _TORSO_JOINTS)]
-    rom = {j: range_of_motion(quat[a], quat[b], ok[a] & ok[b])
-           for j in pairs for a, b in (JOINT_SEGMENTS[j],)}
-    static = [j for j in pairs if rom[j] < min_range_deg]
-    if 2 * len(static) > len(pairs):
-        raise EstimationError(
-            f"too little motion: {len(static)} of {len(pairs)} joints rotate less than "
-            f"{min_range_deg:g}° ({', '.join(static)}); record a calibration motion of every "
-            "joint", field="motion")
-
-    plain = method in ("llsf", "gdke")
-    estimator = method if plain else (torso if method == "reduced" else "llsf")
-    loss = "huber" if method == "auto" else "linear"
-    do_smooth = (method == "auto") if smooth is None else smooth
-    highpass = round(highpass_s * recording.fps) if method == "auto" else 0
-    # every sensor's soft-tissue slip from all the joint equations at once: the torso joints
-    # take their centres from it, the wrists are fitted on the positions without it
-    shared: SlipFit | None = None
-    without_slip: dict[str, NDArray[np.float64]] = {}  # each sensor's p − R s, once
-    if method == "auto" and slip_hz > 0 and highpass <= 1:
-        by_sensor = {s: quat[s] for s in use}
-        # orientation noise biases the centres of joints that rotate a few degrees toward
-        # their sensors (errors in variables); the shared model corrects for it
-        shared = estimate_slip(positions, by_sensor, ok, [JOINT_SEGMENTS[j] for j in pairs],
-                               fps=recording.fps, slip_hz=slip_hz,
-                               rotation_noise=rotation_noise_variance(by_sensor, ok))
-        without_slip = {s: positions[s] - rows.apply_each(rotations[s].as_matrix(), slip)
-                        for s, slip in shared.slip.items()}
-    shared_index = {j: i for i, j in enumerate(pairs)}
-    raw: dict[str, JointFit] = {}  # estimate_joint's own fits
-    posterior: dict[str, NDArray[np.float64]] = {}  # shared-model centres' covariance, frame a
-
-    def joint(name: str, est: str, neighbours: tuple[NDArray[np.float64] | None,
-                                                     NDArray[np.float64] | None] = (None, None),
-              bone_length: float | None = None,
-              symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-              prior: tuple[NDArray[np.float64], float] | None = None,
-              anchor: _Anchor | None = None,
-              quiet: bool = False) -> JointFit:
-        a, b = JOINT_SEGMENTS[name]
-        pa, pb = positions[a], positions[b]
-        if shared is not None and name in _DESLIPPED:
-            pa, pb = without_slip[a], without_slip[b]
-        torso_shared = shared is not None and name in _TORSO_JOINTS
-        if torso_shared and name in raw:
-            # the shared model gives the centre; the per-joint fit only its quality figures,
-            # which a refit with another prior would not change
-            fit = raw[name]
-        else:
-            try:
-                fit = estimate_joint(
-                    pa, rotations[a], pb, rotations[b], method=est,
-                    loss=loss, valid=np.column_stack([ok[a], ok[b]]), neighbours=neighbours,
-                    hinge_prior=0.0 if plain else 0.01, highpass=highpass,
-                    bone_length=bone_length, min_range_deg=0.0, symmetry=symmetry,
-                    prior=prior if method == "auto" else None,
-                    range_of_motion_deg=rom.get(name))
-            except EstimationError as exc:
-                raise EstimationError(f"{name}: {exc.detail}", field=name) from None
-            raw[name] = fit
-        if shared is not None and torso_shared:
-            fit, posterior[name] = _shared_fit(
-                fit, shared, shared_index[name], without_slip[a], rotations[a],
-                without_slip[b], rotations[b], ok[a], ok[b], symmetry=symmetry, prior=prior,
-                anchor=anchor)
-        elif shared is not None and name in _LIMB_SHARED and name in shared_index \
-                and shared.signal_share[shared_index[name]] >= EIV_SIGNAL_SHARE:
-            # a limb joint that moves well above the orientation noise: the shared model's
-            # centre, with the joint's own robust fit (and its hinge rule) as a prior
-            axis = fit.quality.get("axis") if fit.quality.get("hinge") else None
-            fit, posterior[name] = _shared_fit(
-                fit, shared, shared_index[name], without_slip[a], rotations[a],
-                without_slip[b], rotations[b], ok[a], ok[b], symmetry=None,
-                prior=(fit.local_a, LIMB_PRIOR_SIGMA_M),
-                hinge_axis=None if axis is None else np.asarray(axis, dtype=float))
-        if shared is not None and name in shared_index:
-            # how well the recording alone locates the centre: the shared model's posterior
-            # with a flat prior (every sensor's slip integrated out), in frame a
-            cov_a = shared.covariances[shared_index[name]][:3, :3]
-            fit = replace(fit, quality={**fit.quality,
-                                        "data_sd_m": float(np.sqrt(np.trace(cov_a)))})
-        if name in static:
-            source = ("anatomical priors" if prior is not None or neighbours[0] is not None
-                      else "the few frames available")
-            note = (f"rotates only {rom[name]:.1f}° (< {min_range_deg:g}°): located from "
-                    f"{source}, unreliable")
-            fit = replace(fit, quality={**fit.quality, "reliability": "prior"},
-                          warnings=(note, *(w for w in fit.warnings
-                                            if not w.startswith("small range"))))
-        else:
-            assisted = fit.quality.get("data_weight", 1.0) < 0.5
-            fit = replace(fit, quality={**fit.quality, "reliability":
-                                        "prior-assisted" if assisted else "data"})
-        if not quiet:
-            warnings.extend(f"{name}: {w}" for w in fit.warnings)
-        return fit
-
+    sensors = sensors_used(recording, method, located.warnings)
+    ctx = skeleton_context(sensors, options, recording.fps)
     report(0.05, "torso")
-    fits: dict[str, JointFit] = {}
-    joints: dict[str, NDArray[np.float64]] = {}
-    joint_offsets: dict[str, JointOffset] = {}
-    quality: dict[str, dict[str, Any]] = {}
-    for k, name in enumerate(_TORSO_JOINTS):
-        sym = None
-        anchor = None
-        if name in _MIDLINE and method == "auto":
-            pair = _MIDLINE[name]
-            left, right = (fits[j].local_a for j in pair)
-            across = left - right
-            sym = (0.5 * (left + right), across / max(float(np.linalg.norm(across)), 1e-9))
-            if all(j in posterior for j in pair):
-                # the mid-plane and the neck prior are as uncertain as the pair's midpoint
-                spread = 0.25 * (posterior[pair[0]] + posterior[pair[1]])
-                anchor = _Anchor(point=spread if name == "neck" else None,
-                                 plane=float(sym[1] @ spread @ sym[1]))
-        prior = _neck_prior(fits) if name == "neck" and method == "auto" else None
-        # shoulders and hips are refitted below with their mirror priors: warn only then
-        fit = joint(name, estimator, symmetry=sym, prior=prior, anchor=anchor,
-                    quiet=method == "auto" and name in _MIRRORED)
-        fits[name] = fit
-        joints[name] = fit.positions
-        joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
-        quality[name] = fit.quality
-        report(0.05 + 0.25 * (k + 1) / len(_TORSO_JOINTS), "torso")
+    locate_torso(ctx, located, report)
     if method == "auto":
-        # left/right symmetry: each shoulder (hip) is pulled toward the mirror image of the
-        # other about the trunk's mid-sagittal plane, along its weakly excited directions
-        for pair, seg in _MIRRORED_PAIRS.items():
-            plane = _sagittal_plane(seg, fits)
-            mirrored = {a: _reflect(fits[b].local_a, plane) for a, b in (pair, pair[::-1])}
-            # the mirror image is as uncertain as the joint it mirrors
-            flip = np.eye(3) - 2.0 * np.outer(plane[1], plane[1])
-            anchors = {a: _Anchor(point=flip @ posterior[b] @ flip)
-                       for a, b in (pair, pair[::-1]) if b in posterior}
-            for name in pair:
-                fit = joint(name, estimator, prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]),
-                            anchor=anchors.get(name))
-                fits[name] = fit
-                joints[name] = fit.positions
-                joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
-                quality[name] = fit.quality
-    joints["root"] = estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"])
-    joints["chest"] = estimate_chest(joints["waist"], joints["neck"], joints["l_shoulder"],
-                                     joints["r_shoulder"])
-    joint_offsets["root"] = JointOffset("pelvis", (joint_offsets["waist"].local
-                                                   + joint_offsets["l_hip"].local
-                                                   + joint_offsets["r_hip"].local) / 3.0)
-    # the mean of R_tᵀ (C − p) over the frames: the chest joint in the chest sensor's frame
-    chest_local = rows.sum_transposed(rotations["chest"].as_matrix(),
-                                      joints["chest"] - positions["chest"]) / n_frames
-    joint_offsets["chest"] = JointOffset("chest", chest_local)
-    quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
-    quality["chest"] = {"estimator": "eq. 1 of the paper",
-                        "alpha_m": float(rows.norms(joints["chest"] - joints["waist"]).mean())}
+        mirror_torso(ctx, located)
+    derived_torso(ctx, located)
+    joints = located.joints
     lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
-    _check_units({"torso": lt}, warnings)  # before the limbs: their priors assume metres
-    std = standard_lengths(lt, anthropometry)
-
-    for k, (limb, (prox, mid, dist, upper, middle, distal, keys)) in enumerate(_LIMBS.items()):
-        stage = scaled(report, 0.3 + 0.6 * k / 4, 0.3 + 0.6 * (k + 1) / 4)
-        stage(0.0, "limbs")
-        if middle in positions and method != "reduced":
-            refit_wrist = not plain and limb.endswith("arm")
-            d_fit = joint(dist, estimator, quiet=refit_wrist)
-            nb = (None, None) if plain else (joints[prox], d_fit.positions)
-            m_fit = joint(mid, estimator, nb)
-            if refit_wrist and mid in static:
-                # an elbow located from priors would carry its error into the wrist's rule
-                warnings.extend(f"{dist}: {w}" for w in d_fit.warnings)
-            elif refit_wrist:
-                # the wrist's own hinge rule needs the elbow, and the forearm length when the
-                # wrist mostly twists about the forearm: the measured upper arm times the
-                # table's forearm / upper-arm ratio
-                upper_len = float(rows.norms(m_fit.positions - joints[prox]).mean())
-                forearm = upper_len * std["forearm"] / std["upperarm"]
-                d_fit = joint(dist, estimator, (m_fit.positions, None), bone_length=forearm)
-            for name, fit in ((mid, m_fit), (dist, d_fit)):
-                joints[name] = fit.positions
-                joint_offsets[name] = JointOffset(JOINT_SEGMENTS[name][0], fit.local_a)
-                quality[name] = fit.quality
-        else:
-            lf = estimate_limb(
-                joints[prox], positions[upper], rotations[upper], positions[distal],
-                rotations[distal], standard_lengths=(std[keys[0]], std[keys[1]]),
-                method="paper" if method == "reduced" else "improved",
-                optimizer=optimizer, w_s=w_s, w_l=w_l, progress=stage,
-                valid=ok[upper] & ok[distal] if method == "auto" else None)
-            joints[mid] = lf.middle
-            joints[dist] = lf.distal
-            joint_offsets[mid] = JointOffset(upper, lf.middle_local)
-            joint_offsets[dist] = JointOffset(distal, lf.distal_local)
-            lq = dict(lf.quality)
-            lq.update({"estimator": f"limb-{lq.get('method', '')}", "cost": lf.cost,
-                       "n_evaluations": lf.n_evaluations})
-            quality[mid] = lq
-            quality[dist] = dict(lq)
-        stage(1.0, "limbs")
-
-    joints, bone_lengths, orientations = _completed(
-        joints, rotations, fps=recording.fps, smooth=do_smooth, up=up_vec, i0=i0,
-        warnings=warnings, report=scaled(report, 0.9, 1.0))
+    _check_units({"torso": lt}, located.warnings)  # before the limbs: their priors assume metres
+    locate_limbs(ctx, located, standard_lengths(lt, anthropometry), report)
+    completed, bone_lengths, orientations = _completed(
+        joints, sensors.rotations, fps=recording.fps, smooth=options.smooth, up=options.up,
+        i0=i0, warnings=located.warnings, report=scaled(report, 0.9, 1.0))
     elapsed = _time.perf_counter() - started
     return SkeletonResult(
         method=method,
         fps=recording.fps,
-        joints={name: joints[name] for name in JOINTS},
-        offsets={name: joint_offsets[name] for name in JOINTS},
+        joints={name: completed[name] for name in JOINTS},
+        offsets={name: located.offsets[name] for name in JOINTS},
         bone_lengths=bone_lengths,
         orientations=orientations,
-        quality={name: quality[name] for name in JOINTS},
-        warnings=tuple(warnings),
+        quality={name: JointQuality.of(located.quality[name]) for name in JOINTS},
+        warnings=tuple(located.warnings),
         timings={"estimate_s": elapsed},
     )
 
 
-def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, JointOffset], *,
-                         up: NDArray[np.float64], i0: int, smooth: bool, report: Progress,
-                         started: float) -> SkeletonResult:
-    """``estimate_skeleton(offsets=...)``: every joint at its given offset."""
+def estimate_skeleton_from_offsets(
+    recording: SensorRecording,
+    offsets: Mapping[str, JointOffset],
+    *,
+    up: ArrayLike = (0.0, 1.0, 0.0),
+    i0: int = 0,
+    smooth: bool = False,
+    progress: Progress | None = None,
+) -> SkeletonResult:
+    """Joints at known offsets in their sensors' frames: a calibration applied to a take.
+
+    Parameters
+    ----------
+    recording : SensorRecording
+        The take, with the sensors the offsets name, positions in metres.
+    offsets : mapping of str to JointOffset
+        Every joint of ``model.JOINTS``: its offset in a sensor's frame from an earlier
+        estimate with the same sensor placement (``SkeletonResult.offsets`` of a
+        calibration recording in which every joint moves; from a file:
+        ``io.read_skeleton_offsets(path)``).
+    up : array_like, shape (3,)
+        World up direction (segment orientations only).
+    i0 : int
+        Calibration frame of hands, feet and head orientations (paper eq. 7).
+    smooth : bool
+        Smooth the joint paths (Savitzky–Golay, 0.1 s).
+    progress : callable, optional
+        ``progress(fraction, stage)`` with stages ``gaps``, ``joints``, ``orientations``.
+
+    Returns
+    -------
+    SkeletonResult
+        Method ``"offsets"``: nothing is fitted, each joint is one rigid transform per frame
+        of its sensor's pose. For takes in which some joints barely move: no recording
+        locates a joint that does not rotate, but a calibration does.
+
+    Raises
+    ------
+    InputError
+        An offset missing or malformed (``field`` ``offsets.<joint>``), a sensor it names
+        missing, a sensor with no valid sample, ``up`` or ``i0`` invalid.
+    EstimationError
+        Fewer than 10 frames, or bone lengths outside human range (wrong units).
+    """
+    started = _time.perf_counter()
+    report = progress or no_progress
+    up_vec = _parse_up(up)
+    check_fps(recording.fps)
+    check_integer(i0, "i0", low=0, high=2**53)
+    _check_frames(recording, i0)
+    local = _checked_offsets(recording, offsets)
+    warnings: list[str] = list(recording.warnings)
+    report(0.0, "gaps")
+    use = [s for s in SEGMENTS if s in recording.sensors]
+    sensors = SensorPoses.of(recording, use, warnings)
+    report(0.3, "joints")
+    mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
+    joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
+              for name, (seg, vec) in local.items()}
+    joints, bone_lengths, orientations = _completed(
+        joints, sensors.rotations, fps=recording.fps, smooth=smooth, up=up_vec, i0=i0,
+        warnings=warnings, report=scaled(report, 0.6, 1.0))
+    return SkeletonResult(
+        method="offsets",
+        fps=recording.fps,
+        joints=joints,
+        offsets={name: JointOffset(seg, vec.copy()) for name, (seg, vec) in local.items()},
+        bone_lengths=bone_lengths,
+        orientations=orientations,
+        quality={name: JointQuality("given offset", details={"sensor": seg})
+                 for name, (seg, _) in local.items()},
+        warnings=tuple(warnings),
+        timings={"estimate_s": _time.perf_counter() - started},
+    )
+
+
+def _checked_offsets(recording: SensorRecording, offsets: Mapping[str, JointOffset]
+                     ) -> dict[str, tuple[str, NDArray[np.float64]]]:
+    """Each joint's (sensor, offset (3,)); InputError for a missing or malformed one."""
     local: dict[str, tuple[str, NDArray[np.float64]]] = {}
     for name in JOINTS:
         off = offsets.get(name)
@@ -822,29 +1100,7 @@ def _skeleton_at_offsets(recording: SensorRecording, offsets: Mapping[str, Joint
                              f"the recording lacks; it has {', '.join(recording.sensors)}",
                              sensor=off.sensor)
         local[name] = (off.sensor, vec)
-    warnings: list[str] = list(recording.warnings)
-    report(0.0, "gaps")
-    use = [s for s in SEGMENTS if s in recording.sensors]
-    sensors = _SensorPoses.of(recording, use, warnings)
-    report(0.3, "joints")
-    mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
-    joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
-              for name, (seg, vec) in local.items()}
-    joints, bone_lengths, orientations = _completed(
-        joints, sensors.rotations, fps=recording.fps, smooth=smooth, up=up, i0=i0,
-        warnings=warnings, report=scaled(report, 0.6, 1.0))
-    return SkeletonResult(
-        method="offsets",
-        fps=recording.fps,
-        joints=joints,
-        offsets={name: JointOffset(seg, vec.copy()) for name, (seg, vec) in local.items()},
-        bone_lengths=bone_lengths,
-        orientations=orientations,
-        quality={name: {"estimator": "given offset", "sensor": seg}
-                 for name, (seg, _) in local.items()},
-        warnings=tuple(warnings),
-        timings={"estimate_s": _time.perf_counter() - started},
-    )
+    return local
 
 
 def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,

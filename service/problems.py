@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import uuid
 from collections.abc import Mapping
 from typing import Any
 
@@ -101,11 +102,12 @@ def unavailable() -> Problem:
                    headers={"Retry-After": str(UNAVAILABLE_RETRY_SECONDS)})
 
 
-def internal() -> Problem:
-    """500 for an unexpected error (logged with its traceback, never shown)."""
+def internal(error_id: str) -> Problem:
+    """500 for an unexpected error, logged with its traceback under ``error_id`` (never
+    shown): the id lets an operator find the log line a client reports."""
     return Problem(500, "Internal server error",
-                   "the server failed to handle the request; it has been logged",
-                   slug="internal")
+                   f"the server failed to handle the request; it has been logged with error id "
+                   f"{error_id}", slug="internal", error_id=error_id)
 
 
 def error_problem(exc: BaseException, method: str, path: str) -> Problem:
@@ -114,8 +116,9 @@ def error_problem(exc: BaseException, method: str, path: str) -> Problem:
         log.error("back-end unavailable on %s %s: %s: %s", method, path, type(exc).__name__,
                   str(exc).splitlines()[0] if str(exc) else "")
         return unavailable()
-    log.error("unhandled error on %s %s", method, path, exc_info=exc)
-    return internal()
+    error_id = uuid.uuid4().hex
+    log.error("unhandled error on %s %s [error id %s]", method, path, error_id, exc_info=exc)
+    return internal(error_id)
 
 
 class BodyTimeout(StarletteHTTPException):

@@ -23,32 +23,15 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, euler_channels, write_bvh
 from ..errors import InputError
-from ..model import JOINTS
-from ..results import JointOffset, SkeletonResult, timings_document
+from ..model import BVH_TREE, JOINTS
+from ..results import JointOffset, JointQuality, SkeletonResult, timings_document
 from .sensor_common import unit_scale
 
 PathLike = str | os.PathLike[str]
 
 JSON_KIND: Final[str] = "skeleton"
 
-BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = (
-    ("root", None, "pelvis"),
-    ("waist", "root", "spine"),
-    ("chest", "waist", "chest"),
-    ("neck", "chest", "head"),
-    ("l_shoulder", "chest", "l_upperarm"),
-    ("l_elbow", "l_shoulder", "l_forearm"),
-    ("l_wrist", "l_elbow", "l_hand"),
-    ("r_shoulder", "chest", "r_upperarm"),
-    ("r_elbow", "r_shoulder", "r_forearm"),
-    ("r_wrist", "r_elbow", "r_hand"),
-    ("l_hip", "root", "l_thigh"),
-    ("l_knee", "l_hip", "l_shank"),
-    ("l_ankle", "l_knee", "l_foot"),
-    ("r_hip", "root", "r_thigh"),
-    ("r_knee", "r_hip", "r_shank"),
-    ("r_ankle", "r_knee", "r_foot"),
-)
+BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = BVH_TREE
 """BVH joints as (node, parent node, segment whose orientation drives it), parents first."""
 
 END_SITES: Final[dict[str, tuple[str, tuple[float, float, float], float]]] = {
@@ -261,7 +244,7 @@ def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
                       for k, v in data.get("bone_lengths", {}).items() if v is not None},
         orientations={str(k): _array(v, (4,), f"orientations.{k}")
                       for k, v in data["orientations"].items()},
-        quality={str(k): dict(v) for k, v in quality.items()},
+        quality={str(k): JointQuality.of(dict(v)) for k, v in quality.items()},
         warnings=tuple(str(w) for w in warnings),
         timings={str(k): _number(v, f"timings.{k}")
                  for k, v in data.get("timings", {}).items() if v is not None},
@@ -331,7 +314,7 @@ def read_skeleton_json(path: PathLike) -> SkeletonResult:
 
 def read_skeleton_offsets(path: PathLike) -> dict[str, JointOffset]:
     """The joint offsets of a calibration: a skeleton JSON document's ``offsets``, or a
-    document holding only ``{"offsets": {...}}``; for ``estimate_skeleton(offsets=...)``.
+    document holding only ``{"offsets": {...}}``; for ``estimate_skeleton_from_offsets``.
 
     Raises
     ------

@@ -42,8 +42,8 @@ OUTPUT_FORMATS: Final[tuple[str, ...]] = TRANSLATION_OUTPUT_FORMATS
 def translation_to_dict(result: TranslationResult, recording: KinematicsRecording | None = None,
                         *, decimals: int = 5) -> dict[str, Any]:
     """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings; with
-    the recording, its frame times, the feet and toes used, the input's length unit (metres
-    per unit) and the reader's notes."""
+    the recording, its frame times, the feet and toes used, the corrected feet's heights (m,
+    +Y, per frame), the input's length unit (metres per unit) and the reader's notes."""
 
     def rows(a: NDArray[np.float64]) -> list[list[float]]:
         return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
@@ -68,6 +68,9 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
         out["time"] = np.round(recording.time, 6).tolist()
         out["feet"] = {"left": recording.left_foot, "right": recording.right_foot,
                        "toes": dict(recording.toes)}
+        out["foot_heights"] = {
+            side: np.round(result.positions[:, recording.index(foot), 1], decimals).tolist()
+            for side, foot in (("left", recording.left_foot), ("right", recording.right_foot))}
         out["input_length_unit_m"] = recording.length_scale
         out["notes"] = list(recording.notes)
     return out

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
-from ..model import JOINTS, REDUCED_SEGMENTS, SEGMENTS
+from ..model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
 from ..recording import SensorRecording
 from ..skeleton import estimate_chest, estimate_root
 
@@ -110,14 +110,8 @@ _SEGMENT_DEF: Final[dict[str, tuple[str, str, str, str]]] = {
 }
 
 # joint role -> segment carrying it (rigid model topology, parents before children)
-_JOINT_CARRIER: Final[dict[str, str]] = {
-    "waist": "pelvis", "l_hip": "pelvis", "r_hip": "pelvis",
-    "neck": "chest", "l_shoulder": "chest", "r_shoulder": "chest",
-    "l_elbow": "l_upperarm", "r_elbow": "r_upperarm",
-    "l_wrist": "l_forearm", "r_wrist": "r_forearm",
-    "l_knee": "l_thigh", "r_knee": "r_thigh",
-    "l_ankle": "l_shank", "r_ankle": "r_shank",
-}
+# the segment whose frame carries each two-segment joint: its proximal one
+_JOINT_CARRIER: Final[dict[str, str]] = {j: segs[0] for j, segs in JOINT_SEGMENTS.items()}
 
 
 @dataclass(frozen=True, eq=False)

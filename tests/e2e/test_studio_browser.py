@@ -208,7 +208,7 @@ def test_translation_view(start_server: Callable[..., ServerProcess], browser: B
     assert len((path.get_attribute("points") or "").split()) == frames
     assert page.locator("svg[aria-label='Contact phases'] rect").count() > 4
     heights = page.locator("svg[aria-label='Heights over time (m)']")
-    assert heights.locator("polyline").count() == 4  # hips, floor and both feet (from the CSV)
+    assert heights.locator("polyline").count() == 4  # hips, floor and both feet (the JSON's foot_heights)
     assert (heights.text_content() or "").count("Foot") == 2
 
 

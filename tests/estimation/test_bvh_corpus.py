@@ -224,9 +224,15 @@ def test_json_and_cli_report_the_feet_and_unit(corpus: Path, acc: Path, tmp_path
     bvh = write(corpus / "cli-xsens.bvh", body_motion(CONVENTIONS["xsens-mvn"],
                                                       unit_m=LENGTH_UNITS["cmu"]))
     rec = read_kinematics(bvh, accelerations=acc)
-    data = translation_to_dict(estimate_translation(rec), rec)
+    result = estimate_translation(rec)
+    data = translation_to_dict(result, rec)
     assert data["feet"] == {"left": "LeftAnkle", "right": "RightAnkle",
                             "toes": {"LeftAnkle": "LeftToe", "RightAnkle": "RightToe"}}
+    for side, foot in (("left", "LeftAnkle"), ("right", "RightAnkle")):
+        heights = np.asarray(data["foot_heights"][side])
+        assert heights.shape == (rec.n_frames,)
+        np.testing.assert_allclose(heights, result.positions[:, rec.index(foot), 1], atol=1e-5)
+    assert np.ptp(data["foot_heights"]["left"]) > 0.02  # a walking foot lifts
     assert data["input_length_unit_m"] == LENGTH_UNITS["cmu"]
     assert main(["translate", str(bvh), "--accelerations", str(acc), "-o",
                  str(tmp_path / "o.bvh"), "--quiet"]) == 0

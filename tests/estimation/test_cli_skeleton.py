@@ -199,7 +199,7 @@ def test_options_reach_the_estimator_and_outputs_are_written(
     assert (code, out, err) == (0, "", "")
     assert calls == [{"method": "reduced", "optimizer": "nelder-mead", "torso": "llsf",
                       "up": (0.0, 0.0, -1.0), "i0": 7, "anthropometry": "aist", "w_s": 0.01,
-                      "w_l": 0.01, "smooth": None, "offsets": None, "progress": None}]
+                      "w_l": 0.01, "smooth": None, "progress": None}]
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["method"] == "fake"
     assert doc["frames"] == 300

@@ -16,7 +16,7 @@ from estimation.gaps import (
     fill_sensor_major,
     sensor_major,
 )
-from estimation.joints import _percentile, effective_samples, estimate_joint, range_of_motion
+from estimation.joints import effective_samples, estimate_joint, percentile, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
 
@@ -447,9 +447,9 @@ def test_range_of_motion_ignores_orientation_noise(rig_factory: RigFactory) -> N
 def test_percentile_matches_numpy(n: int) -> None:
     x = np.random.default_rng(n).random(n)
     for q in (0.0, 50.0, 95.0, 100.0):
-        assert _percentile(x, q) == pytest.approx(float(np.percentile(x, q)), rel=1e-15)
+        assert percentile(x, q) == pytest.approx(float(np.percentile(x, q)), rel=1e-15)
         # of a non-decreasing function of x, applied to the two order statistics only
-        assert _percentile(x, q, np.sqrt) == pytest.approx(
+        assert percentile(x, q, np.sqrt) == pytest.approx(
             float(np.percentile(np.sqrt(x), q)), rel=1e-15)
 
 

@@ -19,12 +19,13 @@ from estimation.recording import SensorRecording
 from estimation.results import JointOffset
 from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
 from estimation.skeleton import (
-    _Anchor,
-    _rotations,
-    _shared_fit,
+    Anchor,
     estimate_chest,
     estimate_root,
     estimate_skeleton,
+    estimate_skeleton_from_offsets,
+    shared_fit,
+    unit_rotations,
 )
 from estimation.slip import SlipFit
 
@@ -350,7 +351,7 @@ def test_offsets_from_a_calibration_locate_joints_that_do_not_move(sim15: Sim) -
     take, truth = simulate_sensors(freeze(example_motion(240, fps=60.0, seed=5), LEG_NODES),
                                    units_m=0.01, n_sensors=15, seed=11)
     alone = mean_errors_mm(estimate_skeleton(take).joints, truth)
-    applied = estimate_skeleton(take, offsets=calibration.offsets)
+    applied = estimate_skeleton_from_offsets(take, calibration.offsets)
     errors = mean_errors_mm(applied.joints, truth)
     legs = ("l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle")
     assert max(errors.values()) < 20.0, errors
@@ -376,7 +377,7 @@ def test_exact_offsets_give_the_exact_joints(clean15: Sim) -> None:
         local = Rotation.from_quat(q[k], scalar_first=True).inv().apply(
             truth.joints[name][0] - rec.positions[0, k])
         offsets[name] = JointOffset(seg, local)
-    result = estimate_skeleton(rec, offsets=offsets)
+    result = estimate_skeleton_from_offsets(rec, offsets)
     for name in JOINTS:
         np.testing.assert_allclose(result.joints[name], truth.joints[name], atol=1e-9)
 
@@ -384,16 +385,16 @@ def test_exact_offsets_give_the_exact_joints(clean15: Sim) -> None:
 def test_offsets_errors_name_the_joint_or_sensor(sim15: Sim, sim11: Sim) -> None:
     offsets = dict(estimate_skeleton(sim15[0]).offsets)
     with pytest.raises(InputError) as err:
-        estimate_skeleton(sim11[0], offsets=offsets)  # the knees sit on the shank-less suit's
+        estimate_skeleton_from_offsets(sim11[0], offsets)  # the knees sit on the shank-less suit's
     assert err.value.sensor in ("l_forearm", "r_forearm", "l_shank", "r_shank")
     assert "lacks" in err.value.detail
     missing = {k: v for k, v in offsets.items() if k != "r_wrist"}
     with pytest.raises(InputError) as err:
-        estimate_skeleton(sim15[0], offsets=missing)
+        estimate_skeleton_from_offsets(sim15[0], missing)
     assert err.value.field == "offsets.r_wrist"
     bad = {**offsets, "neck": JointOffset("chest", np.array([0.0, np.nan, 0.1]))}
     with pytest.raises(InputError) as err:
-        estimate_skeleton(sim15[0], offsets=bad)
+        estimate_skeleton_from_offsets(sim15[0], bad)
     assert err.value.field == "offsets.neck"
 
 
@@ -406,7 +407,7 @@ def test_rotations_equal_scipys_from_quat_bit_for_bit() -> None:
     component_major(quat, range(3), out=q_s[:, :4])
     gaps = fill_sensor_major(p_s, q_s[:, :4])
     filled = q_s[:, :4].copy()
-    for k, rot in enumerate(_rotations(q_s, gaps.norms2)):
+    for k, rot in enumerate(unit_rotations(q_s, gaps.norms2)):
         ref = Rotation.from_quat(filled[k].T, scalar_first=True)
         assert np.array_equal(rot.as_quat(), ref.as_quat())
         assert np.array_equal(q_s[k, :4].T, ref.as_quat(scalar_first=True))  # normalised
@@ -463,8 +464,8 @@ def test_a_prior_is_only_as_certain_as_its_anchor() -> None:
     x0, s0 = np.array([0.05, -0.12, 0.02]), 0.03
     shifts = []
     for spread in (np.zeros((3, 3)), np.diag([4e-3, 2e-3, 1e-3])):
-        anchor = _Anchor(point=spread)
-        out, cov_a = _shared_fit(fit, shared, 0, zeros, eye, zeros, eye, ok, ok,
+        anchor = Anchor(point=spread)
+        out, cov_a = shared_fit(fit, shared, 0, zeros, eye, zeros, eye, ok, ok,
                                  symmetry=None, prior=(x0, s0), anchor=anchor)
         p = np.linalg.inv(s0**2 * np.eye(3) + spread)
         post = np.linalg.inv(np.linalg.inv(c_data) + p)

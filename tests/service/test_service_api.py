@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -397,19 +398,26 @@ def test_every_error_is_a_problem(client: TestClient) -> None:
     assert_problem(client.get("/v1/jobs/unknown"), 404)
 
 
-def test_internal_errors_do_not_leak(runtime: Runtime) -> None:
+def test_internal_errors_do_not_leak(runtime: Runtime,
+                                    caplog: pytest.LogCaptureFixture) -> None:
     def broken(*args: object, **kwargs: object) -> None:
         raise RuntimeError("secret traceback detail")
 
     runtime.store.list_jobs = broken  # type: ignore[method-assign]
     app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
-    with TestClient(app, raise_server_exceptions=False,
-                    headers={"Authorization": "Bearer key-a"}) as c:
-        r = c.get("/v1/jobs")
-    body = assert_problem(r, 500)
-    assert "secret" not in r.text
-    assert "Traceback" not in r.text
+    with caplog.at_level(logging.ERROR), TestClient(
+            app, raise_server_exceptions=False, headers={"Authorization": "Bearer key-a"}) as c:
+        first, second = c.get("/v1/jobs"), c.get("/v1/jobs")
+    body = assert_problem(first, 500)
+    assert "secret" not in first.text
+    assert "Traceback" not in first.text
     assert body["title"] == "Internal server error"
+    # an id per error, in the answer and in the log line that carries the traceback
+    ids = [body["error_id"], second.json()["error_id"]]
+    assert ids[0] != ids[1]
+    assert ids[0] in body["detail"]
+    logged = [r for r in caplog.records if r.exc_info and ids[0] in r.getMessage()]
+    assert len(logged) == 1
 
 
 def test_health_ready_and_metrics(client: TestClient, runtime: Runtime, worker: Worker) -> None:

@@ -211,7 +211,6 @@ def test_the_lease_outlives_a_job_that_holds_the_cpu(tmp_path: Path,
     lease = 2.0
     settings = sqlite_settings(tmp_path, lease_seconds=lease)
     runtime = open_runtime(settings)
-    job_id = queued_job(runtime, tmp_path)
     n = gil_holding_size(2 * lease)  # starves this process's heartbeat thread for 2 leases
     worker = Worker(runtime, slow_kind(lambda: sum(range(n))), worker_id="busy:1")
     worker.keeper = LeaseKeeper(settings, worker.id)
@@ -222,6 +221,9 @@ def test_the_lease_outlives_a_job_that_holds_the_cpu(tmp_path: Path,
     try:
         assert reaper.stdout is not None
         assert reaper.stdout.readline() == "ready\n"
+        # queued only now: a reaper slow to start on the loaded cores would otherwise find the
+        # job queued for longer than the lost-message delay and send it again
+        job_id = queued_job(runtime, tmp_path)
         assert runtime.queue.run_next(worker.run_job)
     finally:
         reaper.terminate()

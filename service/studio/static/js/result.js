@@ -154,16 +154,10 @@ function orbit(canvas, camera, render) {
   });
 }
 
-/** Feet heights (m) from the corrected kinematics CSV (cm columns `<foot>.Dy`), if any. */
-async function feetHeights(job) {
-  if (!job.results.csv) return null;
-  const response = await api(`/v1/jobs/${job.id}/result?format=csv`, { raw: true });
-  const lines = (await response.text()).trim().split("\n");
-  const header = lines[0].split(",");
-  const feet = [job.params.left_foot || "LeftFoot", job.params.right_foot || "RightFoot"];
-  const columns = feet.map((f) => header.indexOf(`${f}.Dy`));
-  if (columns.some((c) => c < 0)) return null;
-  return feet.map((foot, k) => ({ foot, values: lines.slice(1).map((l) => Number(l.split(",")[columns[k]]) / 100) }));
+/** Feet heights (m) from the result's `foot_heights` (every input format has them). */
+function feetHeights(doc) {
+  if (!doc.foot_heights || !doc.feet) return [];
+  return ["left", "right"].map((side) => ({ foot: doc.feet[side], values: doc.foot_heights[side] }));
 }
 
 async function translationView(doc, job) {
@@ -174,8 +168,7 @@ async function translationView(doc, job) {
     timeline("Contact phases", doc.contacts, doc.fps));
   const series = [{ label: "hips", values: doc.root.map((p) => p[1]), colour: "#2457c5" },
     { label: "floor", values: doc.floor, colour: "#5b6275" }];
-  const feet = await feetHeights(job).catch(() => null);
-  for (const [k, f] of (feet || []).entries()) {
+  for (const [k, f] of feetHeights(doc).entries()) {
     series.push({ label: f.foot, values: f.values, colour: k ? "#e07b00" : "#1b7a3a" });
   }
   left.append(lineChart("Heights over time (m)", time, series, "height m"));
