@@ -65,7 +65,7 @@ RUNS = [
     ("reduced-nm", 11, {"method": "reduced", "optimizer": "nelder-mead"}),
     ("auto", 11, {"method": "auto"}),
 ]
-# the evaluation protocol's noise (design.md): white position noise (mm), white orientation
+# the evaluation protocol's noise (docs/benchmarks.md): white position noise (mm), white orientation
 # noise (degrees per axis), slow soft-tissue slip (mm RMS), share of dropped samples
 PROTOCOL_NOISE = {"position": 2.0, "orientation": 0.5, "slip": 5.0, "drop": 0.01}
 # acceptance of the skeleton issue, on the per-(clip, joint) mean errors (mm)

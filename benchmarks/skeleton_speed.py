@@ -1,6 +1,6 @@
 """Speed of skeleton estimation on a recording the size of the paper's RT1 (6,283 frames, 30 fps).
 
-Builds synthetic 15- and 11-sensor recordings (``estimation.simulate.sensors``, design.md's
+Builds synthetic 15- and 11-sensor recordings (``estimation.simulate.sensors``, docs/benchmarks.md's
 noise protocol) from a real clip in ``../shared/data/motions``, played forwards and backwards
 until it has the wanted number of frames, and times ``estimate_skeleton`` per method by its
 own ``timings["estimate_s"]`` (median of several runs, every method in the same process).

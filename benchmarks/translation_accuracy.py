@@ -1,4 +1,4 @@
-"""Accuracy of root translation on synthetic recordings from real clips (design.md protocol).
+"""Accuracy of root translation on synthetic recordings from real clips (docs/benchmarks.md).
 
 For every clip of ``../shared/data/motions`` (walks, turns, karate, dance; not the jump clips)
 at 30, 60 and 100 fps, with and without 2 g accelerometer saturation: strip the root

@@ -84,6 +84,7 @@ from .errors import EstimationError, InputError
 from .least_squares import Normal, levenberg_marquardt, normal_from_residuals
 from .params import check_number
 from .progress import Progress, no_progress
+from .vocabulary import OPTIMIZERS
 
 __all__ = ["LimbFit", "estimate_limb", "paper_cost", "standard_lengths", "torso_length"]
 
@@ -857,7 +858,7 @@ def _check_limb_options(method: str, optimizer: str,
     if method not in ("paper", "improved"):
         raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
                          field="method")
-    if optimizer not in ("least-squares", "nelder-mead"):
+    if optimizer not in OPTIMIZERS:
         raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
                          "'nelder-mead'", field="optimizer")
     lengths = (float(standard_lengths[0]), float(standard_lengths[1]))

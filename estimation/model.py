@@ -1,4 +1,4 @@
-"""Names and topology of the 15-segment body model (design.md, "Skeleton model")."""
+"""Names and topology of the 15-segment body model (docs/architecture.md, "Conventions")."""
 
 from __future__ import annotations
 

@@ -24,8 +24,9 @@ from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
+from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
-METHODS: Final[tuple[str, ...]] = ("auto", "llsf", "gdke", "reduced")
+METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
 
 HUMAN_RANGE_M: Final[dict[str, tuple[float, float]]] = {
     "torso": (0.2, 1.0),
@@ -454,10 +455,10 @@ def skeleton_options(recording: SensorRecording, *, method: str = "auto",
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; use one of {', '.join(METHODS)}",
                          field="method")
-    if optimizer not in ("least-squares", "nelder-mead"):
+    if optimizer not in OPTIMIZERS:
         raise InputError(f"unknown optimizer {optimizer!r}; use least-squares or nelder-mead",
                          field="optimizer")
-    if torso not in ("llsf", "gdke"):
+    if torso not in TORSO_ESTIMATORS:
         raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
     up_vec = _parse_up(up)
     _check_options(recording.fps, i0=i0, w_s=w_s, w_l=w_l, highpass_s=highpass_s,

@@ -4,7 +4,7 @@ Two estimators share one entry point, :func:`estimate_translation`:
 
 ``hachaj2018``
     Hachaj & Ogiela's heuristic exactly as their published R implementation computes it
-    (design.md, "Root translation"), in O(N).
+    (docs/translation.md, "Methods and what they assume"), in O(N).
 ``contact`` (default)
     A stance model: per-frame foot contacts (left, right, both, none) chosen by Viterbi
     decoding of how well each hypothesis explains the measured foot accelerations, then a
@@ -42,8 +42,9 @@ from .params import (
     check_number,
 )
 from .progress import Progress, no_progress
+from .vocabulary import TRANSLATION_METHODS
 
-METHODS: Final[tuple[str, ...]] = ("contact", "hachaj2018")
+METHODS: Final[tuple[str, ...]] = TRANSLATION_METHODS
 """Names accepted by :func:`estimate_translation`."""
 
 CONTACT_LABELS: Final[tuple[str, ...]] = ("none", "left", "right", "both")

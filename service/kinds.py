@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import importlib
-import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -29,6 +28,25 @@ from estimation.params import (
     WEIGHT_MAX,
 )
 from estimation.progress import Progress, scaled
+from estimation.vocabulary import (
+    ANTHROPOMETRY_KEYS,
+    ANTHROPOMETRY_TABLES,
+    AccelerationUnit,
+    AnthropometryKey,
+    AnthropometryTable,
+    LengthUnit,
+    Optimizer,
+    PositionUnit,
+    SkeletonMethod,
+    TorsoEstimator,
+    TranslationMethod,
+)
+
+RecordingFormat = Literal["sensor-csv", "tracker", "npz", "kinematics-csv", "bvh", "mvnx",
+                          "accelerations-csv"]
+"""API names of the recording formats an upload may declare (or ``"auto"``)."""
+ResultFormat = Literal["json", "bvh", "csv"]
+"""Formats a job's result is served in."""
 
 SENSOR_FORMATS = {"sensor-csv": "csv", "tracker": "tracker", "npz": "npz"}
 """API format name → ``estimation.io.sensors`` format name."""
@@ -45,7 +63,7 @@ class Input:
 
 
 NUMERICAL_MODULES = ("estimation.skeleton", "estimation.translation", "estimation.io.sensors",
-                     "estimation.io.skeleton", "estimation.io.kinematics")
+                     "estimation.io.skeleton", "estimation.io.kinematics", "estimation.pipeline")
 """What the run functions import: the API process never needs them (nor scipy)."""
 
 
@@ -70,12 +88,8 @@ class JointOffsetIn(BaseModel):
     local: tuple[float, float, float] = Field(description="Metres, in the sensor's frame.")
 
 
-ANTHROPOMETRY_KEYS = Literal["torso", "thigh", "shank", "upperarm", "forearm"]
-"""Keys of a custom anthropometric table (``limbs.standard_lengths``)."""
-TABLE_KEYS: tuple[str, ...] = get_args(ANTHROPOMETRY_KEYS)
-
-ANTHROPOMETRY_TABLE: TypeAdapter[dict[ANTHROPOMETRY_KEYS, float]] = TypeAdapter(
-    dict[ANTHROPOMETRY_KEYS, Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]])
+ANTHROPOMETRY_TABLE: TypeAdapter[dict[AnthropometryKey, float]] = TypeAdapter(
+    dict[AnthropometryKey, Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]])
 """A custom table: positive, finite lengths or ratios, in any one unit."""
 
 
@@ -84,10 +98,10 @@ class SkeletonParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    method: Literal["auto", "llsf", "gdke", "reduced"] = "auto"
-    optimizer: Literal["least-squares", "nelder-mead"] = "least-squares"
-    torso: Literal["llsf", "gdke"] = "llsf"
-    anthropometry: Literal["aist", "winter"] | dict[str, float] = Field(
+    method: SkeletonMethod = "auto"
+    optimizer: Optimizer = "least-squares"
+    torso: TorsoEstimator = "llsf"
+    anthropometry: AnthropometryTable | dict[str, float] = Field(
         "aist", description="A table name, or lengths (or ratios) of torso, thigh, shank, "
                             "upperarm and forearm in any one unit.")
     w_s: float = Field(0.01, ge=0, le=WEIGHT_MAX, description="Weight of eq. 5's length term.")
@@ -96,7 +110,7 @@ class SkeletonParams(BaseModel):
     up: tuple[float, float, float] = Field(
         (0.0, 1.0, 0.0), description="World up direction of the source frame (non-zero).")
     i0: int = Field(0, ge=0, le=2**31, description="Calibration frame of hands, feet and head.")
-    units: Literal["m", "cm", "mm", "in"] | None = None
+    units: PositionUnit | None = None
     fps: float | None = Field(None, ge=MIN_FPS, le=MAX_FPS,
                               description="Frame rate, Hz (tracker files).")
     stations: dict[Annotated[str, Field(min_length=1, max_length=100)],
@@ -118,8 +132,8 @@ class SkeletonParams(BaseModel):
         """One error at ``anthropometry`` or ``anthropometry.<key>``, not one per union arm."""
         if isinstance(value, dict):
             return ANTHROPOMETRY_TABLE.validate_python(value)
-        if value not in ("aist", "winter"):
-            raise ValueError(f"use 'aist', 'winter' or a table of {', '.join(TABLE_KEYS)}; "
+        if value not in ANTHROPOMETRY_TABLES:
+            raise ValueError(f"use 'aist', 'winter' or a table of {', '.join(ANTHROPOMETRY_KEYS)}; "
                              f"got {value!r}")
         return value
 
@@ -194,15 +208,14 @@ class TranslationParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    method: Literal["contact", "hachaj2018"] = "contact"
+    method: TranslationMethod = "contact"
     left_foot: str | None = Field(None, min_length=1, max_length=100,
                                   description="Default: found by name or topology.")
     right_foot: str | None = Field(None, min_length=1, max_length=100)
-    units: Literal["auto", "m", "cm", "mm", "in", "ft", "cmu"] | PositiveFloat = Field(
+    units: Literal["auto", LengthUnit] | PositiveFloat = Field(
         "auto", description="Length unit of a BVH or kinematics CSV: auto (from the legs' "
                             "length), a name, or metres per unit (> 0).")
-    acceleration_units: Literal["g", "m/s2", "free-g", "free-m/s2",
-                                "second-differences"] | None = None
+    acceleration_units: AccelerationUnit | None = None
     subject: str | None = Field(
         None, min_length=1, max_length=100,
         description="MVNX subject to read, by label or 1-based number; default the first.")
@@ -223,69 +236,57 @@ class TranslationParams(BaseModel):
         return model.model_validate(value)
 
 
+def _stages(progress: Progress) -> Callable[[str], None]:
+    """Report the pipeline's reading at 0 and writing at 0.95 of the job."""
+    at = {"reading": 0.0, "writing": 0.95}
+    return lambda stage: progress(at[stage], stage)
+
+
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
-    from estimation.io.sensors import read_recording
-    from estimation.io.skeleton import offsets_from_dict, write_skeleton_files
-    from estimation.skeleton import estimate_skeleton, estimate_skeleton_from_offsets
+    from estimation import pipeline
+    from estimation.io.skeleton import offsets_from_dict
 
     source = inputs["recording"]
-    progress(0.0, "reading")
-    started = time.perf_counter()
-    recording = read_recording(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
-                               units=params.units, fps=params.fps, stations=params.stations,
-                               tracker_layout=params.tracker_layout)
-    read_s = time.perf_counter() - started
-    stage = scaled(progress, 0.02, 0.95)
-    if params.offsets is None:
-        result = estimate_skeleton(
-            recording, method=params.method, optimizer=params.optimizer, torso=params.torso,
-            up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
-            w_l=params.w_l, smooth=params.smooth, progress=stage)
-    else:
-        # a calibration's offsets leave nothing to fit: the method's options do not apply
-        offsets = offsets_from_dict({k: v.model_dump() for k, v in params.offsets.items()})
-        result = estimate_skeleton_from_offsets(recording, offsets, up=params.up,
-                                                i0=params.i0, smooth=bool(params.smooth),
-                                                progress=stage)
-    progress(0.95, "writing")
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
            "csv": outdir / "skeleton.csv"}
-    result = replace(result, timings={**result.timings, "read_s": read_s})
-    write_skeleton_files(result, json_path=out["json"], bvh_path=out["bvh"],
-                         csv_path=out["csv"])
+    pipeline.run_skeleton(
+        pipeline.SensorSource(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
+                              units=params.units, fps=params.fps, stations=params.stations,
+                              tracker_layout=params.tracker_layout),
+        pipeline.SkeletonRunOptions(
+            method=params.method, optimizer=params.optimizer, torso=params.torso,
+            up=params.up, i0=params.i0, anthropometry=params.anthropometry, w_s=params.w_s,
+            w_l=params.w_l, smooth=params.smooth,
+            offsets=None if params.offsets is None else offsets_from_dict(
+                {k: v.model_dump() for k, v in params.offsets.items()})),
+        pipeline.SkeletonOutputs(json=out["json"], bvh=out["bvh"], csv=out["csv"]),
+        progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
     return out
 
 
 def run_translation(inputs: Mapping[str, Input], params: TranslationParams, progress: Progress,
                     outdir: Path) -> dict[str, Path]:
     """Read the kinematics (and accelerations), estimate the root path, write the results."""
-    from estimation.io.kinematics import read_kinematics, write_translation_files
-    from estimation.translation import estimate_translation
+    from estimation import pipeline
 
     source = inputs["recording"]
-    progress(0.0, "reading")
-    started = time.perf_counter()
     accelerations = inputs.get("accelerations")
-    recording = read_kinematics(
-        source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
-        accelerations=accelerations.path if accelerations else None,
-        left_foot=params.left_foot, right_foot=params.right_foot,
-        acceleration_units=params.acceleration_units, units=params.units,
-        subject=params.subject)
-    read_s = time.perf_counter() - started
-    result = estimate_translation(recording, method=params.method,
-                                  left_foot=recording.left_foot, right_foot=recording.right_foot,
-                                  progress=scaled(progress, 0.02, 0.95),
-                                  **params.options.model_dump())
-    progress(0.95, "writing")
     out = {"json": outdir / "translation.json", "bvh": outdir / "translation.bvh"}
     if source.format == "kinematics-csv":  # a corrected CSV needs a CSV input to correct
         out["csv"] = outdir / "translation.csv"
     writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv"}
-    result = replace(result, timings={**result.timings, "read_s": read_s})
-    write_translation_files(result, recording, [(writers[f], p) for f, p in out.items()])
+    pipeline.run_translation(
+        pipeline.KinematicsSource(
+            source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
+            accelerations=accelerations.path if accelerations else None,
+            left_foot=params.left_foot, right_foot=params.right_foot,
+            acceleration_units=params.acceleration_units, units=params.units,
+            subject=params.subject),
+        pipeline.TranslationRunOptions(params.method, params.options.model_dump()),
+        [(writers[f], p) for f, p in out.items()],
+        progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
     return out
 
 
@@ -309,6 +310,6 @@ def default_kinds() -> dict[str, Kind]:
     }
 
 
-MEDIA_TYPES = {"json": "application/json", "bvh": "application/x-bvh",
+MEDIA_TYPES: dict[ResultFormat, str] = {"json": "application/json", "bvh": "application/x-bvh",
                "csv": "text/csv; charset=utf-8"}
 """Content type of each result format."""

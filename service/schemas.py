@@ -8,12 +8,11 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from .jobs import Job, Recording, Status
-from .kinds import SkeletonParams, TranslationParams
+from .kinds import RecordingFormat, SkeletonParams, TranslationParams
+from .kinds import ResultFormat as ResultFormat  # re-exported: the API names it here
 from .uploads import cap_summary
 
-UploadFormat = Literal["auto", "sensor-csv", "tracker", "npz", "kinematics-csv", "bvh", "mvnx",
-                       "accelerations-csv"]
-ResultFormat = Literal["json", "bvh", "csv"]
+UploadFormat = Literal["auto", RecordingFormat]
 RecordingId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[0-9a-z]+$")]
 
 

@@ -18,9 +18,7 @@ import anyio.to_thread
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 
 from estimation.errors import BonefitError, InputError
-from estimation.io import limits
-from estimation.io.kinematics import acceleration_header, acceleration_sensors, sniff_kinematics
-from estimation.io.sensors import RowCounter, sniff_recording
+from estimation.io.sniff import RowCounter, sniff_file
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
 from .problems import Problem
@@ -309,47 +307,6 @@ def clean_spool(spool: Path, max_age: float = 3600.0) -> int:
     return removed
 
 
-def _sniff_accelerations(path: Path) -> dict[str, Any]:
-    """Columns, sensors and rows of an accelerations CSV, reading one bounded line at a
-    time; InputError unless the header has a time column and a ``.ax/.ay/.az`` sensor."""
-    header: list[str] | None = None
-    header_line = 0
-    frames = 0
-    with path.open(encoding="utf-8-sig", errors="replace", newline="") as fh:
-        for line, text in enumerate(limits.bounded_lines(fh), 1):
-            stripped = text.strip()
-            if not stripped or stripped.startswith("#"):
-                continue
-            if header is None:
-                header, header_line = _acceleration_columns(stripped, line), line
-                continue
-            frames += 1
-    if header is None:
-        raise InputError("empty file: no header line", line=1, field="header")
-    limits.check_rows(frames, len(header))
-    names, _ = acceleration_header(header)
-    if not any(n.lower() in ("time", "t") for n in names):
-        raise InputError("not an accelerations CSV: the header has no time column",
-                         line=header_line, field="time")
-    sensors = acceleration_sensors(names)
-    if not sensors:
-        raise InputError("not an accelerations CSV: the header has no <Sensor>.ax,.ay,.az "
-                         "columns", line=header_line, field="header")
-    return {"format": "accelerations-csv", "frames": frames, "columns": header,
-            "sensors": sensors}
-
-
-def _acceleration_columns(line_text: str, line: int) -> list[str]:
-    header = [c.strip() for c in line_text.split(",")]
-    limits.check_count("columns", len(header), "MAX_COLUMNS", line=line, field="header")
-    if len(header) < 2 or not any(c[:1].isalpha() for c in header):
-        raise InputError("expected a header line of column names", line=line, field="header")
-    for name in header:
-        limits.check_count("characters in a column name", len(name), "MAX_NAME_CHARS",
-                           line=line, field="header")
-    return header
-
-
 def sniff(path: Path, fmt: str, filename: str | None,
           counted_rows: int | None = None) -> tuple[str, dict[str, Any]]:
     """The API format name and quick summary of the file (``counted_rows``: its rows, counted
@@ -405,25 +362,8 @@ def _json_size(value: Any) -> int:
 
 def _sniff(path: Path, fmt: str, filename: str | None,
            counted_rows: int | None) -> tuple[str, dict[str, Any]]:
-    if fmt == "accelerations-csv":
-        return fmt, _sniff_accelerations(path)
-    by_name = {v: k for k, v in KINEMATICS_FORMATS.items()}
-    if fmt in SENSOR_FORMATS:
-        summary = sniff_recording(path, SENSOR_FORMATS[fmt], counted_rows=counted_rows)
-        return fmt, summary
-    if fmt in KINEMATICS_FORMATS:
-        summary = dict(sniff_kinematics(path, KINEMATICS_FORMATS[fmt]))
-        return fmt, summary
-    suffix = Path(filename or "").suffix.lower()
-    if suffix in (".bvh", ".mvnx"):
-        summary = dict(sniff_kinematics(path, "auto"))
-        return by_name.get(str(summary.get("format")), suffix[1:]), summary
-    try:
-        summary = sniff_recording(path, "auto", counted_rows=counted_rows)
-        return {v: k for k, v in SENSOR_FORMATS.items()}[summary["format"]], summary
-    except InputError as first:
-        try:
-            summary = dict(sniff_kinematics(path, "auto"))
-        except InputError:
-            raise first from None
-        return by_name.get(str(summary.get("format")), "kinematics-csv"), summary
+    to_library = {**SENSOR_FORMATS, **KINEMATICS_FORMATS}
+    found, summary = sniff_file(path, to_library.get(fmt, fmt), filename=filename,
+                                counted_rows=counted_rows)
+    to_api = {v: k for k, v in to_library.items()}
+    return to_api.get(found, found), summary

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
-import time
-from collections.abc import Callable, Mapping
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..io.sensors import FORMATS, UNITS, detect_format, example_path, read_recording
-from ..io.skeleton import read_skeleton_offsets, write_skeleton_files
+from ..io.sensor_common import UNITS, example_path
+from ..io.skeleton import read_skeleton_offsets
+from ..io.sniff import FORMATS, detect_format
 from ..io.tracker import (
     TrackerLayout,
     detect_tracker_layout,
@@ -22,12 +21,12 @@ from ..io.tracker import (
 )
 from ..model import JOINTS
 from ..params import check_fps
+from ..pipeline import SensorSource, SkeletonOutputs, SkeletonRunOptions, run_skeleton
 from ..recording import SensorRecording
-from ..results import JointOffset, SkeletonResult
+from ..results import SkeletonResult
+from ..vocabulary import ANTHROPOMETRY_TABLES, OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 from .progress import ProgressBar
 
-METHODS = ("auto", "llsf", "gdke", "reduced")
-OPTIMIZERS = ("least-squares", "nelder-mead")
 UP_AXES = {"+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0),
            "-y": (0.0, -1.0, 0.0), "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
 
@@ -93,6 +92,20 @@ def register(sub: Any) -> None:
                              "for a negative axis)")
     parser.add_argument("--i0", default="0", metavar="N",
                         help="calibration frame for hands, feet and head (default: 0)")
+    parser.add_argument("--torso", default="llsf", metavar="{llsf,gdke}",
+                        help="estimator of the torso joints with --method reduced "
+                             "(default: llsf)")
+    parser.add_argument("--anthropometry", default="aist", metavar="{aist,winter}|TABLE.json",
+                        help="anthropometric table of the reduced method's priors, or a JSON "
+                             "file of torso, thigh, shank, upperarm and forearm lengths (or "
+                             "ratios) in any one unit (default: aist)")
+    parser.add_argument("--w-s", default="0.01", metavar="W",
+                        help="weight of the reduced method's length term (eq. 5; default 0.01)")
+    parser.add_argument("--w-l", default="0.01", metavar="W",
+                        help="weight of the reduced method's ratio term (eq. 5; default 0.01)")
+    parser.add_argument("--smooth", action=argparse.BooleanOptionalAction, default=None,
+                        help="smooth the joint paths (Savitzky-Golay, 0.1 s; default: only "
+                             "with --method auto)")
     parser.add_argument("--offsets", default=None, metavar="CALIBRATION.json",
                         help="place every joint at its offset from an earlier result of the "
                              "same suit (its JSON, -o) instead of fitting: for takes in which "
@@ -126,87 +139,110 @@ def _number(value: str | None, option: str, kind: type[int] | type[float]) -> An
     return number
 
 
-def _estimator() -> Callable[..., SkeletonResult]:
-    # imported on use so that ``bonefit --help`` and the readers stay quick to load
-    from ..skeleton import estimate_skeleton
+def _weight(value: str, option: str) -> float:
+    try:
+        return float(value)
+    except ValueError:
+        raise InputError(f"{option} must be a number, got {value!r}", field=option) from None
 
-    return estimate_skeleton
 
-
-def _offsets_estimator(offsets: Mapping[str, JointOffset]) -> Callable[..., SkeletonResult]:
-    """``estimate_skeleton_from_offsets`` with the calibration's ``offsets``."""
-    from ..skeleton import estimate_skeleton_from_offsets
-
-    return partial(estimate_skeleton_from_offsets, offsets=offsets)
+def _anthropometry(value: str) -> str | dict[str, float]:
+    """A table name, or a JSON file of lengths (or ratios) by key."""
+    key = value.strip().lower()
+    if key in ANTHROPOMETRY_TABLES:
+        return key
+    path = Path(value)
+    if not path.is_file():
+        raise InputError(f"--anthropometry must be {' or '.join(ANTHROPOMETRY_TABLES)} or a "
+                         f"JSON file of lengths, got {value!r}", field="--anthropometry")
+    try:
+        table = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"--anthropometry {value}: not a JSON object ({exc})",
+                         field="--anthropometry") from None
+    if not isinstance(table, dict):
+        raise InputError(f"--anthropometry {value}: expected a JSON object of lengths by key, "
+                         f"got {type(table).__name__}", field="--anthropometry")
+    return table
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``bonefit skeleton``; returns the exit code (bad input raises InputError)."""
     fmt = _choice(args.format, ["auto", *FORMATS], "--format")
-    method = _choice(args.method, METHODS, "--method")
-    optimizer = _choice(args.optimizer, OPTIMIZERS, "--optimizer")
+    options = _run_options(args)
     units = _choice(args.units, list(UNITS), "--units") if args.units is not None else None
+    fps = _number(args.fps, "--fps", float)
+    if fps is not None:
+        check_fps(fps, "--fps")
+    stations = parse_stations(args.stations) if args.stations is not None else None
+    if args.offsets is not None:
+        options = dataclasses.replace(options, offsets=read_skeleton_offsets(args.offsets))
+    source = _source_path(args)
+    _check_output_dirs(args)
+
+    layout = _tracker_layout(source, fmt, args.tracker_layout)
+
+    def on_read(recording: SensorRecording) -> None:
+        if layout is not None and args.tracker_layout is None:
+            print(f"detected: {layout.describe()}", file=sys.stderr)
+        if options.i0 >= recording.n_frames:
+            raise InputError(f"--i0 {options.i0} is past the last frame "
+                             f"({recording.n_frames - 1})", field="--i0")
+
+    bar = None if args.quiet else ProgressBar()
+    outputs = SkeletonOutputs(json=args.output, bvh=args.bvh, csv=args.csv)
+    try:
+        done = run_skeleton(SensorSource(source, format=fmt, units=units, fps=fps,
+                                         stations=stations, tracker_layout=layout),
+                            options, outputs, progress=bar, on_read=on_read)
+    except OSError as exc:
+        raise _write_error(exc, outputs) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.output is None:
+        print(summary(done.result, done.recording))
+    return 0
+
+
+def _run_options(args: argparse.Namespace) -> SkeletonRunOptions:
+    """The estimator's options from the command line (offsets are read separately)."""
     up = UP_AXES.get(args.up.strip().lower())
     if up is None:
         raise InputError(f"--up must be one of {', '.join(UP_AXES)}, got {args.up!r}",
                          field="--up")
-    fps = _number(args.fps, "--fps", float)
-    if fps is not None:
-        check_fps(fps, "--fps")
-    i0 = _number(args.i0, "--i0", int)
-    stations = parse_stations(args.stations) if args.stations is not None else None
-    offsets = read_skeleton_offsets(args.offsets) if args.offsets is not None else None
+    return SkeletonRunOptions(
+        method=_choice(args.method, SKELETON_METHODS, "--method"),
+        optimizer=_choice(args.optimizer, OPTIMIZERS, "--optimizer"),
+        torso=_choice(args.torso, TORSO_ESTIMATORS, "--torso"), up=up,
+        i0=_number(args.i0, "--i0", int), anthropometry=_anthropometry(args.anthropometry),
+        w_s=_weight(args.w_s, "--w-s"), w_l=_weight(args.w_l, "--w-l"), smooth=args.smooth)
+
+
+def _source_path(args: argparse.Namespace) -> Path:
     if args.example:
         if args.input is not None:
             raise InputError("give INPUT or --example, not both", field="input")
-        source = example_path()
-    elif args.input is None:
+        return example_path()
+    if args.input is None:
         raise InputError("no INPUT recording given (or use --example)", field="input")
-    else:
-        source = Path(args.input)
-    outputs = [Path(p) for p in (args.output, args.bvh, args.csv) if p is not None]
-    for out in outputs:
+    return Path(args.input)
+
+
+def _check_output_dirs(args: argparse.Namespace) -> None:
+    for out in [Path(p) for p in (args.output, args.bvh, args.csv) if p is not None]:
         if not out.parent.is_dir():
             raise InputError(f"cannot write {out}: directory {out.parent} does not exist",
                              field="output")
 
-    start = time.perf_counter()
-    layout = _tracker_layout(source, fmt, args.tracker_layout)
-    recording = read_recording(source, format=fmt, units=units, fps=fps, stations=stations,
-                               tracker_layout=layout)
-    read_s = time.perf_counter() - start
-    if layout is not None and args.tracker_layout is None:
-        print(f"detected: {layout.describe()}", file=sys.stderr)
-    if i0 >= recording.n_frames:
-        raise InputError(f"--i0 {i0} is past the last frame ({recording.n_frames - 1})",
-                         field="--i0")
 
-    # a calibration's offsets leave nothing to fit: no method, no optimizer
-    estimate, fitting = ((_estimator(), {"method": method, "optimizer": optimizer})
-                         if offsets is None else (_offsets_estimator(offsets), {}))
-    bar = None if args.quiet else ProgressBar()
-    start = time.perf_counter()
-    try:
-        result = estimate(recording, **fitting, up=up, i0=i0, progress=bar)
-    finally:
-        if bar is not None:
-            bar.close()
-    estimate_s = time.perf_counter() - start
-    timings = dict(result.timings)
-    timings["read_s"] = read_s
-    timings.setdefault("estimate_s", estimate_s)
-    result = dataclasses.replace(result, timings=timings)
-
-    try:
-        # write_s covers BVH, CSV and the JSON conversion; the final dump is not timed
-        result = write_skeleton_files(result, json_path=args.output, bvh_path=args.bvh,
-                                      csv_path=args.csv)
-    except OSError as exc:
-        raise InputError(f"cannot write {exc.filename}: {exc.strerror}",
-                         field="output") from None
-    if args.output is None:
-        print(summary(result, recording))
-    return 0
+def _write_error(exc: OSError, outputs: SkeletonOutputs) -> Exception:
+    """An output that cannot be written is the user's to fix (exit 2); other OS errors
+    (the input) go on as they are."""
+    written = {str(Path(p)) for p in (outputs.json, outputs.bvh, outputs.csv) if p is not None}
+    if exc.filename is None or str(Path(exc.filename)) not in written:
+        return exc
+    return InputError(f"cannot write {exc.filename}: {exc.strerror}", field="output")
 
 
 def _tracker_layout(source: Path, fmt: str, spec: str | None) -> TrackerLayout | None:

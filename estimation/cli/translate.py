@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
-import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
+from ..vocabulary import KINEMATICS_FORMATS, TRANSLATION_METHODS
 from .progress import ProgressBar
+
+if TYPE_CHECKING:
+    from ..kinematics import KinematicsRecording
 
 EXAMPLES = """\
 examples:
@@ -48,9 +50,9 @@ def register(sub: Any) -> None:
                         help="g, m/s2, free-g, free-m/s2 or second-differences "
                              "(default: g, checked against the data)")
     parser.add_argument("--format", default="auto",
-                        choices=("auto", "kinematics-csv", "bvh", "mvnx"),
+                        choices=("auto", *KINEMATICS_FORMATS),
                         help="input format (default: from the file's content)")
-    parser.add_argument("--method", default="contact", choices=("contact", "hachaj2018"),
+    parser.add_argument("--method", default="contact", choices=TRANSLATION_METHODS,
                         help="contact (default): stance model; hachaj2018: the paper's "
                              "method exactly")
     parser.add_argument("--left-foot", default=None, metavar="NAME",
@@ -76,37 +78,37 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Execute ``bonefit translate``; returns the exit code."""
-    from ..io.kinematics import read_kinematics, write_translation_files
-    from ..translation import estimate_translation
+    from ..pipeline import SAME_AS_INPUT, KinematicsSource, TranslationRunOptions, run_translation
 
     if not Path(args.input).is_file():
         raise InputError(f"no such file: {args.input}", field="input")
-    started = time.perf_counter()
-    recording = read_kinematics(args.input, format=args.format,
-                                accelerations=args.accelerations,
-                                left_foot=args.left_foot, right_foot=args.right_foot,
-                                acceleration_units=args.acceleration_units, units=args.units,
-                                subject=args.subject)
-    read_s = time.perf_counter() - started
-    for note in recording.notes:
-        print(note if note.startswith("warning:") else f"bonefit: {note}", file=sys.stderr)
-    bar = None if args.quiet else ProgressBar(sys.stderr)
-    try:
-        result = estimate_translation(recording, method=args.method, progress=bar)
-    finally:
-        if bar is not None:
-            bar.close()
-    result = dataclasses.replace(result, timings={**result.timings, "read_s": read_s})
-    outputs = [(recording.source_format, args.output)]
+    outputs = [(SAME_AS_INPUT, args.output)]
     if args.bvh:
         outputs.append(("bvh", args.bvh))
     if args.json:
         outputs.append(("json", args.json))
-    result = write_translation_files(result, recording, outputs)
+    bar = None if args.quiet else ProgressBar(sys.stderr)
+    try:
+        done = run_translation(
+            KinematicsSource(args.input, format=args.format, accelerations=args.accelerations,
+                             left_foot=args.left_foot, right_foot=args.right_foot,
+                             acceleration_units=args.acceleration_units, units=args.units,
+                             subject=args.subject),
+            TranslationRunOptions(args.method), outputs, progress=bar, on_read=_print_notes)
+    finally:
+        if bar is not None:
+            bar.close()
+    result = done.result
     q = result.quality
     print(f"{args.method}: {result.n_frames} frames, path {q['path_length_m']:.2f} m, "
           f"closure {q['closure_cm']:.1f} cm, foot skate {q['foot_skate_cm_s']:.1f} cm/s, "
           f"floor penetration {q['floor_penetration_cm']:.1f} cm "
-          f"(read {read_s:.2f} s, estimate {result.timings.get('estimate_s', 0.0):.2f} s)",
-          file=sys.stderr)
+          f"(read {result.timings['read_s']:.2f} s, "
+          f"estimate {result.timings.get('estimate_s', 0.0):.2f} s)", file=sys.stderr)
     return 0
+
+
+def _print_notes(recording: KinematicsRecording) -> None:
+    """What the reader found or assumed (feet, units), on stderr."""
+    for note in recording.notes:
+        print(note if note.startswith("warning:") else f"bonefit: {note}", file=sys.stderr)

@@ -202,6 +202,44 @@ def _toe(motion: BvhMotion, foot: int) -> int | None:
     return max(kids, key=lambda k: float(np.linalg.norm(motion.offsets[k])))
 
 
+def find_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]) -> str | None:
+    """Toe joint of ``foot`` (positions in metres): a joint named like a toe of the foot's
+    side (``LeftToe``, ``LeftToeBase``, ``Toes_L``, ``lToe``) 2–35 cm from the foot.
+    Anonymous end sites (Shadow's ``EndSite4``) are not taken: where they sit on the foot is
+    not known."""
+    side = classify(foot)[0]
+    if side is None:
+        return None
+    i = joints.index(foot)
+    candidates = [name for name in joints if classify(name) == (side, "toe")]
+    if not candidates:
+        return None
+    gaps = [float(np.median(np.linalg.norm(positions[:, joints.index(c)] - positions[:, i],
+                                           axis=1))) for c in candidates]
+    best = int(np.argmin(gaps))
+    return candidates[best] if 0.02 < gaps[best] < 0.35 else None
+
+
+def varying_root(motion: BvhMotion) -> int:
+    """The first node whose position channels move (Bandai files carry a static dummy root)."""
+    for j, chans in enumerate(motion.channels):
+        if any(c.endswith("position") for c in chans):
+            vals = motion.channel_values(j)
+            k = [i for i, c in enumerate(chans) if c.endswith("position")]
+            if np.ptp(vals[:, k], axis=0).max() > 1e-9:
+                return j
+    return motion.parents.index(-1)
+
+
+def longest_child(motion: BvhMotion, node: int) -> int | None:
+    """The child of ``node`` with the longest offset (the bone it continues into); None for a
+    leaf."""
+    kids = [k for k, p in enumerate(motion.parents) if p == node]
+    if not kids:
+        return None
+    return max(kids, key=lambda k: float(np.linalg.norm(motion.offsets[k])))
+
+
 def rest_positions(motion: BvhMotion) -> NDArray[np.float64]:
     """Node positions (J, 3) in the rest pose (every rotation zero, OFFSETs only), file
     units, the root at the origin."""

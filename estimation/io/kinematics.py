@@ -10,22 +10,19 @@ Three inputs give the same :class:`KinematicsRecording` (metres, world frame, Y 
   the root translation of the BVH ignored;
 * **Xsens MVNX** (see :mod:`estimation.io.mvnx`).
 
-The writers put a :class:`~estimation.translation.TranslationResult` back into the input's
-own format, into a BVH with the root path in the root's position channels, or into JSON.
-Formats are described in ``docs/translation.md``.
+The writers of a :class:`~estimation.translation.TranslationResult` live in
+:mod:`estimation.io.translation_files` and are importable from here as before. Formats are
+described in ``docs/translation.md``.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
-import time
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import replace
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -35,38 +32,40 @@ from numpy.typing import NDArray
 from ..bvh import (
     MAX_NODES,
     BvhMotion,
-    fold_position_channels,
     forward_kinematics,
-    point_joint_bvh,
     read_bvh,
-    write_bvh,
 )
 from ..errors import InputError
 from ..kinematics import GRAVITY as GRAVITY  # re-exported: callers import it from here
 from ..kinematics import KinematicsRecording as KinematicsRecording
-from ..results import timings_document
+from ..vocabulary import KINEMATICS_FORMATS
 from . import limits
 from .body import (
     Feet,
-    classify,
     find_bvh_feet,
     find_column_feet,
+    find_toe,
     leg_length,
     match_sensor,
     parse_length_unit,
     resolve_length_unit,
+    varying_root,
 )
+from .translation_files import OUTPUT_FORMATS as OUTPUT_FORMATS
+from .translation_files import translated_bvh as translated_bvh
+from .translation_files import translation_to_dict as translation_to_dict
+from .translation_files import write_kinematics_csv as write_kinematics_csv
+from .translation_files import write_translation as write_translation
+from .translation_files import write_translation_files as write_translation_files
 
 if TYPE_CHECKING:
-    from ..translation import TranslationResult
+    pass
 
 PathLike = str | os.PathLike[str]
 
-FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx")
+FORMATS: Final[tuple[str, ...]] = KINEMATICS_FORMATS
 """Input formats of :func:`read_kinematics` (besides ``"auto"``)."""
 
-OUTPUT_FORMATS: Final[tuple[str, ...]] = ("kinematics-csv", "bvh", "mvnx", "json")
-"""Output formats of :func:`write_translation`."""
 
 ACCELERATION_UNITS: Final[dict[str, tuple[float, str]]] = {
     "g": (GRAVITY, "sensor"),
@@ -84,7 +83,7 @@ positions (file length unit per frame²), accepted only when declared."""
 # --------------------------------------------------------------------------- helpers
 
 
-def _fps_from_time(time: NDArray[np.float64]) -> float:
+def _kinematics_fps(time: NDArray[np.float64]) -> float:
     if time.size < 2:
         raise InputError("need at least two frames", field="Time")
     steps = np.diff(time)
@@ -96,7 +95,7 @@ def _fps_from_time(time: NDArray[np.float64]) -> float:
     return round(fps, 6) if abs(fps - round(fps, 6)) < 1e-6 * fps else fps
 
 
-def _check_units(units: str | None) -> str | None:
+def _acceleration_unit_key(units: str | None) -> str | None:
     if units is None:
         return None
     key = units.strip().lower().replace("²", "2").replace("m/s^2", "m/s2")
@@ -161,24 +160,6 @@ def _resolve_acceleration_units(
     raise InputError(
         f"cannot tell the units of the foot accelerations of {source} (median |a| per foot: "
         f"{names}); declare acceleration_units", field="acceleration_units")
-
-
-def _auto_toe(foot: str, joints: tuple[str, ...], positions: NDArray[np.float64]) -> str | None:
-    """Toe joint of ``foot`` (positions in metres): a joint named like a toe of the foot's
-    side (``LeftToe``, ``LeftToeBase``, ``Toes_L``, ``lToe``) 2–35 cm from the foot.
-    Anonymous end sites (Shadow's ``EndSite4``) are not taken: where they sit on the foot is
-    not known."""
-    side = classify(foot)[0]
-    if side is None:
-        return None
-    i = joints.index(foot)
-    candidates = [name for name in joints if classify(name) == (side, "toe")]
-    if not candidates:
-        return None
-    gaps = [float(np.median(np.linalg.norm(positions[:, joints.index(c)] - positions[:, i],
-                                           axis=1))) for c in candidates]
-    best = int(np.argmin(gaps))
-    return candidates[best] if 0.02 < gaps[best] < 0.35 else None
 
 
 # --------------------------------------------------------------------------- kinematics CSV
@@ -336,7 +317,7 @@ def read_kinematics_csv(
         Malformed file, missing foot columns (listing the joints present), units that do
         not look like accelerometer readings in g.
     """
-    declared = _check_units(acceleration_units)
+    declared = _acceleration_unit_key(acceleration_units)
     header, table = _read_table(path)
     col = {h: i for i, h in enumerate(header)}
     joints = _position_joints(header)
@@ -356,7 +337,7 @@ def read_kinematics_csv(
     if time_key is None:
         raise InputError("no Time column", field="Time", line=1)
     time = table[:, col[time_key]].copy()
-    fps = _fps_from_time(time)
+    fps = _kinematics_fps(time)
     raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
     unit, note = _resolve_acceleration_units(
         raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name)
@@ -402,7 +383,7 @@ def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
     contacts: dict[str, NDArray[np.bool_]] = {}
     toes: dict[str, str] = {}
     for foot in feet:
-        toe = _auto_toe(foot, joints, positions)
+        toe = find_toe(foot, joints, positions)
         if toe is not None:
             toes[foot] = toe
             notes.append(f"{toe} is the toe of {foot}")
@@ -478,7 +459,7 @@ def acceleration_header(header: list[str]) -> tuple[list[str], str | None]:
         for open_, close in (("[", "]"), ("(", ")")):
             if open_ in h and h.endswith(close):
                 base, _, rest = h.partition(open_)
-                found = _check_units(rest[:-1].strip())
+                found = _acceleration_unit_key(rest[:-1].strip())
                 if unit is not None and found != unit:
                     raise InputError("acceleration columns declare different units", field=h)
                 unit = found
@@ -493,24 +474,13 @@ def acceleration_sensors(names: list[str]) -> list[str]:
             and {f"{n[:-3]}.ay", f"{n[:-3]}.az"} <= present]
 
 
-def _varying_root(motion: BvhMotion) -> int:
-    """The first node whose position channels move (Bandai files carry a static dummy root)."""
-    for j, chans in enumerate(motion.channels):
-        if any(c.endswith("position") for c in chans):
-            vals = motion.channel_values(j)
-            k = [i for i, c in enumerate(chans) if c.endswith("position")]
-            if np.ptp(vals[:, k], axis=0).max() > 1e-9:
-                return j
-    return motion.parents.index(-1)
-
-
 def bvh_positions_without_root_translation(motion: BvhMotion, root: int | None = None
                                            ) -> tuple[NDArray[np.float64], int]:
     """Forward kinematics with the root's position channels frozen at frame 0.
 
     Returns positions (F, J, 3) in BVH units and the index of the root node used.
     """
-    j = _varying_root(motion) if root is None else root
+    j = varying_root(motion) if root is None else root
     values = motion.values.copy()
     start = sum(len(c) for c in motion.channels[:j])
     for k, ch in enumerate(motion.channels[j]):
@@ -518,13 +488,6 @@ def bvh_positions_without_root_translation(motion: BvhMotion, root: int | None =
             values[:, start + k] = values[0, start + k]
     positions, _ = forward_kinematics(motion.with_values(values))
     return positions, j
-
-
-def _child(motion: BvhMotion, node: int) -> int | None:
-    kids = [k for k, p in enumerate(motion.parents) if p == node]
-    if not kids:
-        return None
-    return max(kids, key=lambda k: float(np.linalg.norm(motion.offsets[k])))
 
 
 def read_bvh_kinematics(
@@ -562,7 +525,7 @@ def read_bvh_kinematics(
     KinematicsRecording
         ``notes`` say which feet, toes and unit were used and how they were found.
     """
-    declared = _check_units(acceleration_units)
+    declared = _acceleration_unit_key(acceleration_units)
     motion = read_bvh(path)
     feet = find_bvh_feet(motion, left_foot, right_foot)
     names = motion.names
@@ -631,7 +594,7 @@ def detect_format(path: PathLike) -> str:
                      "columns, a BVH or an MVNX file); pass format", field="format")
 
 
-def _resolve_format(path: PathLike, format: str) -> str:
+def _kinematics_format(path: PathLike, format: str) -> str:
     if format == "auto":
         return detect_format(path)
     if format not in FORMATS:
@@ -681,7 +644,7 @@ def read_kinematics(
         Unreadable file, missing foot (listing the joints present), unrecognised units, a
         length unit that does not give a person's legs.
     """
-    fmt = _resolve_format(path, format)
+    fmt = _kinematics_format(path, format)
     if fmt == "kinematics-csv":
         return read_kinematics_csv(path, left_foot=left_foot, right_foot=right_foot,
                                    acceleration_units=acceleration_units, units=units)
@@ -709,7 +672,7 @@ def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:
     dict
         ``format``, ``frames``, ``joints`` (list), ``fps``; streams the file.
     """
-    fmt = _resolve_format(path, format)
+    fmt = _kinematics_format(path, format)
     if fmt == "mvnx":
         from .mvnx import sniff_mvnx
 
@@ -809,205 +772,3 @@ def _snippet(text: str, limit: int = 40) -> str:
     text = text.strip()
     return repr(text if len(text) <= limit else text[:limit] + "…")
 
-
-# --------------------------------------------------------------------------- writers
-
-
-def translation_to_dict(result: TranslationResult, recording: KinematicsRecording | None = None,
-                        *, decimals: int = 5) -> dict[str, Any]:
-    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings; with
-    the recording, its frame times, the feet and toes used, the corrected feet's heights (m,
-    +Y, per frame), the input's length unit (metres per unit) and the reader's notes."""
-
-    def rows(a: NDArray[np.float64]) -> list[list[float]]:
-        return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
-
-    out: dict[str, Any] = {
-        "kind": "translation",
-        "method": result.method,
-        "fps": result.fps,
-        "frames": int(result.root.shape[0]),
-        "units": "m",
-        "up": "+Y",
-        "root_joint": recording.root if recording is not None else None,
-        "root": rows(result.root),
-        "translation": rows(result.translation),
-        "floor": np.round(result.floor, decimals).tolist(),
-        "contacts": [str(c) for c in result.contacts],
-        "quality": {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                    for k, v in result.quality.items()},
-        "timings": timings_document(result.timings),
-    }
-    if recording is not None:
-        out["time"] = np.round(recording.time, 6).tolist()
-        out["feet"] = {"left": recording.left_foot, "right": recording.right_foot,
-                       "toes": dict(recording.toes)}
-        out["foot_heights"] = {
-            side: np.round(result.positions[:, recording.index(foot), 1], decimals).tolist()
-            for side, foot in (("left", recording.left_foot), ("right", recording.right_foot))}
-        out["input_length_unit_m"] = recording.length_scale
-        out["notes"] = list(recording.notes)
-    return out
-
-
-def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
-                     scale: float) -> BvhMotion:
-    """The corrected positions as a BVH of rotation channels under a moving root (see
-    :func:`estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
-    return point_joint_bvh(recording.joints, result.positions / scale,
-                           recording.index(recording.root), 1.0 / result.fps)
-
-
-def translated_bvh(result: TranslationResult, recording: KinematicsRecording) -> BvhMotion:
-    """The BVH of a translation result, written so that every BVH reader agrees.
-
-    A BVH input comes back with the estimated root path in the root's position channels and
-    its position channels folded (:func:`estimation.bvh.fold_position_channels`: constant
-    ones into OFFSETs, moving ones over a zero OFFSET). Other inputs (and a BVH whose root
-    has no position channels) become a point-joint BVH in centimetres (the BVH's unit) of
-    the corrected positions.
-    """
-    motion = recording.bvh
-    if motion is None:
-        return _point_joint_bvh(result, recording, 0.01)
-    j = motion.names.index(recording.root)
-    values = motion.values.copy()
-    start = sum(len(c) for c in motion.channels[:j])
-    axes = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
-    chans = motion.channels[j]
-    if not any(c in axes for c in chans):
-        return _point_joint_bvh(result, recording, recording.length_scale)
-    shift = result.translation / recording.length_scale
-    # The root's world position is its parents' transform applied to its channels; parents
-    # here are static dummies at most (Bandai's joint_Root), so shifting the channels by the
-    # world translation rotated into the parent frame is exact.
-    parent = motion.parents[j]
-    if parent >= 0:
-        _, rots = forward_kinematics(motion)
-        shift = rots[parent].inv().apply(shift)
-    for k, ch in enumerate(chans):
-        if ch in axes:
-            values[:, start + k] = values[0, start + k] + shift[:, axes[ch]]
-    return fold_position_channels(motion.with_values(values))
-
-
-def write_translation(result: TranslationResult, recording: KinematicsRecording,
-                      path: PathLike | io.TextIOBase, *, format: str) -> None:
-    """Write a translation result.
-
-    Parameters
-    ----------
-    result : TranslationResult
-    recording : KinematicsRecording
-        The input the result was estimated from.
-    path : path or text stream
-    format : {"kinematics-csv", "bvh", "mvnx", "json"}
-        ``kinematics-csv``: every column of the input CSV in its order, positions corrected
-        (input must be a kinematics CSV); ``bvh``: the input BVH with the root path in the
-        root's position channels (a point-joint BVH in cm for other inputs); ``mvnx``: the
-        input MVNX with corrected segment positions; ``json``: root path, contacts, quality.
-    """
-    if format not in OUTPUT_FORMATS:
-        raise InputError(f"unknown output format {format!r}; use {', '.join(OUTPUT_FORMATS)}",
-                         field="format")
-    if format == "json":
-        started = time.perf_counter()
-        document = translation_to_dict(result, recording)
-        if "write_s" not in result.timings:  # the time to build it; the dump is not timed
-            document["timings"]["write_s"] = time.perf_counter() - started
-        _emit(path, json.dumps(document, separators=(",", ":")))
-    elif format == "bvh":
-        write_bvh(translated_bvh(result, recording), path)
-    elif format == "kinematics-csv":
-        if recording.table is None:
-            raise InputError(f"cannot write a kinematics CSV for a {recording.source_format} "
-                             "input; use bvh or json", field="format")
-        _emit(path, _kinematics_csv_text(result, recording))
-    else:
-        from .mvnx import write_mvnx
-
-        if isinstance(path, io.TextIOBase):
-            raise InputError("MVNX output needs a file path", field="format")
-        write_mvnx(result, recording, path)
-
-
-def write_translation_files(result: TranslationResult, recording: KinematicsRecording,
-                            outputs: Sequence[tuple[str, PathLike]]) -> TranslationResult:
-    """Write every output, the JSON last with a ``timings.write_s`` covering them all.
-
-    Parameters
-    ----------
-    result : TranslationResult
-        With ``read_s`` in its timings when the caller measured it.
-    recording : KinematicsRecording
-    outputs : sequence of (format, path)
-        Formats of :func:`write_translation` and where to write them.
-
-    Returns
-    -------
-    TranslationResult
-        ``result`` with ``timings["write_s"]``, seconds spent writing.
-    """
-    started = time.perf_counter()
-    for fmt, path in sorted(outputs, key=lambda item: item[0] == "json"):
-        if fmt == "json":
-            result = replace(result, timings={**result.timings,
-                                              "write_s": time.perf_counter() - started})
-        write_translation(result, recording, path, format=fmt)
-    return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
-
-
-def _emit(path: PathLike | io.TextIOBase, text: str) -> None:
-    if isinstance(path, io.TextIOBase):
-        path.write(text)
-    else:
-        Path(path).write_text(text, encoding="utf-8")
-
-
-def _kinematics_csv_text(result: TranslationResult, recording: KinematicsRecording) -> str:
-    assert recording.table is not None
-    table = recording.table.copy()
-    col = {h: i for i, h in enumerate(recording.columns)}
-    corrected = result.positions / recording.length_scale
-    for j, name in enumerate(recording.joints):
-        for k, a in enumerate("xyz"):
-            table[:, col[f"{name}.D{a}"]] = corrected[:, j, k]
-    out = io.StringIO()
-    out.write(",".join(recording.columns) + "\n")
-    np.savetxt(out, table, fmt="%.10g", delimiter=",")
-    return out.getvalue()
-
-
-def write_kinematics_csv(recording: KinematicsRecording, path: PathLike | io.TextIOBase, *,
-                         positions: NDArray[np.float64] | None = None,
-                         length_units_m: float = 0.01) -> None:
-    """Write a recording in the kinematics-CSV layout (``Time``, ``<Joint>.Dx/.Dy/.Dz`` in
-    cm, ``<Foot>.ax/.ay/.az`` in g for sensor-frame accelerations).
-
-    Parameters
-    ----------
-    recording : KinematicsRecording
-    path : path or text stream
-    positions : ndarray, shape (F, J, 3), optional
-        Positions to write instead of the recording's (metres).
-    length_units_m : float
-        Metres per written length unit (0.01: cm).
-    """
-    pos = recording.positions if positions is None else positions
-    names = ["Time"]
-    cols = [recording.time[:, None]]
-    for k, axis in enumerate("xyz"):
-        names += [f"{j}.D{axis}" for j in recording.joints]
-        cols.append(pos[:, :, k] / length_units_m)
-    scale = GRAVITY if recording.acceleration_frame == "sensor" else 1.0
-    for axis_k, axis in enumerate("xyz"):
-        for foot, acc in recording.accelerations.items():
-            names.append(f"{foot}.a{axis}")
-            cols.append(acc[:, axis_k:axis_k + 1] / scale)
-    for foot, flags in recording.contacts.items():
-        names.append(f"{foot}.c")
-        cols.append(flags[:, None].astype(float))
-    out = io.StringIO()
-    out.write(",".join(names) + "\n")
-    np.savetxt(out, np.concatenate(cols, axis=1), fmt="%.10g", delimiter=",")
-    _emit(path, out.getvalue())

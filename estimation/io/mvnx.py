@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..quaternions import rotate
-from .kinematics import GRAVITY, KinematicsRecording, _auto_toe
+from .body import find_toe
+from .kinematics import GRAVITY, KinematicsRecording
 
 if TYPE_CHECKING:
     from ..translation import TranslationResult
@@ -403,7 +404,7 @@ def read_mvnx(path: PathLike, *, left_foot: str = "LeftFoot",
     flags = _contacts(chosen, feet, notes)
     toes = {}
     for foot in feet:
-        toe = _auto_toe(foot, joints, pos)
+        toe = find_toe(foot, joints, pos)
         if toe is not None:
             toes[foot] = toe
     root = next((s for s in joints if s.lower() == "pelvis"), joints[0])

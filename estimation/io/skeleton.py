@@ -25,7 +25,7 @@ from ..bvh import BvhMotion, euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
 from ..results import JointOffset, JointQuality, SkeletonResult, timings_document
-from .sensors import unit_scale
+from .sensor_common import unit_scale
 
 PathLike = str | os.PathLike[str]
 

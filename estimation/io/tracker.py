@@ -25,7 +25,7 @@ from ..errors import InputError
 from ..model import SEGMENTS
 from ..recording import SensorRecording
 from . import limits
-from .sensors import (
+from .sensor_common import (
     UNITS,
     PathLike,
     check_recording,

@@ -1,5 +1,5 @@
-"""Synthetic recordings with exact ground truth, built from real BVH clips (design.md,
-"Evaluation protocol")."""
+"""Synthetic recordings with exact ground truth, built from real BVH clips (docs/benchmarks.md,
+"The evaluation protocol")."""
 
 from .inertial import InertialTruth, simulate_inertial, simulate_walker
 from .sensors import SimulationTruth, example_motion, simulate_sensors

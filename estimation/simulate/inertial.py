@@ -1,9 +1,9 @@
 """Synthetic inertial-suit recordings with a known root path, from real BVH clips.
 
-The protocol of design.md ("Evaluation protocol", translation): strip the root translation of
-a real clip, compute the foot accelerometer signals from the true motion (sensor frame, g,
-gravity included, white noise, optional saturation), resample to the rate of a suit, and keep
-the true hips path for scoring.
+The protocol of docs/benchmarks.md ("The evaluation protocol", translation): strip the root
+translation of a real clip, compute the foot accelerometer signals from the true motion
+(sensor frame, g, gravity included, white noise, optional saturation), resample to the rate of
+a suit, and keep the true hips path for scoring.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
-from ..io.kinematics import _child, _varying_root
+from ..io.body import longest_child, varying_root
 from ..kinematics import GRAVITY, KinematicsRecording
 
 FOOT_NAMES: Final[tuple[tuple[str, str], ...]] = (
@@ -127,7 +127,7 @@ def simulate_inertial(
     rng = np.random.default_rng(seed)
     world, rotations = forward_kinematics(motion)
     world = world * length_units_m
-    root = _varying_root(motion)
+    root = varying_root(motion)
     t_src = np.arange(motion.n_frames) / rate
     sensor = _mounted_accelerometers(motion, world, rotations, (left_foot, right_foot), rate,
                                      rng)
@@ -141,7 +141,7 @@ def simulate_inertial(
                for foot, acc in sensor.items()}
     toes = {}
     for foot in (left_foot, right_foot):
-        child = _child(motion, motion.names.index(foot))
+        child = longest_child(motion, motion.names.index(foot))
         if child is not None:
             toes[foot] = motion.names[child]
     recording = KinematicsRecording(

@@ -1,6 +1,6 @@
 """Synthetic 6-DOF sensor recordings with exact joint centres, from BVH motion.
 
-Follows the evaluation protocol of design.md: a rigid 15-segment body is built from a BVH
+Follows the evaluation protocol of docs/benchmarks.md: a rigid 15-segment body is built from a BVH
 clip (the rotations of any joints between two model segments are folded into the pivot joint,
 so the true centres are exact), virtual sensors are attached 3–7 cm off each bone with random
 orientations, and the recording is corrupted by white noise, slow soft-tissue slip and dropped

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from estimation import skeleton as skeleton_module
 from estimation.bvh import forward_kinematics, read_bvh
 from estimation.cli import main
-from estimation.cli import skeleton as cli_skeleton
 from estimation.io.sensors import example_path, read_recording, write_sensor_csv
 from estimation.io.skeleton import BVH_NODES
 from estimation.model import JOINTS, SEGMENTS
@@ -73,6 +73,10 @@ def test_help_shows_examples(capsys: pytest.CaptureFixture[str]) -> None:
     (["--i0", "x"], ["--i0", "number"]),
     (["--i0", "5000"], ["--i0", "past the last frame"]),
     (["--stations", "1:pelvis"], ["1:pelvis", "NUMBER=SEGMENT"]),
+    (["--torso", "reduced"], ["--torso", "reduced"]),
+    (["--anthropometry", "dreyfuss"], ["--anthropometry", "dreyfuss"]),
+    (["--w-s", "heavy"], ["--w-s", "number"]),
+    (["--w-l", "-1"], ["w_l", "-1"]),
 ])
 def test_bad_option_values(capsys: pytest.CaptureFixture[str], args: list[str],
                            needles: list[str]) -> None:
@@ -188,13 +192,14 @@ def test_options_reach_the_estimator_and_outputs_are_written(
         calls.append(kwargs)
         return fake_result(rec)
 
-    monkeypatch.setattr(cli_skeleton, "_estimator", lambda: estimate)
+    monkeypatch.setattr(skeleton_module, "estimate_skeleton", estimate)
     code, out, err = run(capsys, "--example", "--method", "reduced", "--optimizer",
                          "Nelder-Mead", "--up=-z", "--i0", "7", "-o", str(tmp_path / "r.json"),
                          "--bvh", str(tmp_path / "r.bvh"), "--csv", str(tmp_path / "r.csv"))
     assert (code, out, err) == (0, "", "")
-    assert calls == [{"method": "reduced", "optimizer": "nelder-mead", "up": (0.0, 0.0, -1.0),
-                      "i0": 7, "progress": None}]
+    assert calls == [{"method": "reduced", "optimizer": "nelder-mead", "torso": "llsf",
+                      "up": (0.0, 0.0, -1.0), "i0": 7, "anthropometry": "aist", "w_s": 0.01,
+                      "w_l": 0.01, "smooth": None, "progress": None}]
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["method"] == "fake"
     assert doc["frames"] == 300
@@ -206,10 +211,41 @@ def test_options_reach_the_estimator_and_outputs_are_written(
     assert len((tmp_path / "r.csv").read_text().splitlines()) == 301
 
 
+def test_fit_options_reach_the_estimator(capsys: pytest.CaptureFixture[str], tmp_path: Path,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[dict[str, Any]] = []
+
+    def estimate(rec: SensorRecording, **kwargs: Any) -> SkeletonResult:
+        calls.append(kwargs)
+        return fake_result(rec)
+
+    monkeypatch.setattr(skeleton_module, "estimate_skeleton", estimate)
+    table = {"torso": 52.0, "thigh": 42.0, "shank": 41.0, "upperarm": 30.0, "forearm": 25.0}
+    (tmp_path / "table.json").write_text(json.dumps(table))
+    code, _, err = run(capsys, "--example", "--method", "reduced", "--torso", "GDKE",
+                       "--anthropometry", str(tmp_path / "table.json"), "--w-s", "0.5",
+                       "--w-l", "0", "--no-smooth")
+    assert code == 0, err
+    assert [{k: c[k] for k in ("torso", "anthropometry", "w_s", "w_l", "smooth")}
+            for c in calls] == [{"torso": "gdke", "anthropometry": table, "w_s": 0.5,
+                                 "w_l": 0.0, "smooth": False}]
+    calls.clear()
+    assert run(capsys, "--example", "--anthropometry", "Winter", "--smooth")[0] == 0
+    assert (calls[0]["anthropometry"], calls[0]["smooth"]) == ("winter", True)
+
+
+def test_unwritable_output_is_bad_input(capsys: pytest.CaptureFixture[str],
+                                        tmp_path: Path) -> None:
+    (tmp_path / "taken.json").mkdir()
+    code, _, err = run(capsys, "--example", "--method", "llsf",
+                       "-o", str(tmp_path / "taken.json"))
+    assert_bad_input(code, err, "cannot write", "taken.json")
+
+
 def test_summary_without_output(capsys: pytest.CaptureFixture[str],
                                 monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(cli_skeleton, "_estimator",
-                        lambda: lambda rec, **kwargs: fake_result(rec))
+    monkeypatch.setattr(skeleton_module, "estimate_skeleton",
+                        lambda rec, **kwargs: fake_result(rec))
     code, out, _ = run(capsys, "--example")
     assert code == 0
     assert "method fake, 300 frames at 60 Hz, 15 sensors" in out
@@ -229,7 +265,7 @@ def test_progress_bar_goes_to_stderr(capsys: pytest.CaptureFixture[str],
         progress(1.0, "done")
         return fake_result(rec)
 
-    monkeypatch.setattr(cli_skeleton, "_estimator", lambda: estimate)
+    monkeypatch.setattr(skeleton_module, "estimate_skeleton", estimate)
     assert main(["skeleton", "--example"]) == 0
     out, err = capsys.readouterr()
     assert "locating" in err

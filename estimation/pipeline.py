@@ -1,0 +1,233 @@
+"""Read → estimate → write: the one pipeline behind ``bonefit skeleton``, ``bonefit translate``
+and the service's jobs.
+
+Each run reads a recording, estimates, writes the requested files and returns the result with
+the three timings of the timings contract (``read_s``, ``estimate_s``, ``write_s``; see
+docs/skeleton-io.md). The callers differ only in how they report: the CLI draws a progress bar
+and prints what the reader detected, a worker reports stages to its job.
+
+The estimators (and scipy) are imported on the first run, so that importing this module, the
+CLI's ``--help`` and the service's API process stay light.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final
+
+from .progress import Progress
+from .recording import SensorRecording
+from .results import JointOffset, SkeletonResult
+
+if TYPE_CHECKING:
+    from .io.tracker import TrackerLayout
+    from .kinematics import KinematicsRecording
+    from .translation import TranslationResult
+
+PathLike = str | Path
+
+Stages = Callable[[str], None]
+"""``stages(name)``: called with ``"reading"`` before the read and ``"writing"`` before the
+writes (the estimate reports through ``progress``)."""
+
+SAME_AS_INPUT: Final[str] = "input"
+"""Output format of a translation meaning "the recording's own format"."""
+
+
+@dataclass(frozen=True)
+class SensorSource:
+    """A 6-DOF sensor recording and how to read it (``io.sensors.read_recording``)."""
+
+    path: PathLike
+    format: str = "auto"
+    units: str | None = None
+    fps: float | None = None
+    stations: Mapping[Any, Any] | str | None = None
+    tracker_layout: str | TrackerLayout | None = None
+
+
+@dataclass(frozen=True)
+class SkeletonRunOptions:
+    """Options of :func:`estimation.skeleton.estimate_skeleton` a run passes on (its
+    defaults). ``up`` is the source frame's up direction; ``offsets`` a calibration: the run
+    then calls ``estimate_skeleton_from_offsets`` (``up``, ``i0`` and ``smooth`` only)."""
+
+    method: str = "auto"
+    optimizer: str = "least-squares"
+    torso: str = "llsf"
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    i0: int = 0
+    anthropometry: str | Mapping[str, float] = "aist"
+    w_s: float = 0.01
+    w_l: float = 0.01
+    smooth: bool | None = None
+    offsets: Mapping[str, JointOffset] | None = None
+
+
+@dataclass(frozen=True)
+class SkeletonOutputs:
+    """Files a skeleton run writes; None: skip. JSON (metres), BVH (cm), CSV (metres)."""
+
+    json: PathLike | None = None
+    bvh: PathLike | None = None
+    csv: PathLike | None = None
+
+
+@dataclass(frozen=True)
+class SkeletonRun:
+    """What a skeleton run produced: the result (timings with read_s, estimate_s, write_s)
+    and the recording it was estimated from."""
+
+    result: SkeletonResult
+    recording: SensorRecording
+
+
+def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: SkeletonOutputs,
+                 *, progress: Progress | None = None, stages: Stages | None = None,
+                 on_read: Callable[[SensorRecording], None] | None = None) -> SkeletonRun:
+    """Read a sensor recording, estimate its skeleton, write the requested files.
+
+    Parameters
+    ----------
+    source : SensorSource
+    options : SkeletonRunOptions
+    outputs : SkeletonOutputs
+    progress : callable, optional
+        ``progress(fraction, stage)`` of the estimate.
+    stages : callable, optional
+        Told ``"reading"`` and ``"writing"`` as those stages start.
+    on_read : callable, optional
+        Called with the recording before estimating (a caller's own checks or messages;
+        it may raise).
+
+    Returns
+    -------
+    SkeletonRun
+
+    Raises
+    ------
+    BonefitError
+        Bad input (from the reader, the estimator or ``on_read``).
+    OSError
+        A file could not be read or written.
+    """
+    from .io.sensors import read_recording
+    from .io.skeleton import write_skeleton_files
+    from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
+
+    _stage(stages, "reading")
+    started = time.perf_counter()
+    recording = read_recording(source.path, format=source.format, units=source.units,
+                               fps=source.fps, stations=source.stations,
+                               tracker_layout=source.tracker_layout)
+    read_s = time.perf_counter() - started
+    if on_read is not None:
+        on_read(recording)
+    if options.offsets is None:
+        result = estimate_skeleton(
+            recording, method=options.method, optimizer=options.optimizer, torso=options.torso,
+            up=options.up, i0=options.i0, anthropometry=options.anthropometry, w_s=options.w_s,
+            w_l=options.w_l, smooth=options.smooth, progress=progress)
+    else:
+        # a calibration's offsets leave nothing to fit: the method's options do not apply
+        result = estimate_skeleton_from_offsets(recording, options.offsets, up=options.up,
+                                                i0=options.i0, smooth=bool(options.smooth),
+                                                progress=progress)
+    _stage(stages, "writing")
+    result = replace(result, timings={**result.timings, "read_s": read_s})
+    result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,
+                                  csv_path=outputs.csv)
+    return SkeletonRun(result, recording)
+
+
+@dataclass(frozen=True)
+class KinematicsSource:
+    """An inertial-suit recording and how to read it (``io.kinematics.read_kinematics``)."""
+
+    path: PathLike
+    format: str = "auto"
+    accelerations: PathLike | None = None
+    left_foot: str | None = None
+    right_foot: str | None = None
+    acceleration_units: str | None = None
+    units: str | float = "auto"
+    subject: str | None = None
+
+
+@dataclass(frozen=True)
+class TranslationRunOptions:
+    """The method of :func:`estimation.translation.estimate_translation` and its options
+    (``ContactOptions`` fields, or ``window`` and ``eps``); empty: the method's defaults."""
+
+    method: str = "contact"
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TranslationRun:
+    """What a translation run produced: the result (timings with read_s, estimate_s,
+    write_s) and the recording it was estimated from."""
+
+    result: TranslationResult
+    recording: KinematicsRecording
+
+
+def run_translation(source: KinematicsSource, options: TranslationRunOptions,
+                    outputs: Sequence[tuple[str, PathLike]], *,
+                    progress: Progress | None = None, stages: Stages | None = None,
+                    on_read: Callable[[KinematicsRecording], None] | None = None,
+                    ) -> TranslationRun:
+    """Read kinematics (and foot accelerations), estimate the root path, write the outputs.
+
+    Parameters
+    ----------
+    source : KinematicsSource
+    options : TranslationRunOptions
+    outputs : sequence of (format, path)
+        Formats of ``io.kinematics.write_translation`` or :data:`SAME_AS_INPUT`; the JSON is
+        written last, its ``write_s`` covering the others.
+    progress, stages, on_read
+        As in :func:`run_skeleton`.
+
+    Returns
+    -------
+    TranslationRun
+
+    Raises
+    ------
+    BonefitError
+        Bad input (from the reader, the estimator or ``on_read``).
+    OSError
+        A file could not be read or written.
+    """
+    from .io.kinematics import read_kinematics
+    from .io.translation_files import write_translation_files
+    from .translation import estimate_translation
+
+    _stage(stages, "reading")
+    started = time.perf_counter()
+    recording = read_kinematics(
+        source.path, format=source.format, accelerations=source.accelerations,
+        left_foot=source.left_foot, right_foot=source.right_foot,
+        acceleration_units=source.acceleration_units, units=source.units,
+        subject=source.subject)
+    read_s = time.perf_counter() - started
+    if on_read is not None:
+        on_read(recording)
+    result = estimate_translation(recording, method=options.method,
+                                  left_foot=recording.left_foot, right_foot=recording.right_foot,
+                                  progress=progress, **options.options)
+    _stage(stages, "writing")
+    result = replace(result, timings={**result.timings, "read_s": read_s})
+    files = [(recording.source_format if fmt == SAME_AS_INPUT else fmt, path)
+             for fmt, path in outputs]
+    result = write_translation_files(result, recording, files)
+    return TranslationRun(result, recording)
+
+
+def _stage(stages: Stages | None, name: str) -> None:
+    if stages is not None:
+        stages(name)
