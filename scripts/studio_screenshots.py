@@ -60,6 +60,7 @@ def server(data: Path) -> Iterator[str]:
 
 def make_takes(folder: Path) -> tuple[Path, Path, Path]:
     """A 15-sensor take (CSV, cm), an inertial-suit take (kinematics CSV) and a broken file."""
+    from estimation.io.kinematics import write_kinematics_csv
     from estimation.io.sensors import write_sensor_csv
     from estimation.simulate.inertial import simulate_walker
     from estimation.simulate.sensors import example_motion, simulate_sensors
@@ -69,16 +70,8 @@ def make_takes(folder: Path) -> tuple[Path, Path, Path]:
     sensors = folder / "walk_take03.csv"
     write_sensor_csv(recording, sensors)
     rec, _, _ = simulate_walker(fps=60.0, seed=0)
-    cols = ["Time"] + [f"{j}.{a}" for j in rec.joints for a in ("Dx", "Dy", "Dz")]
-    cols += [f"{f}.{a}" for f in rec.accelerations for a in ("ax", "ay", "az")]
-    rows = [",".join(cols)]
-    for i in range(rec.positions.shape[0]):
-        values = [f"{rec.time[i]:.6f}"] + [f"{v * 100:.4f}" for v in rec.positions[i].ravel()]
-        values += [f"{v / 9.80665:.5f}" for f in rec.accelerations
-                   for v in rec.accelerations[f][i]]
-        rows.append(",".join(values))
     suit = folder / "suit_walk.csv"
-    suit.write_text("\n".join(rows) + "\n")
+    write_kinematics_csv(rec, suit)
     broken = folder / "broken_take.csv"
     broken.write_text("time,pelvis.x,pelvis.y,pelvis.z,pelvis.qw,foo\n0,0,0,0,1,0\n")
     return sensors, suit, broken

@@ -9,6 +9,7 @@ runs ``bonefit worker``. Everything started is stopped at teardown (the whole pr
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import signal
 import socket
@@ -290,18 +291,13 @@ def long_sensor_csv_bytes() -> bytes:
 @pytest.fixture(scope="session")
 def kinematics_csv_bytes() -> bytes:
     """An inertial-suit kinematics CSV (Shadow layout: cm positions, foot accelerations in g)."""
+    from estimation.io.kinematics import write_kinematics_csv
     from estimation.simulate.inertial import simulate_walker
 
     rec, _, _ = simulate_walker(fps=60.0, seed=0)
-    cols = ["Time"] + [f"{j}.{a}" for j in rec.joints for a in ("Dx", "Dy", "Dz")]
-    cols += [f"{f}.{a}" for f in rec.accelerations for a in ("ax", "ay", "az")]
-    rows = [",".join(cols)]
-    for i in range(rec.positions.shape[0]):
-        values = [f"{rec.time[i]:.6f}"] + [f"{v * 100:.4f}" for v in rec.positions[i].ravel()]
-        values += [f"{v / 9.80665:.5f}" for f in rec.accelerations
-                   for v in rec.accelerations[f][i]]
-        rows.append(",".join(values))
-    return ("\n".join(rows) + "\n").encode()
+    text = io.StringIO()
+    write_kinematics_csv(rec, text)
+    return text.getvalue().encode()
 
 
 @pytest.fixture(scope="session")
