@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sqlite3
 import sys
 import threading
@@ -138,6 +139,23 @@ class HueyQueue:
         self.huey.pending_count()
 
 
+@functools.cache
+def sqlite_storage() -> type:
+    """huey's SQLite storage with ``synchronous=NORMAL``, as the job store's SQLite: in WAL
+    mode a commit then waits for no fsync (huey's default, FULL, made every enqueue and
+    dequeue wait for the disk: 12 ms median on the loaded 2-core host), and only a power
+    loss, not a crash, can take back the last commits (the reaper re-sends a lost message)."""
+    from huey.storage import SqliteStorage
+
+    class NormalSyncStorage(SqliteStorage):  # type: ignore[misc]
+        def _create_connection(self) -> Any:
+            conn = super()._create_connection()
+            conn.execute("pragma synchronous=NORMAL")
+            return conn
+
+    return NormalSyncStorage
+
+
 def open_queue(url: str) -> JobQueue:
     """The queue for ``url``: ``sqlite:///path`` or ``redis://...``."""
     from huey import RedisHuey, SqliteHuey  # keep importing this module free of side effects
@@ -146,7 +164,8 @@ def open_queue(url: str) -> JobQueue:
     if scheme == "sqlite":
         path = Path(url.removeprefix("sqlite:///"))  # SQLAlchemy style: 4 slashes = absolute
         path.parent.mkdir(parents=True, exist_ok=True)
-        return HueyQueue(SqliteHuey("bonefit", filename=str(path), results=False, timeout=30),
+        return HueyQueue(SqliteHuey("bonefit", filename=str(path), results=False, timeout=30,
+                                    storage_class=sqlite_storage()),
                          Waker(path.with_name(path.name + ".wake")))
     if scheme in ("redis", "rediss", "unix"):
         return HueyQueue(RedisHuey("bonefit", url=url, results=False, blocking=True,
