@@ -70,9 +70,11 @@ MB = 1024**2
 
 def take_path(cache: Path, frames: int, sensors: int, drop: float) -> Path:
     """The cached take (generated on first use)."""
+    base = base_take(cache, min(frames, BASE_FRAMES), sensors, drop)
+    if frames <= BASE_FRAMES:
+        return base
     path = cache / f"take-{frames}f-{sensors}s-drop{drop:g}-seed{SEED}.csv"
     if not path.exists():
-        base = base_take(cache, min(frames, BASE_FRAMES), sensors, drop)
         partial = path.with_suffix(".part")
         repeat_take(base, frames, partial)
         partial.replace(path)
