@@ -350,6 +350,7 @@ async def test_an_upload_holds_no_thread_until_its_first_block(tmp_path: Path) -
 
 def test_serve_passes_the_connection_limits_to_uvicorn(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bonefit.cli import main
     from bonefit.service import cli
 
     configs: list[uvicorn.Config] = []
@@ -365,7 +366,7 @@ def test_serve_passes_the_connection_limits_to_uvicorn(
     monkeypatch.setattr(cli.signal, "signal", lambda *args: None)
     monkeypatch.setenv("BONEFIT_MAX_CONNECTIONS", "7")
     monkeypatch.setenv("BONEFIT_KEEP_ALIVE_SECONDS", "3")
-    assert cli.main(["serve", "--no-worker", "--data-dir", str(tmp_path)]) == 0
+    assert main(["serve", "--no-worker", "--data-dir", str(tmp_path)]) == 0
     assert configs[0].limit_concurrency == 7
     assert configs[0].timeout_keep_alive == 3
 
