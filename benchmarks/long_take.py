@@ -11,9 +11,10 @@ For each size (default 6k, 36k, 144k and 576k frames) and suit (15 and 11 sensor
    time and ratio to loadtxt (target ≤ 4×); then two such jobs at once: the wall time and the
    peak RSS of the whole service process tree (target ≤ 3 GB), next to its idle RSS.
 
-The takes come from ``estimation.simulate`` (``example_motion`` at 240 Hz, ``simulate_sensors``,
-``write_sensor_csv``): a base of at most 36,000 frames is simulated and written, longer takes
-repeat it forwards and backwards (so the motion stays continuous) with the time running on.
+The takes come from ``bonefit.estimation.simulate`` (``example_motion`` at 240 Hz,
+``simulate_sensors``, ``write_sensor_csv``): a base of at most 36,000 frames is simulated and
+written, longer takes repeat it forwards and backwards (so the motion stays continuous) with
+the time running on.
 They are cached in ``--cache`` (default: a ``bonefit-long-take`` folder in the system's
 temporary directory), never in the repository. The takes have no dropped samples by default,
 so that ``numpy.loadtxt`` parses the very file the run reads (``--drop-fraction`` adds them; the
@@ -83,8 +84,8 @@ def take_path(cache: Path, frames: int, sensors: int, drop: float) -> Path:
 
 def base_take(cache: Path, frames: int, sensors: int, drop: float) -> Path:
     """``frames`` simulated frames written by ``write_sensor_csv`` (cached)."""
-    from estimation.io.sensor_csv import write_sensor_csv
-    from estimation.simulate import example_motion, simulate_sensors
+    from bonefit.estimation.io.sensor_csv import write_sensor_csv
+    from bonefit.estimation.simulate import example_motion, simulate_sensors
 
     path = cache / f"base-{frames}f-{sensors}s-drop{drop:g}-seed{SEED}.csv"
     if not path.exists():

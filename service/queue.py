@@ -65,8 +65,8 @@ def queue_error(exc: Exception) -> BackendError | None:
 @translate_methods(queue_error)
 class HueyQueue:
     """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers;
-    its methods raise :class:`~service.errors.StorageFull` and
-    :class:`~service.errors.QueueUnavailable`.
+    its methods raise :class:`~bonefit.service.errors.StorageFull` and
+    :class:`~bonefit.service.errors.QueueUnavailable`.
 
     Idle workers are woken on enqueue: on Redis the dequeue itself blocks (BRPOP); with a
     ``waker`` (the SQLite queue) by its notification; otherwise only within this process.

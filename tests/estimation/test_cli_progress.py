@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 
-from estimation.cli.progress import LOG_INTERVAL, ProgressBar, clock
+from bonefit.estimation.cli.progress import LOG_INTERVAL, ProgressBar, clock
 
 
 class Terminal(io.StringIO):
