@@ -27,8 +27,9 @@ from hypothesis import strategies as st
 
 from benchmarks.service_fuzz import Ids, run_schemathesis
 from service.app import create_app
-from service.jobs import JobStore, SqlJobStore
+from service.jobs import JobStore
 from service.settings import Settings
+from service.sql_store import SqlJobStore
 from tests.e2e.conftest import Launcher, ServerProcess
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "estimation" / "examples" / "walk.csv"

@@ -13,11 +13,11 @@ from huey import MemoryHuey
 from estimation.errors import InputError
 from estimation.progress import Progress
 from service.artifacts import LocalArtifactStore
-from service.jobs import SqlJobStore
 from service.kinds import Input, Kind, SkeletonParams, TranslationParams
 from service.queue import HueyQueue
 from service.runtime import Runtime
 from service.settings import Settings
+from service.sql_store import SqlJobStore
 from service.worker import Worker
 
 with warnings.catch_warnings():

@@ -17,9 +17,10 @@ import sqlalchemy as sa
 
 from service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
 from service.errors import QueueUnavailable, StorageFull, StoreUnavailable
-from service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
+from service.jobs import Job, JobStore, Recording, Status, new_id
 from service.queue import HueyQueue, JobQueue, open_queue
 from service.settings import Settings
+from service.sql_store import SqlJobStore, open_store
 from tests.service.helpers import local_queue, require_services
 
 POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]

@@ -21,10 +21,10 @@ from fastapi import FastAPI
 from service import uploads
 from service.app import create_app
 from service.artifacts import LocalArtifactStore
-from service.jobs import SqlJobStore, sql_error
 from service.queue import queue_error
 from service.runtime import Runtime
 from service.settings import Settings
+from service.sql_store import SqlJobStore, sql_error
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,

@@ -22,13 +22,14 @@ from estimation.progress import Progress
 from service.app import API_STEPS, create_app
 from service.errors import BackendError, StorageFull
 from service.housekeeping import housekeeping
-from service.jobs import Job, Recording, new_id, sql_error
+from service.jobs import Job, Recording, new_id
 from service.kinds import Input, Kind, SkeletonParams
 from service.leases import LeaseKeeper
 from service.queue import HueyQueue
 from service.reaper import reap
 from service.runtime import Runtime, open_runtime
 from service.settings import Settings
+from service.sql_store import sql_error
 from service.worker import Worker, run_worker
 from tests.service.helpers import (
     AUTH_A,
