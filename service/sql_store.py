@@ -312,18 +312,16 @@ class SqlJobStore:
     def expired_leases(self, now: float) -> list[Job]:
         """Running jobs whose lease ended."""
         t = jobs_table
-        with self.engine.connect() as conn:
-            rows = conn.execute(sa.select(t).where(t.c.status == Status.RUNNING.value,
-                                                   t.c.lease_until < now))
-            return [_job(row) for row in rows]
+        return self._jobs_where(t.c.status == Status.RUNNING.value, t.c.lease_until < now)
 
     def stale_queued(self, before: float) -> list[Job]:
         """Queued jobs not updated since ``before``."""
         t = jobs_table
+        return self._jobs_where(t.c.status == Status.QUEUED.value, t.c.updated_at < before)
+
+    def _jobs_where(self, *conditions: sa.ColumnElement[bool]) -> list[Job]:
         with self.engine.connect() as conn:
-            rows = conn.execute(sa.select(t).where(t.c.status == Status.QUEUED.value,
-                                                   t.c.updated_at < before))
-            return [_job(row) for row in rows]
+            return [_job(row) for row in conn.execute(sa.select(jobs_table).where(*conditions))]
 
     def counts(self) -> dict[tuple[str, str], int]:
         """Jobs per (kind, status)."""

@@ -20,7 +20,7 @@ from ..runtime import Runtime
 from ..schemas import RecordingOut, RecordingPage, UploadFormat
 from ..storage import refuse_when_full
 from ..uploads import UploadSink, cap_summary, receive_multipart, receive_raw, sniff, too_large
-from .common import ID, Cursor, Limit, Tenant, page_cursor, runtime_of
+from .common import Cursor, Limit, Tenant, fetch_or_404, page_cursor, runtime_of
 
 router = APIRouter()
 
@@ -182,12 +182,8 @@ async def list_recordings(request: Request, who: Tenant, limit: Limit = 50,
 
 
 async def _recording(request: Request, who: str, rec_id: str) -> Recording:
-    if not ID.match(rec_id):
-        raise not_found("recording", rec_id)
-    rec = await run_in_threadpool(runtime_of(request).store.get_recording, who, rec_id)
-    if rec is None:
-        raise not_found("recording", rec_id)
-    return rec
+    return await fetch_or_404("recording", rec_id, runtime_of(request).store.get_recording,
+                              who, rec_id)
 
 
 @router.get("/recordings/{recording_id}", response_model=RecordingOut,
