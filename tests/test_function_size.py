@@ -1,6 +1,7 @@
-"""No function in ``estimation/`` or ``service/`` is longer than ``MAX_LINES`` lines
-(issue 18 §1); ruff's complexity rules (pyproject.toml) keep them simple, this keeps them
-short. A function counts from its ``def`` line to its last line, nested functions included."""
+"""No function in ``estimation/``, ``service/`` or ``bonefit/`` (the client and the command
+line) is longer than ``MAX_LINES`` lines (issue 18 §1); ruff's complexity rules
+(pyproject.toml) keep them simple, this keeps them short. A function counts from its ``def``
+line to its last line, nested functions included."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("estimation", "service")
+PACKAGES = ("estimation", "service", "bonefit")
 MAX_LINES = 80
 
 # Functions still over the limit, in modules their owners are restructuring (issue 18 §1):
