@@ -79,6 +79,11 @@ def _plain(value: Any) -> Any:
     return number if math.isfinite(number) else None
 
 
+def _is_form(content_type: str) -> bool:
+    """Whether the body is a multipart form (the file is its ``file`` field)."""
+    return content_type.lower().startswith("multipart/form-data")
+
+
 def _refuse_declared_size(request: Request, limit: int, multipart: bool) -> None:
     """413 before reading a body whose Content-Length is over ``limit`` (with room for a
     form's headers)."""
@@ -92,7 +97,7 @@ async def _receive(request: Request, sink: UploadSink, filename: str | None,
                    content_type: str) -> tuple[str | None, str]:
     """Stream the body (or the form's ``file`` field) into ``sink``; the file's name and
     media type (the form's, where the query and the request did not say)."""
-    if content_type.lower().startswith("multipart/form-data"):
+    if _is_form(content_type):
         part_name, part_type = await receive_multipart(request.stream(), content_type, sink)
         filename = filename or _clean_filename(part_name)
         content_type = (_stored_content_type(part_type, "file.Content-Type") if part_type
@@ -153,8 +158,7 @@ async def upload_recording(
     settings = runtime_of(request).settings
     content_type = _stored_content_type(request.headers.get("content-type", OCTET_STREAM),
                                         "Content-Type")
-    _refuse_declared_size(request, settings.max_upload_bytes,
-                          content_type.lower().startswith("multipart/form-data"))
+    _refuse_declared_size(request, settings.max_upload_bytes, _is_form(content_type))
     spool = settings.data_dir / "uploads" / new_id()
     # only a sensor CSV's summary uses the row count
     with refuse_when_full("upload spool"):
