@@ -1,5 +1,5 @@
 """Recordings and jobs: their records, a job's statuses, and the job store's Protocol (its
-SQL implementation is ``service.sql_store``)."""
+SQL implementation is ``bonefit.service.sql_store``)."""
 
 from __future__ import annotations
 

@@ -94,8 +94,8 @@ def _check_npz_shapes(sensors: tuple[str, ...], positions: NDArray[np.float64],
 
 def _check_npz_values(sensors: tuple[str, ...], positions: NDArray[np.float64],
                       quats: NDArray[np.float64], time: NDArray[np.float64] | None) -> None:
-    """Values within the limits (``estimation.io.limits``; NaN is a gap) and, when given, a
-    time (F,) without NaN."""
+    """Values within the limits (``bonefit.estimation.io.limits``; NaN is a gap) and, when
+    given, a time (F,) without NaN."""
     for key, array in (("positions", positions), ("quaternions", quats)):
         bad = limits.first_bad_value(array)
         if bad is not None:
@@ -127,7 +127,7 @@ def write_sensor_npz(recording: SensorRecording, path: PathLike) -> None:
 
 def sniff_npz(path: PathLike) -> dict[str, Any]:
     """Shapes from the NPY headers, names and scalars from the small members: nothing is
-    decompressed before its declared size is checked (``estimation.io.limits``)."""
+    decompressed before its declared size is checked (``bonefit.estimation.io.limits``)."""
     with limits.open_npz(path) as archive:
         frames = _npz_frames(archive)
         names = set(archive.namelist())
