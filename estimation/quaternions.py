@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "continuous", "from_axes",
+__all__ = ["angle", "as_matrix", "as_matrix_rows", "as_rotvec", "conjugate", "continuous",
+           "continuous_rows", "from_axes",
            "from_axis_rows", "from_matrix", "from_rotvec", "mean", "multiply", "relative",
            "rotate"]
 
@@ -89,6 +90,38 @@ def continuous(q: ArrayLike) -> Float:
     flips = np.einsum("...i,...i->...", out[1:], out[:-1]) < 0.0
     odd = np.cumsum(flips, axis=0) % 2 == 1
     out[1:][odd] *= -1.0
+    return out
+
+
+def continuous_rows(q: NDArray[np.float64]) -> Float:
+    """``continuous`` of component-major quaternions (..., 4, F), time last: a copy with
+    the sign of each quaternion chosen so that consecutive ones lie in the same hemisphere.
+    Every step runs along contiguous rows of frames."""
+    out = np.array(q, dtype=float, order="C")
+    flips = np.einsum("...ct,...ct->...t", out[..., 1:], out[..., :-1]) < 0.0
+    odd = np.cumsum(flips, axis=-1) % 2 == 1
+    sign = np.where(odd, -1.0, 1.0)
+    out[..., 1:] *= sign[..., None, :]
+    return out
+
+
+def as_matrix_rows(q: NDArray[np.float64]) -> Float:
+    """``as_matrix`` of unit quaternions given component-major (..., 4, F), also
+    component-major: (..., 9, F), row ``3i + j`` the entry (i, j) of every matrix, from
+    arithmetic on contiguous rows of frames."""
+    w, x, y, z = (q[..., i, :] for i in range(4))
+    out = np.empty((*q.shape[:-2], 9, q.shape[-1]))
+    xx, yy, zz = x * x, y * y, z * z
+    for e, square, other in ((0, yy, zz), (4, xx, zz), (8, xx, yy)):
+        np.add(square, other, out=out[..., e, :])
+        out[..., e, :] *= -2.0
+        out[..., e, :] += 1.0
+    for e, product, sign, turn in ((1, x * y, -1.0, w * z), (3, x * y, 1.0, w * z),
+                                   (2, x * z, 1.0, w * y), (6, x * z, -1.0, w * y),
+                                   (5, y * z, -1.0, w * x), (7, y * z, 1.0, w * x)):
+        np.multiply(turn, sign, out=out[..., e, :])
+        out[..., e, :] += product
+        out[..., e, :] *= 2.0
     return out
 
 
