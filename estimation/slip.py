@@ -62,6 +62,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import quaternions as quat
 from .joints import slip_basis, white_variance
+from .progress import Progress, no_progress, scaled
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
@@ -151,7 +152,7 @@ def _noise_gain(n: int, fps: float) -> float:
 
 
 def _smoothed_rotations(quaternions: NDArray[np.float64], valid: NDArray[np.bool_],
-                        fps: float) -> NDArray[np.float64]:
+                        fps: float, report: Progress = no_progress) -> NDArray[np.float64]:
     """Rotation matrices of sensors' quaternions given component-major (S, 4, F),
     low-passed, also component-major: (S, 9, F) (``quaternions.as_matrix_rows``); samples
     with ``valid`` (S, F) False (filled gaps) carry no weight.
@@ -166,14 +167,15 @@ def _smoothed_rotations(quaternions: NDArray[np.float64], valid: NDArray[np.bool
     window = round(ROTATION_SMOOTH_S * fps) | 1
     if 5 <= window < q.shape[-1]:
         smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
-        _refit_around_gaps(q, valid, window, out=smooth)
+        report(0.3, "slip")
+        _refit_around_gaps(q, valid, window, out=smooth, report=scaled(report, 0.3, 0.9))
         q = smooth
     q /= np.sqrt(np.einsum("sct,sct->st", q, q))[:, None]
     return quat.as_matrix_rows(q)
 
 
 def _refit_around_gaps(q: NDArray[np.float64], valid: NDArray[np.bool_], window: int, *,
-                       out: NDArray[np.float64]) -> None:
+                       out: NDArray[np.float64], report: Progress = no_progress) -> None:
     """Where the filter's window holds a filled sample, ``out`` (S, 4, F) becomes the cubic
     fitted to the measured samples of the window alone, or the sample itself where fewer
     than four are measured; ``q`` (S, 4, F) the samples, ``valid`` (S, F).
@@ -200,6 +202,7 @@ def _refit_around_gaps(q: NDArray[np.float64], valid: NDArray[np.bool_], window:
         part = slice(first, first + REFIT_CHUNK)
         out[sensors[part], :, frames[part]] = samples.refit(sensors[part], start[frames[part]],
                                                             frames[part])
+        report((first + REFIT_CHUNK) / frames.size, "slip")
 
 
 REFIT_CHUNK: Final[int] = 4096
@@ -255,6 +258,7 @@ def estimate_slip(
     fps: float,
     slip_hz: float = 0.5,
     rotation_noise: float = 0.0,
+    progress: Progress | None = None,
 ) -> SlipFit:
     """Slow displacement of every sensor against its bone, from all joints at once.
 
@@ -275,6 +279,9 @@ def estimate_slip(
     rotation_noise : float
         Per-axis variance (rad²) of the white orientation noise of the measured rotations
         (``rotation_noise_variance``); 0: no errors-in-variables correction.
+    progress : callable, optional
+        ``progress(fraction, "slip")``: after the rotation filter (by windows refitted
+        around gaps) and after each joint's rows, so that a long take reports often.
 
     Returns
     -------
@@ -293,14 +300,20 @@ def estimate_slip(
     layout = SlipLayout.of(sensors, len(pairs), n, fps, slip_hz)
     # component-major (S, 4, F): each sensor's components are contiguous rows (the
     # transposes of skeleton.SensorPoses' quaternions are views of such rows)
+    report = progress or no_progress
+    report(0.0, "slip")
     smoothed = _smoothed_rotations(np.stack([np.asarray(quaternions[s]).T for s in sensors]),
-                                   np.stack([valid[s] for s in sensors]), fps)
+                                   np.stack([valid[s] for s in sensors]), fps,
+                                   scaled(report, 0.0, 0.4))
     rot = dict(zip(sensors, smoothed, strict=True))
     v_eiv = rotation_noise * _noise_gain(n, fps)
-    blocks = [joint_block(layout, j, (a, b), (rot[a], rot[b]),
-                          np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
-                          (valid[a] & valid[b]).astype(float), v_eiv)
-              for j, (a, b) in enumerate(pairs)]
+    blocks = []
+    for j, (a, b) in enumerate(pairs):
+        blocks.append(joint_block(
+            layout, j, (a, b), (rot[a], rot[b]),
+            np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
+            (valid[a] & valid[b]).astype(float), v_eiv))
+        report(0.4 + 0.55 * (j + 1) / len(pairs), "slip")
     normal, rhs_all = _assemble(layout, blocks)
     x, blocks_c = _solve_system(normal, rhs_all, layout.n_s)
     centres = x[layout.n_s:].reshape(-1, 2, 3)
