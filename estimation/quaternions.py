@@ -105,23 +105,29 @@ def continuous_rows(q: NDArray[np.float64]) -> Float:
     return out
 
 
-def as_matrix_rows(q: NDArray[np.float64]) -> Float:
+def as_matrix_rows(q: NDArray[np.float64], out: Float | None = None) -> Float:
     """``as_matrix`` of unit quaternions given component-major (..., 4, F), also
     component-major: (..., 9, F), row ``3i + j`` the entry (i, j) of every matrix, from
-    arithmetic on contiguous rows of frames."""
+    arithmetic on contiguous rows of frames (into ``out`` when given)."""
     w, x, y, z = (q[..., i, :] for i in range(4))
-    out = np.empty((*q.shape[:-2], 9, q.shape[-1]))
-    xx, yy, zz = x * x, y * y, z * z
-    for e, square, other in ((0, yy, zz), (4, xx, zz), (8, xx, yy)):
-        np.add(square, other, out=out[..., e, :])
+    if out is None:
+        out = np.empty((*q.shape[:-2], 9, q.shape[-1]))
+    squares = (x * x, y * y, z * z)
+    for e, (i, j) in ((0, (1, 2)), (4, (0, 2)), (8, (0, 1))):
+        np.add(squares[i], squares[j], out=out[..., e, :])
         out[..., e, :] *= -2.0
         out[..., e, :] += 1.0
-    for e, product, sign, turn in ((1, x * y, -1.0, w * z), (3, x * y, 1.0, w * z),
-                                   (2, x * z, 1.0, w * y), (6, x * z, -1.0, w * y),
-                                   (5, y * z, -1.0, w * x), (7, y * z, 1.0, w * x)):
-        np.multiply(turn, sign, out=out[..., e, :])
-        out[..., e, :] += product
-        out[..., e, :] *= 2.0
+    del squares
+    for (e, f), (a, b), (c, d) in (((1, 3), (x, y), (w, z)), ((2, 6), (x, z), (w, y)),
+                                   ((5, 7), (y, z), (w, x))):
+        product, turn = a * b, c * d
+        # (e: product − turn, f: product + turn), each doubled; the sign of the turn flips
+        # for the entry below the diagonal except in (0, 2), where it is the other way
+        sign = 1.0 if e == 2 else -1.0
+        for entry, s in ((e, sign), (f, -sign)):
+            np.multiply(turn, s, out=out[..., entry, :])
+            out[..., entry, :] += product
+            out[..., entry, :] *= 2.0
     return out
 
 

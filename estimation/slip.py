@@ -151,31 +151,36 @@ def _noise_gain(n: int, fps: float) -> float:
     return 1.0
 
 
-def _smoothed_rotations(quaternions: NDArray[np.float64], valid: NDArray[np.bool_],
-                        fps: float, report: Progress = no_progress) -> NDArray[np.float64]:
-    """Rotation matrices of sensors' quaternions given component-major (S, 4, F),
-    low-passed, also component-major: (S, 9, F) (``quaternions.as_matrix_rows``); samples
-    with ``valid`` (S, F) False (filled gaps) carry no weight.
+def _smoothed_rotations(quaternions: Sequence[NDArray[np.float64]],
+                        valid: Sequence[NDArray[np.bool_]], fps: float,
+                        report: Progress = no_progress) -> NDArray[np.float64]:
+    """Rotation matrices of sensors' quaternions, low-passed, component-major: (S, 9, F)
+    (``quaternions.as_matrix_rows``), from each sensor's quaternions given component-major
+    (4, F); samples with ``valid`` (F,) False (filled gaps) carry no weight.
 
     White orientation noise in the regressors of a linear model biases it (errors in
     variables) and, with a slip term able to absorb anything slow, makes the slip estimate
     follow the noise; a cubic Savitzky–Golay filter over ``ROTATION_SMOOTH_S`` keeps the motion
-    (cubic over 0.2 s) and averages the noise. Every step runs along contiguous rows of
-    frames.
+    (cubic over 0.2 s) and averages the noise. Sensor by sensor, along contiguous rows of
+    frames: the temporaries are those of one sensor.
     """
-    q = quat.continuous_rows(quaternions)
+    n = quaternions[0].shape[-1]
+    out = np.empty((len(quaternions), 9, n))
     window = round(ROTATION_SMOOTH_S * fps) | 1
-    if 5 <= window < q.shape[-1]:
-        smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
-        report(0.3, "slip")
-        _refit_around_gaps(q, valid, window, out=smooth, report=scaled(report, 0.3, 0.9))
-        q = smooth
-    q /= np.sqrt(np.einsum("sct,sct->st", q, q))[:, None]
-    return quat.as_matrix_rows(q)
+    for k, (rows_, ok) in enumerate(zip(quaternions, valid, strict=True)):
+        q = quat.continuous_rows(rows_)[None]
+        if 5 <= window < n:
+            smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
+            _refit_around_gaps(q, ok[None], window, out=smooth)
+            q = smooth
+        q /= np.sqrt(np.einsum("sct,sct->st", q, q))[:, None]
+        quat.as_matrix_rows(q[0], out=out[k])
+        report((k + 1) / len(quaternions), "slip")
+    return out
 
 
 def _refit_around_gaps(q: NDArray[np.float64], valid: NDArray[np.bool_], window: int, *,
-                       out: NDArray[np.float64], report: Progress = no_progress) -> None:
+                       out: NDArray[np.float64]) -> None:
     """Where the filter's window holds a filled sample, ``out`` (S, 4, F) becomes the cubic
     fitted to the measured samples of the window alone, or the sample itself where fewer
     than four are measured; ``q`` (S, 4, F) the samples, ``valid`` (S, F).
@@ -202,7 +207,6 @@ def _refit_around_gaps(q: NDArray[np.float64], valid: NDArray[np.bool_], window:
         part = slice(first, first + REFIT_CHUNK)
         out[sensors[part], :, frames[part]] = samples.refit(sensors[part], start[frames[part]],
                                                             frames[part])
-        report((first + REFIT_CHUNK) / frames.size, "slip")
 
 
 REFIT_CHUNK: Final[int] = 4096
@@ -298,13 +302,12 @@ def estimate_slip(
     sensors = sorted({s for pair in pairs for s in pair})
     n = next(iter(positions.values())).shape[0]
     layout = SlipLayout.of(sensors, len(pairs), n, fps, slip_hz)
-    # component-major (S, 4, F): each sensor's components are contiguous rows (the
-    # transposes of skeleton.SensorPoses' quaternions are views of such rows)
+    # component-major (4, F) per sensor: each component a contiguous row (the transposes
+    # of skeleton.SensorPoses' quaternions are views of such rows)
     report = progress or no_progress
     report(0.0, "slip")
-    smoothed = _smoothed_rotations(np.stack([np.asarray(quaternions[s]).T for s in sensors]),
-                                   np.stack([valid[s] for s in sensors]), fps,
-                                   scaled(report, 0.0, 0.4))
+    smoothed = _smoothed_rotations([np.asarray(quaternions[s]).T for s in sensors],
+                                   [valid[s] for s in sensors], fps, scaled(report, 0.0, 0.4))
     rot = dict(zip(sensors, smoothed, strict=True))
     v_eiv = rotation_noise * _noise_gain(n, fps)
     blocks = []
