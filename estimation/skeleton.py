@@ -532,7 +532,7 @@ class SharedSlip:
     (``slip.estimate_slip``): the torso joints take their centres from it, the wrists are
     fitted on the positions without it."""
 
-    fit: SlipFit
+    fit: SlipFit  # its ``slip`` emptied: removed from the positions into ``without_slip``
     without_slip: dict[str, NDArray[np.float64]]  # each sensor's p − R s, (F, 3)
     index: dict[str, int]  # joint -> its row in ``fit``
 
@@ -550,7 +550,8 @@ def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz:
     without = {s: sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(), slip)
                for s, slip in fit.slip.items()}
     progress(1.0, "slip")
-    return SharedSlip(fit, without, {j: i for i, j in enumerate(pairs)})
+    # the slips live on in ``without``; not keeping them saves (F, 3) per sensor
+    return SharedSlip(replace(fit, slip={}), without, {j: i for i, j in enumerate(pairs)})
 
 
 @dataclass(frozen=True, eq=False)
@@ -693,7 +694,8 @@ class LocatedJoints:
 
     warnings: list[str]
     fits: dict[str, JointFit] = field(default_factory=dict)
-    own: dict[str, JointFit] = field(default_factory=dict)  # estimate_joint's own fits
+    # estimate_joint's own fits of the joints that reuse them (torso, shared model)
+    own: dict[str, JointFit] = field(default_factory=dict)
     # the shared model's posterior covariance of each centre, frame a
     posterior: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     joints: dict[str, NDArray[np.float64]] = field(default_factory=dict)
@@ -704,12 +706,20 @@ class LocatedJoints:
         """Locate a joint by its plan, keep its own fit and posterior, and warn (unless
         ``plan.quiet``); the fit is not recorded (``record``)."""
         found = locate_joint(ctx, plan, self.own.get(plan.name))
-        self.own[plan.name] = found.own
+        if shared_role(ctx, plan.name) == "torso":  # the only ones reused (locate_joint)
+            self.own[plan.name] = found.own
         if found.posterior is not None:
             self.posterior[plan.name] = found.posterior
         if not plan.quiet:
             self.warnings.extend(f"{plan.name}: {w}" for w in found.fit.warnings)
         return found.fit
+
+    def release(self) -> None:
+        """Drop the fits once every joint is located: their paths are in ``joints``, which
+        ``_completed`` then replaces path by path (a long take's memory)."""
+        self.fits.clear()
+        self.own.clear()
+        self.posterior.clear()
 
     def record(self, name: str, fit: JointFit) -> None:
         """Take ``fit`` as the joint's result."""
@@ -1009,6 +1019,7 @@ def estimate_skeleton(
     lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
     _check_units({"torso": lt}, located.warnings)  # before the limbs: their priors assume metres
     locate_limbs(ctx, located, standard_lengths(lt, anthropometry), scaled(report, 0.55, 0.9))
+    located.release()
     completed, bone_lengths, orientations = _completed(
         joints, sensors.rotations, fps=recording.fps, smooth=options.smooth, up=options.up,
         i0=i0, warnings=located.warnings, report=scaled(report, 0.9, 1.0))
@@ -1128,15 +1139,14 @@ def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, R
                report: Progress,
                ) -> tuple[dict[str, NDArray[np.float64]], dict[str, float],
                           dict[str, NDArray[np.float64]]]:
-    """The joint paths (smoothed if asked), bone lengths (checked against human size) and
-    segment orientations; ``report(fraction, "orientations")`` after each smoothed path."""
+    """The joint paths (smoothed if asked: in ``joints``, path by path, so that each
+    unsmoothed one can go at once), bone lengths (checked against human size) and segment
+    orientations; ``report(fraction, "orientations")`` after each smoothed path."""
     report(0.0, "orientations")
     if smooth:
-        smoothed = {}
-        for k, (name, path) in enumerate(joints.items()):
-            smoothed[name] = _smooth(path, fps)
+        for k, name in enumerate(list(joints)):
+            joints[name] = _smooth(joints[name], fps)
             report(0.6 * (k + 1) / len(joints), "orientations")
-        joints = smoothed
     bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
