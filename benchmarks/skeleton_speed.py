@@ -162,6 +162,7 @@ def held_out_ratios(args: argparse.Namespace) -> None:
                     worst = min(worst, ratio)
                 rows.append([clip, f"{seed}", sensors, f"{nm_s:.3f}", f"{ls_s:.3f}",
                              f"{ratio:.1f}"])
+                print("  " + " | ".join(rows[-1]), flush=True)  # a slow table: rows as they come
     print("\nReduced method, Nelder–Mead vs least-squares (default) on the benchmark recording "
           f"and held-out ones ({args.frames} frames at {RT1_FPS:g} fps, 5 mm slip; median of "
           f"{args.runs} alternating pairs)\n")
