@@ -14,11 +14,11 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
-from estimation.model import JOINTS
-from estimation.results import SkeletonResult
-from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
-from estimation.skeleton import estimate_skeleton
-from estimation.slip import COSINE_CHUNK, REFIT_CHUNK
+from bonefit.estimation.model import JOINTS
+from bonefit.estimation.results import SkeletonResult
+from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
+from bonefit.estimation.skeleton import estimate_skeleton
+from bonefit.estimation.slip import COSINE_CHUNK, REFIT_CHUNK
 
 FPS = 240.0
 N_FRAMES = 12_000
