@@ -390,8 +390,9 @@ def paper_normal(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: floa
 
 
 class _Geometry(NamedTuple):
-    """Per-frame geometry of a limb at θ: middle → distal vectors ``d`` (M, 3) and their
-    lengths ``ll``, proximal → middle vectors ``e`` and their lengths ``lu``; and E."""
+    """Per-frame geometry of a limb at θ: middle → distal vectors ``d`` (3, M, a row per
+    component) and their lengths ``ll``, proximal → middle vectors ``e`` (3, M) and their
+    lengths ``lu``; and E."""
 
     d: Float
     ll: Float
@@ -402,12 +403,20 @@ class _Geometry(NamedTuple):
 
 class _PaperTerms:
     """The paper's E of one limb and its normal equations (see ``paper_normal``), sharing
-    one pass over the frames at the last point asked for."""
+    one pass over the frames at the last point asked for.
+
+    The limb's data are kept component-major (``q`` as (9, M), row ``3i + j`` the entry
+    (i, j) of every frame's matrix; ``b`` and ``h`` as (3, M)): every pass then runs along
+    contiguous rows instead of strided columns of (M, 3, 3), same operations in the same
+    order."""
 
     def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float, w_l: float,
                  exact: bool) -> None:
         self.limb, self.lengths, self.w_s, self.w_l, self.exact = limb, lengths, w_s, w_l, exact
         self._last: tuple[Float, _Geometry] | None = None
+        self.q = np.ascontiguousarray(limb.q.reshape(limb.n, 9).T)
+        self.b = np.ascontiguousarray(limb.b.T)
+        self.h = np.ascontiguousarray(limb.h.T)
 
     def geometry(self, theta: Float) -> _Geometry:
         """The geometry at ``theta`` (cached: ``normal`` is asked for at the point ``cost``
@@ -416,10 +425,17 @@ class _PaperTerms:
             return self._last[1]
         m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
         k, a = theta[:3], theta[3:]
-        d = self.limb.distal(a) - k
-        ll = rows.norms(d)
-        e = k - self.limb.h
-        lu = rows.norms(e)
+        # the distal joint b + Q a in the upper frame, less the middle one: (3, M) rows
+        d = np.empty((3, m))
+        for i in range(3):
+            np.multiply(self.q[3 * i], a[0], out=d[i])
+            d[i] += self.q[3 * i + 1] * a[1]
+            d[i] += self.q[3 * i + 2] * a[2]
+        d += self.b
+        d -= k[:, None]
+        ll = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        e = k[:, None] - self.h
+        lu = np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
         dev = ll - np.einsum("f->", ll) / m
         value = float((np.einsum("f,f->", dev, dev)
                        + w_l * (np.einsum("f,f->", lu - l_up, lu - l_up)
@@ -462,17 +478,17 @@ class _PaperTerms:
 
         Every sum of the normal equations is an entry of a product of rows of z. z is
         frame-major so that numpy's loops run over frames, not over 3 components."""
-        m, (l_up, l_low), w_l, q = self.limb.n, self.lengths, self.w_l, self.limb.q
+        m, (l_up, l_low), w_l, q = self.limb.n, self.lengths, self.w_l, self.q
         inv_l = 1.0 / geo.ll
         inv_lu = 1.0 / geo.lu
         z = np.empty((23, m))
-        np.multiply(geo.d.T, inv_l, out=z[:3])
+        np.multiply(geo.d, inv_l, out=z[:3])
         for j in range(3):
-            # uᵀQ row by row: strided reads of Q, a third faster than einsum
-            np.multiply(z[0], q[:, 0, j], out=z[3 + j])
-            z[3 + j] += z[1] * q[:, 1, j]
-            z[3 + j] += z[2] * q[:, 2, j]
-        np.multiply(geo.e.T, inv_lu, out=z[6:9])
+            # uᵀQ row by row, on contiguous rows of Q
+            np.multiply(z[0], q[j], out=z[3 + j])
+            z[3 + j] += z[1] * q[3 + j]
+            z[3 + j] += z[2] * q[6 + j]
+        np.multiply(geo.e, inv_lu, out=z[6:9])
         z[9] = 1.0
         c, cu, cl, cul = z[10], z[11], z[12], z[13]
         np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
@@ -485,7 +501,6 @@ class _PaperTerms:
 
     def _second_order(self, z: Float, gram: Float) -> Float:
         """``Σ r ∇²r`` (6, 6), from the rows ``z`` (completed here) and their ``gram``."""
-        m = self.limb.n
         cl, cul = z[12], z[13]
         np.multiply(z[:6], cl, out=z[14:20])
         np.multiply(z[6:9], cul, out=z[20:])
@@ -493,7 +508,7 @@ class _PaperTerms:
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         second = gram[9, 12] * np.eye(6) - _SIGN_OUTER * (z[:6] @ z[14:20].T)
-        cross = (cl @ self.limb.q.reshape(m, 9)).reshape(3, 3)
+        cross = (self.q @ cl).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
         second[:3, :3] += gram[9, 13] * np.eye(3) - z[6:9] @ z[20:].T

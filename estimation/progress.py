@@ -18,6 +18,9 @@ def scaled(progress: Progress | None, start: float, stop: float) -> Progress:
     target = progress or no_progress
 
     def report(fraction: float, stage: str) -> None:
-        target(start + (stop - start) * min(max(fraction, 0.0), 1.0), stage)
+        # exactly ``stop`` at 1 (``start + (stop − start)`` may round above it, and a caller's
+        # next report at ``stop`` would then go backwards)
+        share = min(max(fraction, 0.0), 1.0)
+        target(stop if share == 1.0 else start + (stop - start) * share, stage)
 
     return report

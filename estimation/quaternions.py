@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["angle", "as_matrix", "as_rotvec", "conjugate", "continuous", "from_axes",
+__all__ = ["angle", "as_matrix", "as_matrix_rows", "as_rotvec", "conjugate", "continuous",
+           "continuous_rows", "from_axes",
            "from_axis_rows", "from_matrix", "from_rotvec", "mean", "multiply", "relative",
            "rotate"]
 
@@ -89,6 +90,44 @@ def continuous(q: ArrayLike) -> Float:
     flips = np.einsum("...i,...i->...", out[1:], out[:-1]) < 0.0
     odd = np.cumsum(flips, axis=0) % 2 == 1
     out[1:][odd] *= -1.0
+    return out
+
+
+def continuous_rows(q: NDArray[np.float64]) -> Float:
+    """``continuous`` of component-major quaternions (..., 4, F), time last: a copy with
+    the sign of each quaternion chosen so that consecutive ones lie in the same hemisphere.
+    Every step runs along contiguous rows of frames."""
+    out = np.array(q, dtype=float, order="C")
+    flips = np.einsum("...ct,...ct->...t", out[..., 1:], out[..., :-1]) < 0.0
+    odd = np.cumsum(flips, axis=-1) % 2 == 1
+    sign = np.where(odd, -1.0, 1.0)
+    out[..., 1:] *= sign[..., None, :]
+    return out
+
+
+def as_matrix_rows(q: NDArray[np.float64], out: Float | None = None) -> Float:
+    """``as_matrix`` of unit quaternions given component-major (..., 4, F), also
+    component-major: (..., 9, F), row ``3i + j`` the entry (i, j) of every matrix, from
+    arithmetic on contiguous rows of frames (into ``out`` when given)."""
+    w, x, y, z = (q[..., i, :] for i in range(4))
+    if out is None:
+        out = np.empty((*q.shape[:-2], 9, q.shape[-1]))
+    squares = (x * x, y * y, z * z)
+    for e, (i, j) in ((0, (1, 2)), (4, (0, 2)), (8, (0, 1))):
+        np.add(squares[i], squares[j], out=out[..., e, :])
+        out[..., e, :] *= -2.0
+        out[..., e, :] += 1.0
+    del squares
+    for (e, f), (a, b), (c, d) in (((1, 3), (x, y), (w, z)), ((2, 6), (x, z), (w, y)),
+                                   ((5, 7), (y, z), (w, x))):
+        product, turn = a * b, c * d
+        # (e: product − turn, f: product + turn), each doubled; the sign of the turn flips
+        # for the entry below the diagonal except in (0, 2), where it is the other way
+        sign = 1.0 if e == 2 else -1.0
+        for entry, s in ((e, sign), (f, -sign)):
+            np.multiply(turn, s, out=out[..., entry, :])
+            out[..., entry, :] += product
+            out[..., entry, :] *= 2.0
     return out
 
 

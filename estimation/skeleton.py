@@ -504,15 +504,19 @@ class JointMotion(NamedTuple):
     static: list[str]  # the joints rotating less than ``min_range_deg``
 
 
-def joint_motion(sensors: SensorPoses, method: str, min_range_deg: float) -> JointMotion:
+def joint_motion(sensors: SensorPoses, method: str, min_range_deg: float,
+                 progress: Progress = no_progress) -> JointMotion:
     """Every two-sensor joint's range of motion (the torso's only for ``reduced``): a joint
     that barely rotates is located from priors and flagged; only a recording in which most
     joints barely rotate is refused (EstimationError)."""
     positions, quat, ok = sensors.positions, sensors.quaternions, sensors.ok
     pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
              and (method != "reduced" or j in _TORSO_JOINTS)]
-    rom = {j: range_of_motion(quat[a], quat[b], ok[a] & ok[b])
-           for j in pairs for a, b in (JOINT_SEGMENTS[j],)}
+    rom = {}
+    for k, j in enumerate(pairs):
+        a, b = JOINT_SEGMENTS[j]
+        rom[j] = range_of_motion(quat[a], quat[b], ok[a] & ok[b])
+        progress((k + 1) / len(pairs), "gaps")
     static = [j for j in pairs if rom[j] < min_range_deg]
     if 2 * len(static) > len(pairs):
         raise EstimationError(
@@ -528,23 +532,26 @@ class SharedSlip:
     (``slip.estimate_slip``): the torso joints take their centres from it, the wrists are
     fitted on the positions without it."""
 
-    fit: SlipFit
+    fit: SlipFit  # its ``slip`` emptied: removed from the positions into ``without_slip``
     without_slip: dict[str, NDArray[np.float64]]  # each sensor's p − R s, (F, 3)
     index: dict[str, int]  # joint -> its row in ``fit``
 
 
-def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz: float
-                ) -> SharedSlip:
+def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz: float,
+                progress: Progress = no_progress) -> SharedSlip:
     """The shared slip model of the joints ``pairs``, corrected for orientation noise."""
     by_sensor = {s: sensors.quaternions[s] for s in sensors.positions}
     # orientation noise biases the centres of joints that rotate a few degrees toward their
     # sensors (errors in variables); the shared model corrects for it
     fit = estimate_slip(sensors.positions, by_sensor, sensors.ok,
                         [JOINT_SEGMENTS[j] for j in pairs], fps=fps, slip_hz=slip_hz,
-                        rotation_noise=rotation_noise_variance(by_sensor, sensors.ok))
+                        rotation_noise=rotation_noise_variance(by_sensor, sensors.ok),
+                        progress=scaled(progress, 0.0, 0.95))
     without = {s: sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(), slip)
                for s, slip in fit.slip.items()}
-    return SharedSlip(fit, without, {j: i for i, j in enumerate(pairs)})
+    progress(1.0, "slip")
+    # the slips live on in ``without``; not keeping them saves (F, 3) per sensor
+    return SharedSlip(replace(fit, slip={}), without, {j: i for i, j in enumerate(pairs)})
 
 
 @dataclass(frozen=True, eq=False)
@@ -558,13 +565,16 @@ class SkeletonContext:
     highpass: int  # frames
 
 
-def skeleton_context(sensors: SensorPoses, options: SkeletonOptions, fps: float
-                     ) -> SkeletonContext:
+def skeleton_context(sensors: SensorPoses, options: SkeletonOptions, fps: float,
+                     progress: Progress = no_progress) -> SkeletonContext:
     """The context of a fit: each joint's motion, and the shared slip model when ``auto``
-    uses it (``slip_hz`` > 0 and no high-pass)."""
-    motion = joint_motion(sensors, options.method, options.min_range_deg)
+    uses it (``slip_hz`` > 0 and no high-pass). ``progress``: the ranges of motion (stage
+    ``gaps``) up to 0.15, the slip model (``slip``) from there."""
+    motion = joint_motion(sensors, options.method, options.min_range_deg,
+                          scaled(progress, 0.0, 0.15))
     highpass = options.highpass(fps)
-    shared = (shared_slip(sensors, motion.pairs, fps, options.slip_hz)
+    shared = (shared_slip(sensors, motion.pairs, fps, options.slip_hz,
+                          scaled(progress, 0.15, 1.0))
               if options.method == "auto" and options.slip_hz > 0 and highpass <= 1 else None)
     return SkeletonContext(sensors, options, motion, shared, highpass)
 
@@ -684,7 +694,8 @@ class LocatedJoints:
 
     warnings: list[str]
     fits: dict[str, JointFit] = field(default_factory=dict)
-    own: dict[str, JointFit] = field(default_factory=dict)  # estimate_joint's own fits
+    # estimate_joint's own fits of the joints that reuse them (torso, shared model)
+    own: dict[str, JointFit] = field(default_factory=dict)
     # the shared model's posterior covariance of each centre, frame a
     posterior: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     joints: dict[str, NDArray[np.float64]] = field(default_factory=dict)
@@ -695,12 +706,20 @@ class LocatedJoints:
         """Locate a joint by its plan, keep its own fit and posterior, and warn (unless
         ``plan.quiet``); the fit is not recorded (``record``)."""
         found = locate_joint(ctx, plan, self.own.get(plan.name))
-        self.own[plan.name] = found.own
+        if shared_role(ctx, plan.name) == "torso":  # the only ones reused (locate_joint)
+            self.own[plan.name] = found.own
         if found.posterior is not None:
             self.posterior[plan.name] = found.posterior
         if not plan.quiet:
             self.warnings.extend(f"{plan.name}: {w}" for w in found.fit.warnings)
         return found.fit
+
+    def release(self) -> None:
+        """Drop the fits once every joint is located: their paths are in ``joints``, which
+        ``_completed`` then replaces path by path (a long take's memory)."""
+        self.fits.clear()
+        self.own.clear()
+        self.posterior.clear()
 
     def record(self, name: str, fit: JointFit) -> None:
         """Take ``fit`` as the joint's result."""
@@ -733,29 +752,32 @@ def torso_plan(ctx: SkeletonContext, located: LocatedJoints, name: str) -> Joint
 
 
 def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress) -> None:
-    """The six torso joints, in ``_TORSO_JOINTS`` order."""
+    """The six torso joints, in ``_TORSO_JOINTS`` order; ``report(fraction, "torso")``
+    after each."""
     for k, name in enumerate(_TORSO_JOINTS):
         located.record(name, located.locate(ctx, torso_plan(ctx, located, name)))
-        report(0.05 + 0.25 * (k + 1) / len(_TORSO_JOINTS), "torso")
+        report((k + 1) / len(_TORSO_JOINTS), "torso")
 
 
-def mirror_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
+def mirror_torso(ctx: SkeletonContext, located: LocatedJoints,
+                 report: Progress = no_progress) -> None:
     """Left/right symmetry: each shoulder (hip) refitted with a prior toward the mirror image
     of the other about the trunk's mid-sagittal plane, along its weakly excited
-    directions."""
+    directions. ``report(fraction, "torso")`` after each of the four."""
     fits = located.fits
-    for pair, seg in _MIRRORED_PAIRS.items():
+    for p, (pair, seg) in enumerate(_MIRRORED_PAIRS.items()):
         plane = _sagittal_plane(seg, fits)
         mirrored = {a: _reflect(fits[b].local_a, plane) for a, b in (pair, pair[::-1])}
         # the mirror image is as uncertain as the joint it mirrors
         flip = np.eye(3) - 2.0 * np.outer(plane[1], plane[1])
         anchors = {a: Anchor(point=flip @ located.posterior[b] @ flip)
                    for a, b in (pair, pair[::-1]) if b in located.posterior}
-        for name in pair:
+        for i, name in enumerate(pair):
             plan = JointPlan(name, ctx.options.estimator,
                              prior=(mirrored[name], PRIOR_SIGMA_M["mirror"]),
                              anchor=anchors.get(name))
             located.record(name, located.locate(ctx, plan))
+            report((2 * p + i + 1) / (2 * len(_MIRRORED_PAIRS)), "torso")
 
 
 def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
@@ -778,16 +800,19 @@ def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
 
 
 def locate_limb_joints(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
-                       std: Mapping[str, float]) -> None:
+                       std: Mapping[str, float], stage: Progress = no_progress) -> None:
     """A limb with its middle sensor: the distal joint, the middle one (with the straight-limb
-    rule), and for ``auto`` arms the wrist again with its hinge rule."""
+    rule), and for ``auto`` arms the wrist again with its hinge rule; ``stage(fraction,
+    "limbs")`` after each fit."""
     prox, mid, dist = limb.joints
     estimator = ctx.options.estimator
     plain = ctx.options.plain
     refit_wrist = not plain and limb.is_arm
     d_fit = located.locate(ctx, JointPlan(dist, estimator, quiet=refit_wrist))
+    stage(1 / 3, "limbs")
     neighbours = (None, None) if plain else (located.joints[prox], d_fit.positions)
     m_fit = located.locate(ctx, JointPlan(mid, estimator, neighbours))
+    stage(2 / 3, "limbs")
     if refit_wrist and mid in ctx.motion.static:
         # an elbow located from priors would carry its error into the wrist's rule
         located.warnings.extend(f"{dist}: {w}" for w in d_fit.warnings)
@@ -830,12 +855,13 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
 
 def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str, float],
                  report: Progress) -> None:
-    """The four limbs, each by its joints or by the variance cost."""
+    """The four limbs, each by its joints or by the variance cost; ``report(fraction,
+    "limbs")`` within each."""
     for k, limb in enumerate(LIMBS.values()):
-        stage = scaled(report, 0.3 + 0.6 * k / 4, 0.3 + 0.6 * (k + 1) / 4)
+        stage = scaled(report, k / 4, (k + 1) / 4)
         stage(0.0, "limbs")
         if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
-            locate_limb_joints(ctx, located, limb, std)
+            locate_limb_joints(ctx, located, limb, std, stage)
         else:
             locate_limb_by_variance(ctx, located, limb, std, stage)
         stage(1.0, "limbs")
@@ -917,8 +943,10 @@ def estimate_skeleton(  # noqa: PLR0913
         warning naming it. When more than half of the two-sensor joints are that still, the
         recording as a whole is refused (EstimationError, ``field="motion"``).
     progress : callable, optional
-        ``progress(fraction, stage)`` with stages ``gaps``, ``torso``, ``limbs``,
-        ``orientations``.
+        ``progress(fraction, stage)`` with stages ``gaps`` (filling, ranges of motion),
+        ``slip`` (the shared slip model of ``"auto"``), ``torso``, ``limbs``,
+        ``orientations`` (with the smoothing of the paths); within each, after every
+        joint, limb, chunk of frames or smoothed path, so that a long take reports often.
 
     Returns
     -------
@@ -980,16 +1008,18 @@ def estimate_skeleton(  # noqa: PLR0913
     located = LocatedJoints(warnings=list(recording.warnings))
     report(0.0, "gaps")
     sensors = sensors_used(recording, method, located.warnings)
-    ctx = skeleton_context(sensors, options, recording.fps)
-    report(0.05, "torso")
-    locate_torso(ctx, located, report)
+    report(0.03, "gaps")
+    ctx = skeleton_context(sensors, options, recording.fps, scaled(report, 0.03, 0.3))
+    report(0.3, "torso")
+    locate_torso(ctx, located, scaled(report, 0.3, 0.45 if method == "auto" else 0.55))
     if method == "auto":
-        mirror_torso(ctx, located)
+        mirror_torso(ctx, located, scaled(report, 0.45, 0.55))
     derived_torso(ctx, located)
     joints = located.joints
     lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
     _check_units({"torso": lt}, located.warnings)  # before the limbs: their priors assume metres
-    locate_limbs(ctx, located, standard_lengths(lt, anthropometry), report)
+    locate_limbs(ctx, located, standard_lengths(lt, anthropometry), scaled(report, 0.55, 0.9))
+    located.release()
     completed, bone_lengths, orientations = _completed(
         joints, sensors.rotations, fps=recording.fps, smooth=options.smooth, up=options.up,
         i0=i0, warnings=located.warnings, report=scaled(report, 0.9, 1.0))
@@ -1109,14 +1139,18 @@ def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, R
                report: Progress,
                ) -> tuple[dict[str, NDArray[np.float64]], dict[str, float],
                           dict[str, NDArray[np.float64]]]:
-    """The joint paths (smoothed if asked), bone lengths (checked against human size) and
-    segment orientations."""
+    """The joint paths (smoothed if asked: in ``joints``, path by path, so that each
+    unsmoothed one can go at once), bone lengths (checked against human size) and segment
+    orientations; ``report(fraction, "orientations")`` after each smoothed path."""
+    report(0.0, "orientations")
     if smooth:
-        joints = {name: _smooth(path, fps) for name, path in joints.items()}
+        for k, name in enumerate(list(joints)):
+            joints[name] = _smooth(joints[name], fps)
+            report(0.6 * (k + 1) / len(joints), "orientations")
     bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
-    report(0.0, "orientations")
+    report(0.6, "orientations")
     orientations = estimate_orientations(joints, rotations, i0=i0, up=up)
     report(1.0, "orientations")
     return joints, bone_lengths, orientations
