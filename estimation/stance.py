@@ -150,7 +150,7 @@ def extrapolated_toe(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64
     length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
     reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
     rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
-    theta = np.arcsin((drop + rise) / reach) - tilt  # L sin θ + d cos θ = d + h
+    theta = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt  # L sin θ + d cos θ = d + h
     ahead = length * np.cos(theta) - drop * np.sin(theta)
     below = length * np.sin(theta) + drop * np.cos(theta)
     out: NDArray[np.float64] = ankle + forward * ahead[:, None] - UP * below[:, None]
