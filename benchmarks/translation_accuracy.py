@@ -188,7 +188,8 @@ def _print_variant(variant: str, seed: int, sel: list[dict[str, object]],
             continue
         c, h = _median(now, "contact_mean"), _median(now, "hachaj2018_mean")
         b = _median([r for r in old if keep(r)], "contact_mean")
-        print(f"| {name} | {c:.2f} | {h:.2f} | {b:.2f} | {c - h:+.2f} |")
+        before = "" if math.isnan(b) else f"{b:.2f}"
+        print(f"| {name} | {c:.2f} | {h:.2f} | {before} | {c - h:+.2f} |")
     close = [float(str(r["contact_mean"])) <= float(str(r["hachaj2018_mean"])) + 0.5
              for r in sel]
     worst = max(float(str(r["contact_mean"])) - float(str(r["hachaj2018_mean"])) for r in sel)
