@@ -33,17 +33,17 @@ from pathlib import Path
 
 import numpy as np
 
-from estimation.bvh import BvhMotion, read_bvh
-from estimation.io.kinematics import read_kinematics
-from estimation.kinematics import KinematicsRecording
-from estimation.simulate.inertial import (
+from bonefit.estimation.bvh import BvhMotion, read_bvh
+from bonefit.estimation.io.kinematics import read_kinematics
+from bonefit.estimation.kinematics import KinematicsRecording
+from bonefit.estimation.simulate.inertial import (
     ANKLE_MOUNT,
     INSTEP_MOUNT,
     FootMount,
     InertialTruth,
     simulate_inertial,
 )
-from estimation.translation import estimate_translation
+from bonefit.estimation.translation import estimate_translation
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 

@@ -424,7 +424,7 @@ class ContactOptions:
         Use heel/toe contact points when the recording names toe joints.
     extrapolate_toes : bool
         Without toe joints, put a ball-of-the-foot point ahead of and below each ankle,
-        scaled by the leg and rolled by the heel's rise (``estimation.stance``), so the
+        scaled by the leg and rolled by the heel's rise (``bonefit.estimation.stance``), so the
         stance point rolls from heel to toe; needs ``use_toes``.
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimation.kinematics import GRAVITY
-from estimation.stance import (
+from bonefit.estimation.kinematics import GRAVITY
+from bonefit.estimation.stance import (
     UP,
     body_heading,
     estimate_sensor_offset,

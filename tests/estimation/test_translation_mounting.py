@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from estimation.bvh import BvhMotion
-from estimation.kinematics import GRAVITY, KinematicsRecording
-from estimation.simulate.inertial import (
+from bonefit.estimation.bvh import BvhMotion
+from bonefit.estimation.kinematics import GRAVITY, KinematicsRecording
+from bonefit.estimation.simulate.inertial import (
     ANKLE_MOUNT,
     INSTEP_MOUNT,
     FootMount,
@@ -19,7 +19,7 @@ from estimation.simulate.inertial import (
     simulate_inertial,
     simulate_walker,
 )
-from estimation.translation import estimate_translation
+from bonefit.estimation.translation import estimate_translation
 from tests.estimation.conftest import two_feet_motion
 
 TOE = np.array([0.15, -0.07, 0.0])
