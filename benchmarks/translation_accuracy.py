@@ -97,7 +97,7 @@ NOISE_G = {1: 0.01, 2: 0.02, 3: 0.005}
 
 
 def simulate(motion: BvhMotion, clip: tuple[str, str, float, float | None], fps: float,
-             clip_g: float | None, variant: str, seed: int
+             clip_g: float | None, *, variant: str, seed: int
              ) -> tuple[KinematicsRecording, InertialTruth]:
     """One synthetic recording of the protocol."""
     _rel, _category, scale, true_fps = clip
@@ -106,7 +106,7 @@ def simulate(motion: BvhMotion, clip: tuple[str, str, float, float | None], fps:
                              clip_g=clip_g, seed=seed, noise_g=noise, mount=VARIANTS[variant])
 
 
-def run_clips(motions: Path, quick: bool, variants: list[str], seeds: list[int],
+def run_clips(motions: Path, quick: bool, variants: list[str], seeds: list[int], *,
               options: dict[str, object] | None = None, rates: tuple[float, ...] = RATES,
               category: str | None = None) -> list[dict[str, object]]:
     """Errors of both methods on every clip × rate × saturation × variant × seed."""
@@ -121,7 +121,7 @@ def run_clips(motions: Path, quick: bool, variants: list[str], seeds: list[int],
             continue
         motion = read_bvh(path)
         for variant, seed, fps, clip_g in product(variants, seeds, rates, (None, 2.0)):
-            rec, truth = simulate(motion, clip, fps, clip_g, variant, seed)
+            rec, truth = simulate(motion, clip, fps, clip_g, variant=variant, seed=seed)
             row: dict[str, object] = {"clip": rel, "category": cat, "fps": fps,
                                       "clip_g": clip_g, "variant": variant, "seed": seed}
             for method in METHODS:
@@ -266,8 +266,9 @@ def main() -> None:
     options = json.loads(args.options)
     if not args.no_clips:
         rows = run_clips(args.data / "motions", args.quick, args.variants.split(","),
-                         [int(s) for s in args.seeds.split(",")], options,
-                         tuple(float(r) for r in args.rates.split(",")), args.category)
+                         [int(s) for s in args.seeds.split(",")], options=options,
+                         rates=tuple(float(r) for r in args.rates.split(",")),
+                         category=args.category)
         if args.json:
             args.json.write_text(json.dumps(rows))
         if args.rows:

@@ -266,7 +266,7 @@ def _swing_floor(level: NDArray[np.float64], floor: NDArray[np.float64]
     return np.where(np.isnan(out), floor, out)
 
 
-def translation_quality(positions: NDArray[np.float64], fps: float, root: int,
+def translation_quality(positions: NDArray[np.float64], fps: float, root: int,  # noqa: PLR0917
                         feet: tuple[_Feet, _Feet], contacts: NDArray[np.str_],
                         floor: NDArray[np.float64],
                         levels: NDArray[np.float64] | None = None) -> dict[str, Any]:
@@ -317,7 +317,7 @@ def translation_quality(positions: NDArray[np.float64], fps: float, root: int,
 # --------------------------------------------------------------------------- hachaj2018
 
 
-def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, right_foot: str,
+def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, right_foot: str,  # noqa: PLR0913, PLR0917
             progress: Progress, window: int = HACHAJ_WINDOW, eps: float = HACHAJ_EPS_M
             ) -> tuple[NDArray[np.float64], NDArray[np.str_], float]:
     p0 = recording.positions
@@ -564,11 +564,11 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     p = gaussian_filter1d(recording.positions, sigma, axis=0, mode="nearest")
     meas = [recording.accelerations[name] for name in names]
     sat = [_saturated(raw, opt.clip_g, recording.acceleration_frame) for raw in meas]
-    states, info = _decode(recording, p, feet, root, (meas, sat), opt)
+    states, info = _decode(recording, p, feet, root, readings=(meas, sat), opt=opt)
     if opt.lever_arm_prior_m > 0 and recording.acceleration_frame == "sensor" \
             and any(f.toe is not None for f in feet):
-        feet = _fitted_offsets(recording.fps, p, feet, states, (meas, sat), opt)
-        states, info = _decode(recording, p, feet, root, (meas, sat), opt)
+        feet = _fitted_offsets(recording.fps, p, feet, states, readings=(meas, sat), opt=opt)
+        states, info = _decode(recording, p, feet, root, readings=(meas, sat), opt=opt)
         info["sensor_offsets_m"] = {name: [round(v, 4) for v in f.offset]
                                     for name, f in zip(names, feet, strict=True)}
     info["saturated_fraction"] = float(np.mean(np.concatenate(sat)))
@@ -576,7 +576,7 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
 
 
 def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
-            feet: tuple[_Feet, _Feet], root: int,
+            feet: tuple[_Feet, _Feet], root: int, *,
             readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
             opt: ContactOptions) -> tuple[NDArray[np.int64], dict[str, Any]]:
     """Viterbi states of the smoothed positions ``p`` and the feet's ``readings``."""
@@ -594,7 +594,7 @@ def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
 
 
 def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
-                    states: NDArray[np.int64],
+                    states: NDArray[np.int64], *,
                     readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
                     opt: ContactOptions) -> tuple[_Feet, _Feet]:
     """``feet`` with each accelerometer's offset from the ankle fitted on the frames where
@@ -618,7 +618,7 @@ def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet
     return out[0], out[1]
 
 
-def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],
+def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],  # noqa: PLR0913, PLR0917
                         feet: tuple[_Feet, _Feet], points: list[NDArray[np.float64]],
                         root: int,
                         readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
@@ -750,7 +750,7 @@ def _support_weights(states: NDArray[np.int64]) -> NDArray[np.float64]:
     return w
 
 
-def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],  # noqa: PLR0917
                          states: NDArray[np.int64], root: int, opt: ContactOptions,
                          progress: Progress
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64],
@@ -775,7 +775,7 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
     return translation, floor, settled, n_levels
 
 
-def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
+def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],  # noqa: PLR0917
                      states: NDArray[np.int64], w_left: NDArray[np.float64], root: int,
                      dt: float) -> NDArray[np.float64]:
     """Translation (F, 3) that keeps the supporting contact points still, with ballistic
@@ -852,7 +852,7 @@ def _contact_levels(support: _Support, ramp: int, opt: ContactOptions
     return level, settled, len(known)
 
 
-def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,
+def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,  # noqa: PLR0917
                          last_level: float | None, opt: ContactOptions) -> float:
     """Floor level of foot ``k``'s contact starting at ``start`` that keeps the body's height
     continuous: from the other foot's level, after a flight from the ballistic take-off,
@@ -1002,10 +1002,9 @@ def estimate_translation(
     ------
     InputError
         Unknown method or option, both ``options`` and keywords, an option outside its range
-        (``field`` names it:
-        ``CONTACT_OPTION_RANGES``, ``HACHAJ_WINDOW_RANGE``, ``HACHAJ_EPS_RANGE``), a frame
-        rate outside ``params.MIN_FPS`` … ``params.MAX_FPS`` (``field="fps"``), unknown foot
-        joint.
+        (``field`` names it: ``CONTACT_OPTION_RANGES``, ``HACHAJ_WINDOW_RANGE``,
+        ``HACHAJ_EPS_RANGE``), a frame rate outside ``params.MIN_FPS`` … ``params.MAX_FPS``
+        (``field="fps"``), unknown foot joint.
     EstimationError
         Fewer than 3 frames.
 
@@ -1036,9 +1035,8 @@ def estimate_translation(
     quality.update(path.extra)
     timings["estimate_s"] = _time.perf_counter() - started
     report(1.0, "done")
-    positions = path.corrected[:, :len(recording.joints)]  # without estimated toes
-    return TranslationResult(root=path.corrected[:, root].copy(),
-                             translation=path.translation, positions=positions,
+    return TranslationResult(root=path.corrected[:, root].copy(), translation=path.translation,
+                             positions=path.corrected[:, :len(recording.joints)],  # no toe est.
                              contacts=path.contacts, floor=path.floor, quality=quality,
                              method=method, fps=recording.fps, timings=timings)
 
@@ -1103,7 +1101,7 @@ def _hachaj_path(recording: KinematicsRecording, names: tuple[str, str], opt: Ha
     return _Path(translation, corrected, contacts, floor, None, feet, extra)
 
 
-def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,
+def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,  # noqa: PLR0917
                   opt: ContactOptions, report: Progress, started: float) -> _Path:
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""

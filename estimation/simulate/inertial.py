@@ -119,7 +119,7 @@ INSTEP_MOUNT: Final[FootMount] = FootMount(forward_m=(0.03, 0.08), up_m=(0.02, 0
 foot bone, ±1.5 cm sideways, a random mounting rotation, a bias of 0.01 g per axis."""
 
 
-def simulate_inertial(
+def simulate_inertial(  # noqa: PLR0913
     motion: BvhMotion,
     *,
     fps: float | None = None,
@@ -152,8 +152,7 @@ def simulate_inertial(
         Accelerometer range: components saturate at ±clip_g (2 for the Shadow suit).
     seed : int
     mount : FootMount
-        Where the sensor sits on the foot: :data:`ANKLE_MOUNT` (default, at the joint) or
-        :data:`INSTEP_MOUNT` (where suits strap it).
+        :data:`ANKLE_MOUNT` (default, at the joint) or :data:`INSTEP_MOUNT` (suits' placement).
 
     Returns
     -------
@@ -164,11 +163,8 @@ def simulate_inertial(
 
     Notes
     -----
-    Accelerations are second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the true
-    path of the sensor point (ankle + R_foot r) at the clip's rate, then resampled, like a
-    band-limited accelerometer; differentiating the rigid point's path carries the lever-arm
-    terms α×r + ω×(ω×r) exactly. The offsets come from their own random stream, so
-    :data:`ANKLE_MOUNT` gives the readings of earlier versions for the same seed.
+    Second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the sensor point's path
+    (ankle + R_foot r: lever-arm terms α×r + ω×(ω×r) exact), band-limited, then resampled.
     """
     if left_foot is None or right_foot is None:
         left_foot, right_foot = foot_names(motion)
@@ -182,11 +178,10 @@ def simulate_inertial(
     world = world * length_units_m
     root = varying_root(motion)
     t_src = np.arange(motion.n_frames) / rate
-    offsets = _sensor_offsets(motion, world, rotations, feet, mount, seed)
-    sensor = _mounted_accelerometers(motion, world, rotations, offsets, rate, rng)
+    offsets = _sensor_offsets(motion, world, rotations, feet, mount=mount, seed=seed)
+    sensor = _mounted_accelerometers(motion, world, rotations, offsets, rate=rate, rng=rng)
     t_new = np.arange(0.0, t_src[-1] + 0.5 / target, 1.0 / target)
-    t_new = t_new[t_new <= t_src[-1] + 1e-9]
-    keep = _kept_joints(motion, feet, mount.keep_toes)
+    t_new, keep = t_new[t_new <= t_src[-1] + 1e-9], _kept_joints(motion, feet, mount.keep_toes)
     stripped = world - (world[:, root] - world[0, root])[:, None, :]
     positions = CubicSpline(t_src, stripped[:, keep], axis=0)(t_new)
     true_pos = CubicSpline(t_src, world, axis=0)(t_new)
@@ -229,7 +224,7 @@ def _kept_joints(motion: BvhMotion, feet: tuple[str, str], keep_toes: bool) -> l
 
 
 def _sensor_offsets(motion: BvhMotion, world: NDArray[np.float64], rotations: list[Rotation],
-                    feet: tuple[str, str], mount: FootMount, seed: int
+                    feet: tuple[str, str], *, mount: FootMount, seed: int
                     ) -> dict[str, NDArray[np.float64]]:
     """Offset (3,) of each foot's sensor from its ankle in the foot joint's own frame,
     metres: ``mount``'s forward/up/lateral draw on the foot's axes averaged over the take
@@ -258,7 +253,7 @@ def _sensor_offsets(motion: BvhMotion, world: NDArray[np.float64], rotations: li
 
 def _mounted_accelerometers(motion: BvhMotion, world: NDArray[np.float64],
                             rotations: list[Rotation], offsets: dict[str, NDArray[np.float64]],
-                            rate: float, rng: np.random.Generator
+                            *, rate: float, rng: np.random.Generator
                             ) -> dict[str, NDArray[np.float64]]:
     """Noise-free accelerometer readings (F, 3) of each foot at the clip's rate, m/s²:
     second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the path of the sensor point
