@@ -35,6 +35,7 @@ CONTACT_OPTION_RANGES: Final[dict[str, tuple[float, float, bool]]] = {
     "sigma_height": (0.0, 1.0, True),
     "floor_tolerance": (0.0, 1.0, False),
     "floor_ramp_s": (0.0, 10.0, False),
+    "lever_arm_prior_m": (0.0, 1.0, False),
     "clip_g": (0.0, 1000.0, True),
 }
 """Range ``(low, high, low excluded)`` of each numeric ``translation.ContactOptions`` field, in its

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time as _time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Final, NamedTuple
 
 import numpy as np
@@ -42,6 +42,14 @@ from .params import (
     check_number,
 )
 from .progress import Progress, no_progress
+from .stance import (
+    body_heading,
+    estimate_sensor_offset,
+    extrapolated_toe,
+    foot_axes,
+    leg_joints,
+    sensor_track,
+)
 from .vocabulary import TRANSLATION_METHODS
 
 METHODS: Final[tuple[str, ...]] = TRANSLATION_METHODS
@@ -181,6 +189,15 @@ class _Feet:
     heel: int
     toe: int | None
     drop: float  # heel height above the toe when the foot is flat, m
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor in foot_axes, m
+
+    def sensor(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Path (F, 3) of the foot's accelerometer: the ankle moved by ``offset`` along the
+        foot's axes (the ankle itself without a toe point or an offset)."""
+        if self.toe is None or not any(self.offset):
+            return p[:, self.heel].copy()
+        return sensor_track(p[:, self.heel], foot_axes(p[:, self.heel], p[:, self.toe]),
+                            np.asarray(self.offset))
 
     def weights(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.toe is None:
@@ -405,6 +422,15 @@ class ContactOptions:
         onto its floor level (no vertical jumps when the supporting foot changes).
     use_toes : bool
         Use heel/toe contact points when the recording names toe joints.
+    extrapolate_toes : bool
+        Without toe joints, put a ball-of-the-foot point ahead of and below each ankle,
+        scaled by the leg and rolled by the heel's rise (``bonefit.estimation.stance``), so the
+        stance point rolls from heel to toe; needs ``use_toes``.
+    lever_arm_prior_m : float
+        Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
+        is fitted to the readings of the planted foot (``stance.estimate_sensor_offset``)
+        and the contacts decoded again with the sensor's own acceleration; 0 takes the
+        sensor at the ankle.
     use_file_contacts : bool
         Take contacts from the file (MVNX footContacts, ``<Foot>.c``) when present.
     clip_g : float or None
@@ -426,6 +452,8 @@ class ContactOptions:
     floor_tolerance: float = 0.05
     floor_ramp_s: float = 0.25
     use_toes: bool = True
+    extrapolate_toes: bool = False
+    lever_arm_prior_m: float = 0.0
     use_file_contacts: bool = True
     clip_g: float | None = None
 
@@ -435,7 +463,8 @@ class ContactOptions:
             if name == "clip_g" and value is None:
                 continue
             check_number(value, name, low=low, high=high, low_open=low_open)
-        for name in ("adapt_relative_speed", "use_toes", "use_file_contacts"):
+        for name in ("adapt_relative_speed", "use_toes", "extrapolate_toes",
+                     "use_file_contacts"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}",
                                  field=name)
@@ -529,24 +558,64 @@ def _derivative(x: NDArray[np.float64], fps: float) -> NDArray[np.float64]:
 def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
                     names: tuple[str, str], root: int, opt: ContactOptions
                     ) -> tuple[NDArray[np.int64], dict[str, Any]]:
-    """States 0 none, 1 left, 2 right, 3 both per frame, by Viterbi decoding."""
-    fps = recording.fps
-    sigma = max(opt.smoothing_s * fps, 0.5)
+    """States 0 none, 1 left, 2 right, 3 both per frame, by Viterbi decoding; with a lever
+    arm prior, decoded again once the sensors' offsets are fitted to the first decoding."""
+    sigma = max(opt.smoothing_s * recording.fps, 0.5)
     p = gaussian_filter1d(recording.positions, sigma, axis=0, mode="nearest")
     meas = [recording.accelerations[name] for name in names]
     sat = [_saturated(raw, opt.clip_g, recording.acceleration_frame) for raw in meas]
+    states, info = _decode(recording, p, feet, root, readings=(meas, sat), opt=opt)
+    if opt.lever_arm_prior_m > 0 and recording.acceleration_frame == "sensor" \
+            and any(f.toe is not None for f in feet):
+        feet = _fitted_offsets(recording.fps, p, feet, states, readings=(meas, sat), opt=opt)
+        states, info = _decode(recording, p, feet, root, readings=(meas, sat), opt=opt)
+        info["sensor_offsets_m"] = {name: [round(v, 4) for v in f.offset]
+                                    for name, f in zip(names, feet, strict=True)}
+    info["saturated_fraction"] = float(np.mean(np.concatenate(sat)))
+    return states, info
+
+
+def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
+            feet: tuple[_Feet, _Feet], root: int, *,
+            readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
+            opt: ContactOptions) -> tuple[NDArray[np.int64], dict[str, Any]]:
+    """Viterbi states of the smoothed positions ``p`` and the feet's ``readings``."""
+    fps = recording.fps
+    sigma = max(opt.smoothing_s * fps, 0.5)
     points = [f.point(p) for f in feet]
-    cost = _acceleration_costs(recording, p, feet, points, root, (meas, sat), sigma, opt)
+    cost = _acceleration_costs(recording, p, feet, points, root, readings, sigma, opt)
     rel_speed = np.linalg.norm(_derivative(points[0], fps) - _derivative(points[1], fps),
                                axis=1)
-    rel_scale = _relative_speed_scale(meas, recording.acceleration_frame, rel_speed, sigma,
-                                      opt)
+    rel_scale = _relative_speed_scale(readings[0], recording.acceleration_frame, rel_speed,
+                                      sigma, opt)
     _add_state_priors(cost, [f.sole(p) for f in feet], rel_speed / rel_scale, opt)
     cost *= 100.0 / fps  # costs are per 10 ms, whatever the frame rate
-    states = _viterbi(cost, _switch_costs(opt))
-    info = {"saturated_fraction": float(np.mean(np.concatenate(sat))),
-            "relative_speed_scale_m_s": rel_scale}
-    return states, info
+    return _viterbi(cost, _switch_costs(opt)), {"relative_speed_scale_m_s": rel_scale}
+
+
+def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
+                    states: NDArray[np.int64], *,
+                    readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
+                    opt: ContactOptions) -> tuple[_Feet, _Feet]:
+    """``feet`` with each accelerometer's offset from the ankle fitted on the frames where
+    ``states`` has that foot planted: there its specific force is the ankle's acceleration
+    relative to the planted point, plus the lever arm's terms, plus gravity."""
+    meas, sat = readings
+    out = []
+    for k, foot in enumerate(feet):
+        if foot.toe is None:
+            out.append(foot)
+            continue
+        heel = p[:, foot.heel]
+        base = (_second_derivative(heel, fps) - _second_derivative(foot.point(p), fps)
+                + np.array([0.0, GRAVITY, 0.0]))
+        axes_acc = _second_derivative(foot_axes(heel, p[:, foot.toe]), fps)
+        use = ((states == 1 + k) | (states == 3)) & ~sat[k]
+        offset = estimate_sensor_offset(base, axes_acc, meas[k], use, sigma=opt.sigma_acc,
+                                        prior_m=opt.lever_arm_prior_m)
+        out.append(replace(foot, offset=(float(offset[0]), float(offset[1]),
+                                         float(offset[2]))))
+    return out[0], out[1]
 
 
 def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],  # noqa: PLR0913, PLR0917
@@ -562,7 +631,7 @@ def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64], 
     smoothing in frames."""
     fps = recording.fps
     meas, sat = readings
-    a_sensor = [_second_derivative(p[:, f.heel], fps) for f in feet]
+    a_sensor = [_second_derivative(f.sensor(p), fps) for f in feet]
     a_point = [_second_derivative(pt, fps) for pt in points]
     a_hips = _second_derivative(p[:, root], fps)
     up = np.array([0.0, GRAVITY, 0.0])
@@ -933,10 +1002,9 @@ def estimate_translation(
     ------
     InputError
         Unknown method or option, both ``options`` and keywords, an option outside its range
-        (``field`` names it:
-        ``CONTACT_OPTION_RANGES``, ``HACHAJ_WINDOW_RANGE``, ``HACHAJ_EPS_RANGE``), a frame
-        rate outside ``params.MIN_FPS`` … ``params.MAX_FPS`` (``field="fps"``), unknown foot
-        joint.
+        (``field`` names it: ``CONTACT_OPTION_RANGES``, ``HACHAJ_WINDOW_RANGE``,
+        ``HACHAJ_EPS_RANGE``), a frame rate outside ``params.MIN_FPS`` … ``params.MAX_FPS``
+        (``field="fps"``), unknown foot joint.
     EstimationError
         Fewer than 3 frames.
 
@@ -967,8 +1035,8 @@ def estimate_translation(
     quality.update(path.extra)
     timings["estimate_s"] = _time.perf_counter() - started
     report(1.0, "done")
-    return TranslationResult(root=path.corrected[:, root].copy(),
-                             translation=path.translation, positions=path.corrected,
+    return TranslationResult(root=path.corrected[:, root].copy(), translation=path.translation,
+                             positions=path.corrected[:, :len(recording.joints)],  # no toe est.
                              contacts=path.contacts, floor=path.floor, quality=quality,
                              method=method, fps=recording.fps, timings=timings)
 
@@ -1038,6 +1106,8 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
     lf, rf = names
+    if opt.use_toes and opt.extrapolate_toes:
+        recording = _with_estimated_toes(recording, names, root)
     feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
@@ -1057,3 +1127,29 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     extra["toes"] = {name: recording.joints[f.toe] for name, f in zip(names, feet, strict=True)
                      if f.toe is not None}
     return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)
+
+
+def _with_estimated_toes(recording: KinematicsRecording, names: tuple[str, str], root: int
+                         ) -> KinematicsRecording:
+    """``recording`` with a ball-of-the-foot joint ``<foot>_toe_estimated`` appended for
+    each foot without a toe joint (``stance.extrapolated_toe``, heading from the hip line);
+    unchanged when both feet have toes or the legs cannot be found."""
+    missing = [foot for foot in names if foot not in recording.toes]
+    if not missing:
+        return recording
+    p = recording.positions
+    ankles = [recording.index(foot) for foot in names]
+    leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
+    legs = [leg_joints(p, ankle, leg) for ankle in ankles]
+    if legs[0] is None or legs[1] is None or leg <= 0:
+        return recording
+    heading = body_heading(p[:, legs[0][1]], p[:, legs[1][1]])
+    toes = dict(recording.toes)
+    extra = []
+    for k, foot in enumerate(names):
+        if foot in missing:
+            extra.append(extrapolated_toe(p[:, ankles[k]], p[:, ankles[1 - k]], heading, leg))
+            toes[foot] = f"{foot}_toe_estimated"
+    joints = recording.joints + tuple(toes[foot] for foot in missing)
+    return replace(recording, joints=joints, toes=toes,
+                   positions=np.concatenate([p, np.stack(extra, axis=1)], axis=1))

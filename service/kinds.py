@@ -177,6 +177,9 @@ class ContactOptionsIn(BaseModel):
     floor_tolerance: float = _ranged(0.05, "floor_tolerance", "Same floor level within, m.")
     floor_ramp_s: float = _ranged(0.25, "floor_ramp_s", "Ease onto a floor level, s.")
     use_toes: StrictBool = True
+    extrapolate_toes: StrictBool = False
+    lever_arm_prior_m: float = _ranged(0.0, "lever_arm_prior_m",
+                                       "Prior scale of the foot sensor's offset, m (0: off).")
     use_file_contacts: StrictBool = True
     clip_g: float | None = _ranged(None, "clip_g", "Accelerometer range, g (null: detect).")
 

@@ -8,7 +8,8 @@ a suit, and keep the true hips path for scoring.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
@@ -44,11 +45,15 @@ class InertialTruth:
         True world joint positions, metres.
     root_joint : str
         Name of the root joint.
+    sensor_offsets : mapping of str to ndarray, shape (3,)
+        Foot → offset of its accelerometer from the foot joint in the foot joint's frame,
+        metres (zero at the ankle).
     """
 
     root: NDArray[np.float64]
     positions: NDArray[np.float64]
     root_joint: str
+    sensor_offsets: Mapping[str, NDArray[np.float64]] = field(default_factory=dict)
 
     def horizontal_errors(self, estimated_root: NDArray[np.float64]
                           ) -> dict[str, float]:
@@ -74,6 +79,46 @@ def foot_names(motion: BvhMotion) -> tuple[str, str]:
                      f"(joints: {', '.join(motion.names)})", field="left_foot")
 
 
+@dataclass(frozen=True)
+class FootMount:
+    """Where a suit straps the foot accelerometer, drawn per recording and foot.
+
+    The offset is in an anatomical frame of the foot fixed to its bone: ``forward`` along the
+    ankle → toe bone, ``up`` perpendicular to it (towards the sky when the foot stands),
+    ``lateral`` the third axis. Each is drawn uniformly from its (low, high) range, metres.
+
+    Attributes
+    ----------
+    forward_m, up_m, lateral_m : tuple of float
+        Ranges of the sensor's offset from the ankle joint, metres.
+    keep_toes : bool
+        Give the estimator the toe joints (and everything below the feet); False drops them,
+        as in files without toe joints.
+    bias_g : float
+        Standard deviation of a constant per-axis accelerometer bias, g.
+    """
+
+    forward_m: tuple[float, float] = (0.0, 0.0)
+    up_m: tuple[float, float] = (0.0, 0.0)
+    lateral_m: tuple[float, float] = (0.0, 0.0)
+    keep_toes: bool = True
+    bias_g: float = 0.0
+
+    def draw(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        """Offset (3,) forward, up, lateral, metres."""
+        return np.array([rng.uniform(*self.forward_m), rng.uniform(*self.up_m),
+                         rng.uniform(*self.lateral_m)])
+
+
+ANKLE_MOUNT: Final[FootMount] = FootMount()
+"""The sensor exactly at the ankle joint (the protocol before issue 20)."""
+
+INSTEP_MOUNT: Final[FootMount] = FootMount(forward_m=(0.03, 0.08), up_m=(0.02, 0.06),
+                                           lateral_m=(-0.015, 0.015), bias_g=0.01)
+"""The sensor on the instep as suits strap it: 3–8 cm ahead of the ankle, 2–6 cm above the
+foot bone, ±1.5 cm sideways, a random mounting rotation, a bias of 0.01 g per axis."""
+
+
 def simulate_inertial(  # noqa: PLR0913
     motion: BvhMotion,
     *,
@@ -85,6 +130,7 @@ def simulate_inertial(  # noqa: PLR0913
     noise_g: float = 0.01,
     clip_g: float | None = None,
     seed: int = 0,
+    mount: FootMount = ANKLE_MOUNT,
 ) -> tuple[KinematicsRecording, InertialTruth]:
     """Turn a BVH clip into an inertial-suit recording with a known root path.
 
@@ -105,6 +151,8 @@ def simulate_inertial(  # noqa: PLR0913
     clip_g : float, optional
         Accelerometer range: components saturate at ±clip_g (2 for the Shadow suit).
     seed : int
+    mount : FootMount
+        :data:`ANKLE_MOUNT` (default, at the joint) or :data:`INSTEP_MOUNT` (suits' placement).
 
     Returns
     -------
@@ -115,12 +163,13 @@ def simulate_inertial(  # noqa: PLR0913
 
     Notes
     -----
-    Accelerations are second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the true
-    foot positions at the clip's rate, then resampled, like a band-limited accelerometer.
+    Second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the sensor point's path
+    (ankle + R_foot r: lever-arm terms α×r + ω×(ω×r) exact), band-limited, then resampled.
     """
     if left_foot is None or right_foot is None:
         left_foot, right_foot = foot_names(motion)
-    for foot in (left_foot, right_foot):
+    feet = (left_foot, right_foot)
+    for foot in feet:
         motion.index(foot)
     rate = float(source_fps) if source_fps is not None else motion.fps
     target = float(fps) if fps is not None else rate
@@ -129,46 +178,96 @@ def simulate_inertial(  # noqa: PLR0913
     world = world * length_units_m
     root = varying_root(motion)
     t_src = np.arange(motion.n_frames) / rate
-    sensor = _mounted_accelerometers(motion, world, rotations, (left_foot, right_foot), rate,
-                                     rng)
+    offsets = _sensor_offsets(motion, world, rotations, feet, mount=mount, seed=seed)
+    sensor = _mounted_accelerometers(motion, world, rotations, offsets, rate=rate, rng=rng)
     t_new = np.arange(0.0, t_src[-1] + 0.5 / target, 1.0 / target)
-    t_new = t_new[t_new <= t_src[-1] + 1e-9]
+    t_new, keep = t_new[t_new <= t_src[-1] + 1e-9], _kept_joints(motion, feet, mount.keep_toes)
     stripped = world - (world[:, root] - world[0, root])[:, None, :]
-    positions = CubicSpline(t_src, stripped, axis=0)(t_new)
+    positions = CubicSpline(t_src, stripped[:, keep], axis=0)(t_new)
     true_pos = CubicSpline(t_src, world, axis=0)(t_new)
+    bias_rng = np.random.default_rng([seed, 2])
     out_acc = {foot: _accelerometer_readings(CubicSpline(t_src, acc, axis=0)(t_new), noise_g,
                                              clip_g, rng)
+               + bias_rng.normal(0.0, mount.bias_g * GRAVITY, 3)
                for foot, acc in sensor.items()}
-    toes = {}
-    for foot in (left_foot, right_foot):
-        child = longest_child(motion, motion.names.index(foot))
-        if child is not None:
-            toes[foot] = motion.names[child]
     recording = KinematicsRecording(
-        joints=motion.names, positions=positions, fps=target, time=t_new,
-        accelerations=out_acc, acceleration_frame="sensor", left_foot=left_foot,
-        right_foot=right_foot, toes=toes, source_format="simulated",
-        length_scale=length_units_m, root=motion.names[root],
+        joints=tuple(motion.names[j] for j in keep), positions=positions, fps=target,
+        time=t_new, accelerations=out_acc, acceleration_frame="sensor", left_foot=left_foot,
+        right_foot=right_foot, toes=_toes(motion, feet) if mount.keep_toes else {},
+        source_format="simulated", length_scale=length_units_m, root=motion.names[root],
         notes=(f"simulated from a {rate:g} fps clip at {target:g} fps",))
     truth = InertialTruth(root=true_pos[:, root].copy(), positions=true_pos,
-                          root_joint=motion.names[root])
+                          root_joint=motion.names[root], sensor_offsets=offsets)
     return recording, truth
 
 
-def _mounted_accelerometers(motion: BvhMotion, world: NDArray[np.float64],  # noqa: PLR0917
-                            rotations: list[Rotation], feet: tuple[str, str], rate: float,
-                            rng: np.random.Generator) -> dict[str, NDArray[np.float64]]:
+def _toes(motion: BvhMotion, feet: tuple[str, str]) -> dict[str, str]:
+    """Foot → its longest child (toe joint or end site), for the feet that have one."""
+    toes = {}
+    for foot in feet:
+        child = longest_child(motion, motion.names.index(foot))
+        if child is not None:
+            toes[foot] = motion.names[child]
+    return toes
+
+
+def _kept_joints(motion: BvhMotion, feet: tuple[str, str], keep_toes: bool) -> list[int]:
+    """Indices of the joints given to the estimator: all, or all but those below the feet."""
+    if keep_toes:
+        return list(range(len(motion.names)))
+    below = {motion.names.index(f) for f in feet}
+    dropped: set[int] = set()
+    for j, parent in enumerate(motion.parents):  # parents come before their children
+        if parent in below or parent in dropped:
+            dropped.add(j)
+    return [j for j in range(len(motion.names)) if j not in dropped]
+
+
+def _sensor_offsets(motion: BvhMotion, world: NDArray[np.float64], rotations: list[Rotation],
+                    feet: tuple[str, str], *, mount: FootMount, seed: int
+                    ) -> dict[str, NDArray[np.float64]]:
+    """Offset (3,) of each foot's sensor from its ankle in the foot joint's own frame,
+    metres: ``mount``'s forward/up/lateral draw on the foot's axes averaged over the take
+    in the foot frame (up: world up; forward: the horizontal ankle → toe direction, made
+    perpendicular to up), i.e. the axes of the foot as it stands."""
+    rng = np.random.default_rng([seed, 1])
+    out = {}
+    for foot in feet:
+        j = motion.names.index(foot)
+        drawn = mount.draw(rng)
+        child = longest_child(motion, j)
+        if not drawn.any() or child is None:
+            out[foot] = np.zeros(3)
+            continue
+        ahead = world[:, child] - world[:, j]
+        ahead[:, 1] = 0.0
+        ahead /= np.maximum(np.linalg.norm(ahead, axis=1, keepdims=True), 1e-12)
+        up = rotations[j].inv().apply(np.array([0.0, 1.0, 0.0])).mean(axis=0)
+        up /= np.linalg.norm(up)
+        forward = rotations[j].inv().apply(ahead).mean(axis=0)
+        forward -= up * (up @ forward)
+        forward /= np.linalg.norm(forward)
+        out[foot] = drawn @ np.stack([forward, up, np.cross(forward, up)])
+    return out
+
+
+def _mounted_accelerometers(motion: BvhMotion, world: NDArray[np.float64],
+                            rotations: list[Rotation], offsets: dict[str, NDArray[np.float64]],
+                            *, rate: float, rng: np.random.Generator
+                            ) -> dict[str, NDArray[np.float64]]:
     """Noise-free accelerometer readings (F, 3) of each foot at the clip's rate, m/s²:
-    second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the world positions
-    ``world`` (F, J, 3), plus gravity, in the foot frame times a random mounting rotation."""
+    second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the path of the sensor point
+    (foot joint of ``world`` (F, J, 3, metres) plus the foot's rotation times its offset in
+    ``offsets``, metres), plus gravity, in the foot frame times a random mounting rotation."""
     window = max(5, round(0.1 * rate) | 1)
     if window >= motion.n_frames:
         raise InputError("clip too short to simulate accelerations", field="frames")
     accelerations = {}
     up = np.array([0.0, GRAVITY, 0.0])
-    for foot in feet:
+    for foot, offset in offsets.items():
         j = motion.names.index(foot)
-        acc = savgol_filter(world[:, j], window, 3, deriv=2, delta=1.0 / rate, axis=0)
+        point = world[:, j] + rotations[j].apply(offset)
+        acc = savgol_filter(point, window, 3, deriv=2, delta=1.0 / rate, axis=0)
         mount = Rotation.random(random_state=int(rng.integers(2**31)))
         accelerations[foot] = (rotations[j] * mount).inv().apply(acc + up)
     return accelerations

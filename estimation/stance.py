@@ -1,0 +1,203 @@
+"""Foot geometry of the contact model: a toe point where the file has none, the foot's axes
+and the lever arm of a foot accelerometer strapped away from the ankle.
+
+Suits strap the foot sensor on the instep, a few centimetres ahead of and above the ankle, so
+it reads the ankle's acceleration plus the foot's rotational terms α×r + ω×(ω×r) (r the
+sensor's offset, ω and α the foot's angular velocity and acceleration). The foot's axes come
+from its ankle and toe points, so the sensor's path is ``ankle + axesᵀ r`` and its
+acceleration the second derivative of that path: linear in r, which is fitted to the
+measured magnitudes where the foot is planted (the mounting rotation is unknown, the
+magnitude does not depend on it).
+
+References: the rigid-body acceleration of a point, a = a_o + α×r + ω×(ω×r) (e.g. Goldstein,
+Classical Mechanics, ch. 4.10); the rolling stance point follows the foot's rocker, heel then
+forefoot (Perry & Burnfield, Gait Analysis, 2nd ed., ch. 3).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+UP: Final[NDArray[np.float64]] = np.array([0.0, 1.0, 0.0])
+"""World up (+Y)."""
+
+TOE_AHEAD: Final[float] = 0.13
+"""Ankle → ball of the foot, horizontally, as a fraction of the leg (hips → ankle) length:
+0.12 m for a 0.9 m leg, as the toe joints of the CMU and Bandai Namco rigs."""
+
+TOE_BELOW: Final[float] = 0.055
+"""Ankle height above the ball of the flat foot, as a fraction of the leg length."""
+
+
+def foot_axes(ankle: NDArray[np.float64], toe: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Axes of the foot per frame: forward (ankle → toe), up, lateral.
+
+    Parameters
+    ----------
+    ankle, toe : ndarray, shape (F, 3)
+        World positions, +Y up.
+
+    Returns
+    -------
+    ndarray, shape (F, 3, 3)
+        Rows forward, up (perpendicular to forward, towards +Y), lateral (forward × up):
+        an orthonormal frame that turns with the foot's pitch and heading (its roll about the
+        forward axis is not seen by two points and taken as zero).
+    """
+    forward = _unit(toe - ankle)
+    lateral = _unit(np.cross(forward, UP))
+    up = np.cross(lateral, forward)
+    return np.stack([forward, up, lateral], axis=1)
+
+
+def sensor_track(ankle: NDArray[np.float64], axes: NDArray[np.float64],
+                 offset: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Path (F, 3) of a point fixed to the foot at ``offset`` (3,) in :func:`foot_axes`
+    ``axes`` (F, 3, 3) from ``ankle`` (F, 3), metres."""
+    out: NDArray[np.float64] = ankle + np.einsum("fij,i->fj", axes, offset)
+    return out
+
+
+def estimate_sensor_offset(base: NDArray[np.float64], axes_acc: NDArray[np.float64],
+                           measured: NDArray[np.float64], use: NDArray[np.bool_], *,
+                           sigma: float = 1.5, prior_m: float = 0.1,
+                           iterations: int = 8) -> NDArray[np.float64]:
+    """Offset of a foot accelerometer from the ankle, from its readings while planted.
+
+    Parameters
+    ----------
+    base : ndarray, shape (F, 3)
+        Predicted specific force of the ankle, world frame, m/s²: its acceleration in an
+        inertial frame plus gravity (+9.81 along +Y), e.g. the kinematic ankle acceleration
+        minus the planted point's while the foot is planted.
+    axes_acc : ndarray, shape (F, 3, 3)
+        Second time derivative of :func:`foot_axes` (rows), 1/s².
+    measured : ndarray, shape (F, 3)
+        Accelerometer readings, sensor frame, m/s² (only their magnitude is used: the
+        mounting rotation is unknown).
+    use : ndarray of bool, shape (F,)
+        Frames to fit (planted, not saturated).
+    sigma : float
+        Scale of the residuals, m/s² (residuals beyond 3σ are down-weighted).
+    prior_m : float
+        Scale of the ridge prior pulling the offset towards the ankle, metres.
+    iterations : int
+        Gauss–Newton steps.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Offset along forward, up, lateral of :func:`foot_axes`, metres; zero when fewer than
+        10 frames are usable.
+
+    Notes
+    -----
+    Minimises Σ w (|a_meas| − |base + Σ_i r_i ä_i|)² + (σ/prior)² |r|², ä_i the second
+    derivatives of the foot's axes (the path of the point ankle + Σ r_i e_i differentiated
+    twice carries α×r + ω×(ω×r)); Gauss–Newton with Cauchy weights w (Nocedal & Wright,
+    Numerical Optimization, ch. 10).
+    """
+    if int(use.sum()) < 10:
+        return np.zeros(3)
+    size = np.linalg.norm(measured[use], axis=1)
+    b, q = base[use], axes_acc[use]
+    offset = np.zeros(3)
+    ridge = (sigma / prior_m) ** 2 * np.eye(3)
+    for _ in range(iterations):
+        v = b + np.einsum("fij,i->fj", q, offset)
+        norm = np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+        jac = np.einsum("fj,fij->fi", v / norm[:, None], q)
+        r = size - norm
+        w = 1.0 / (1.0 + (r / (3.0 * sigma)) ** 2)
+        step = np.linalg.solve((jac * w[:, None]).T @ jac + ridge,
+                               (jac * w[:, None]).T @ r - ridge @ offset)
+        offset = offset + step
+        if float(np.linalg.norm(step)) < 1e-5:
+            break
+    return offset
+
+
+def extrapolated_toe(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64],
+                     forward: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]:
+    """Ball of the foot (F, 3) for a file without toe joints.
+
+    Parameters
+    ----------
+    ankle, other_ankle : ndarray, shape (F, 3)
+        This foot's and the other foot's ankle, metres, +Y up.
+    forward : ndarray, shape (F, 3)
+        Horizontal unit direction the foot points (the body's heading).
+    leg_m : float
+        Leg length (hips → ankle), metres: the foot's size scales with it
+        (:data:`TOE_AHEAD`, :data:`TOE_BELOW`).
+
+    Returns
+    -------
+    ndarray, shape (F, 3)
+
+    Notes
+    -----
+    The foot rolls about its ball at heel-off: an ankle raised h above the other ankle is
+    taken as a heel lifted by θ about the ball, L ahead of and d below the flat foot's ankle
+    (L sin θ + d cos θ = d + h), so the ball is ankle + forward (L cos θ − d sin θ) − up
+    (L sin θ + d cos θ) (the forefoot rocker, Perry & Burnfield ch. 3). A flat foot gives
+    the ball L ahead, d below.
+    """
+    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
+    rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
+    theta = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt  # L sin θ + d cos θ = d + h
+    ahead = length * np.cos(theta) - drop * np.sin(theta)
+    below = length * np.sin(theta) + drop * np.cos(theta)
+    out: NDArray[np.float64] = ankle + forward * ahead[:, None] - UP * below[:, None]
+    return out
+
+
+def body_heading(left_hip: NDArray[np.float64], right_hip: NDArray[np.float64]
+                 ) -> NDArray[np.float64]:
+    """Horizontal unit direction (F, 3) the body faces: perpendicular to the hip line
+    (left hip − right hip) × up, +Y up, metres in."""
+    lateral = left_hip - right_hip
+    lateral[:, 1] = 0.0
+    return _unit(np.cross(lateral, UP))
+
+
+def leg_joints(positions: NDArray[np.float64], ankle: int, leg_m: float
+               ) -> tuple[int, int] | None:
+    """(knee, hip) of the leg ending at ``ankle``, found by rigidity: the knee is the joint
+    0.25–0.75 leg lengths from the ankle whose distance to it varies least, the hip the
+    joint at such a distance from the knee that varies least while its distance to the
+    ankle varies (not on the shank). None when none qualifies.
+
+    ``positions`` (F, J, 3) in metres; ``leg_m`` the leg length.
+    """
+    knee = _most_rigid(positions, ankle, leg_m, exclude=np.zeros(positions.shape[1], bool))
+    if knee is None:
+        return None
+    to_ankle = np.linalg.norm(positions - positions[:, ankle:ankle + 1], axis=2)
+    on_shank = to_ankle.std(axis=0) < 0.05 * np.maximum(to_ankle.mean(axis=0), 1e-9)
+    hip = _most_rigid(positions, knee, leg_m, exclude=on_shank)
+    return None if hip is None else (knee, hip)
+
+
+def _most_rigid(positions: NDArray[np.float64], joint: int, leg_m: float,
+                exclude: NDArray[np.bool_]) -> int | None:
+    d = np.linalg.norm(positions - positions[:, joint:joint + 1], axis=2)
+    mean, spread = d.mean(axis=0), d.std(axis=0)
+    ok = (mean > 0.25 * leg_m) & (mean < 0.75 * leg_m) & ~exclude
+    ok[joint] = False
+    if not ok.any():
+        return None
+    score = np.where(ok, spread / np.maximum(mean, 1e-9), np.inf)
+    best = int(np.argmin(score))
+    return best if score[best] < 0.05 else None
+
+
+def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    out: NDArray[np.float64] = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True),
+                                              1e-12)
+    return out

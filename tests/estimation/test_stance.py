@@ -1,0 +1,97 @@
+"""Foot geometry of the contact model: axes, lever arm of the foot sensor, rolling toe."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bonefit.estimation.kinematics import GRAVITY
+from bonefit.estimation.stance import (
+    UP,
+    body_heading,
+    estimate_sensor_offset,
+    extrapolated_toe,
+    foot_axes,
+    sensor_track,
+)
+
+FPS = 200.0
+
+
+def rolling_foot(n: int = 800) -> tuple[np.ndarray, np.ndarray]:
+    """Ankle and toe (F, 3) of a foot that pitches (heel-off and back, up to 35°) and turns
+    about the vertical, the ankle also translating: a rigid foot 14 cm long."""
+    t = np.arange(n) / FPS
+    pitch = np.radians(35) * np.sin(2.1 * t) ** 2
+    yaw = 0.8 * np.sin(0.9 * t)
+    rot = Rotation.from_euler("YX", np.column_stack([yaw, -pitch]))
+    ankle = np.column_stack([0.3 * np.sin(1.3 * t), 0.08 + 0.02 * np.sin(3.0 * t), 0.2 * t])
+    toe = ankle + rot.apply(np.array([0.0, -0.06, 0.13]))
+    return ankle, toe
+
+
+def second_derivative(x: np.ndarray) -> np.ndarray:
+    return np.gradient(np.gradient(x, 1.0 / FPS, axis=0), 1.0 / FPS, axis=0)
+
+
+def test_foot_axes_are_orthonormal_and_point_along_the_foot() -> None:
+    ankle, toe = rolling_foot()
+    axes = foot_axes(ankle, toe)
+    gram = np.einsum("fij,fkj->fik", axes, axes)
+    np.testing.assert_allclose(gram, np.broadcast_to(np.eye(3), gram.shape), atol=1e-12)
+    forward = (toe - ankle) / np.linalg.norm(toe - ankle, axis=1, keepdims=True)
+    np.testing.assert_allclose(axes[:, 0], forward, atol=1e-12)
+    assert (axes[:, 1] @ UP > 0).all()
+
+
+@pytest.mark.parametrize("offset", [(0.05, 0.04, 0.01), (0.02, 0.06, -0.015), (0.0, 0.0, 0.0)])
+def test_lever_arm_estimate_recovers_a_known_offset(offset: tuple[float, float, float]) -> None:
+    ankle, toe = rolling_foot()
+    axes = foot_axes(ankle, toe)
+    truth = np.array(offset)
+    sensor = sensor_track(ankle, axes, truth)
+    up = np.array([0.0, GRAVITY, 0.0])
+    # what a strapped accelerometer reads: specific force in a rotated sensor frame + noise
+    mount = Rotation.from_rotvec([0.4, -1.1, 2.0])
+    rng = np.random.default_rng(3)
+    measured = mount.apply(second_derivative(sensor) + up)
+    measured += rng.normal(0.0, 0.01 * GRAVITY, measured.shape)
+    base = second_derivative(ankle) + up
+    use = np.ones(ankle.shape[0], dtype=bool)
+    use[:5] = use[-5:] = False  # np.gradient's one-sided ends
+    found = estimate_sensor_offset(base, second_derivative(axes), measured, use)
+    # forward and up are seen through the pitch (up only through ω², so the ridge prior
+    # shortens it by a few mm); a lateral offset lies on the pitch axis and barely changes
+    # the magnitude under yaw, so the prior keeps it small and never invents it
+    np.testing.assert_allclose(found[:2], truth[:2], atol=0.008)
+    assert abs(found[2]) <= abs(truth[2]) + 0.001
+
+
+def test_lever_arm_estimate_needs_frames() -> None:
+    ankle, toe = rolling_foot(50)
+    axes = foot_axes(ankle, toe)
+    use = np.zeros(50, dtype=bool)
+    use[:5] = True
+    found = estimate_sensor_offset(ankle, second_derivative(axes), ankle, use)
+    np.testing.assert_array_equal(found, np.zeros(3))
+
+
+def test_extrapolated_toe_is_still_while_the_heel_rolls_about_it() -> None:
+    leg = 0.9
+    length, drop = 0.13 * leg, 0.055 * leg
+    theta = np.radians(np.linspace(0.0, 40.0, 50))
+    ball = np.array([0.4, 0.0, 1.0])
+    forward = np.tile([0.6, 0.0, 0.8], (50, 1))
+    # heel lifted by θ about the ball: the ankle rises on a circle around it
+    ankle = (ball - forward * (length * np.cos(theta) - drop * np.sin(theta))[:, None]
+             + UP * (length * np.sin(theta) + drop * np.cos(theta))[:, None])
+    other = np.tile([0.0, drop, 0.5], (50, 1))  # the other foot flat on the same floor
+    found = extrapolated_toe(ankle, other, forward, leg)
+    np.testing.assert_allclose(found, np.broadcast_to(ball, found.shape), atol=1e-12)
+
+
+def test_body_heading_is_horizontal_and_faces_forward() -> None:
+    left = np.array([[0.1, 0.9, 0.0], [0.0, 0.95, -0.1]])
+    right = np.array([[-0.1, 0.9, 0.0], [0.0, 0.9, 0.1]])
+    np.testing.assert_allclose(body_heading(left, right), [[0, 0, 1], [1, 0, 0]], atol=1e-12)
