@@ -9,6 +9,7 @@ Position channels replace a joint's OFFSET; rotation channels compose in the ord
 from __future__ import annotations
 
 import io
+import itertools
 import os
 import warnings
 from collections.abc import Iterator
@@ -20,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
+from .numtext import fixed_blocks, write_text_blocks
 
 if TYPE_CHECKING:  # scipy is imported where it is used: the readers serve processes without it
     from scipy.spatial.transform import Rotation
@@ -470,12 +472,8 @@ def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,
     out.write("HIERARCHY\n")
     node(motion.parents.index(-1), 0)
     out.write(f"MOTION\nFrames: {motion.n_frames}\nFrame Time: {motion.frame_time:.8f}\n")
-    np.savetxt(out, motion.values, fmt=f"%.{precision}f", delimiter=" ")
-    text = out.getvalue()
-    if isinstance(target, io.TextIOBase):
-        target.write(text)
-    else:
-        Path(target).write_text(text, encoding="utf-8")
+    rows = fixed_blocks(motion.values.reshape(motion.n_frames, -1), precision, sep=" ")
+    write_text_blocks(itertools.chain([out.getvalue()], rows), target)
 
 
 # --------------------------------------------------------------------------- writer helpers
