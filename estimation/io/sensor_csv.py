@@ -296,8 +296,12 @@ def _parse_block(text: str, first: int, header: list[str]
 
 def _empty_cells_as_nan(text: str) -> str:
     """``text`` with every empty cell (a dropped sample) written ``nan``."""
-    text = text.replace(",,", ",nan,").replace(",,", ",nan,")  # ",,," needs two passes
-    text = text.replace(",\n", ",nan\n").replace("\n,", "\nnan,")
+    while ",," in text:  # twice for a run of empty cells (",,," → ",nan,," → ",nan,nan,")
+        text = text.replace(",,", ",nan,")
+    if ",\n" in text:
+        text = text.replace(",\n", ",nan\n")
+    if "\n," in text:
+        text = text.replace("\n,", "\nnan,")
     return "nan" + text if text.startswith(",") else text
 
 

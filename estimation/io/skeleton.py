@@ -27,6 +27,7 @@ from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
 from ..numtext import JsonArray, fixed_blocks, json_blocks, plain, write_text_blocks
 from ..results import JointOffset, JointQuality, SkeletonResult, timings_document
+from .result_npz import read_document_npz, write_document_npz
 from .sensor_common import unit_scale
 
 PathLike = str | os.PathLike[str]
@@ -176,15 +177,15 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
 
 def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None = None,
                          bvh_path: PathLike | None = None, csv_path: PathLike | None = None,
-                         decimals: int = 6) -> SkeletonResult:
-    """Write the BVH, the CSV, then the JSON whose ``timings.write_s`` covers all three.
+                         npz_path: PathLike | None = None, decimals: int = 6) -> SkeletonResult:
+    """Write the BVH, the CSV, the NPZ, then the JSON whose ``timings.write_s`` covers all.
 
     Parameters
     ----------
     result : SkeletonResult
         With ``read_s`` and ``estimate_s`` in its timings when the caller measured them.
-    json_path, bvh_path, csv_path : path, optional
-        Files to write; None: skip.
+    json_path, bvh_path, csv_path, npz_path : path, optional
+        Files to write; None: skip. The NPZ's ``timings`` stop before it.
     decimals : int
         Decimal places of JSON positions in metres.
 
@@ -199,6 +200,9 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
         write_skeleton_bvh(result, bvh_path)
     if csv_path is not None:
         write_skeleton_csv(result, csv_path)
+    if npz_path is not None:
+        timed = {**result.timings, "write_s": time.perf_counter() - started}
+        write_skeleton_npz(replace(result, timings=timed), npz_path)
     if json_path is not None:
         document = skeleton_document(result, decimals=decimals)
         document["timings"]["write_s"] = time.perf_counter() - started
@@ -347,6 +351,39 @@ def read_skeleton_offsets(path: PathLike) -> dict[str, JointOffset]:
         raise InputError(f"offsets must be in metres (units 'm'), got {data['units']!r}",
                          field="units")
     return offsets_from_dict(data["offsets"])
+
+
+# --------------------------------------------------------------------------- NPZ
+
+
+def write_skeleton_npz(result: SkeletonResult, path: PathLike) -> None:
+    """Write ``result`` as an NPZ archive: the JSON document's names, arrays at full
+    precision (see :mod:`estimation.io.result_npz`; ``docs/skeleton-io.md``).
+
+    Parameters
+    ----------
+    result : SkeletonResult
+    path : path
+        Written as given (no ``.npz`` appended).
+
+    Raises
+    ------
+    InputError
+        If a joint trajectory or orientation holds NaN (as the JSON).
+    """
+    write_document_npz(skeleton_document(result), path)
+
+
+def read_skeleton_npz(path: PathLike) -> SkeletonResult:
+    """Read a skeleton NPZ archive written by :func:`write_skeleton_npz`.
+
+    Raises
+    ------
+    InputError
+        Not an NPZ result, or a document that is not a skeleton (as
+        :func:`skeleton_from_dict`).
+    """
+    return skeleton_from_dict(read_document_npz(path))
 
 
 # --------------------------------------------------------------------------- CSV
