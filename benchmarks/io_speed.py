@@ -12,12 +12,14 @@ times, each in a fresh process so that its peak RSS is its own:
   estimate of the first 6,000 frames, its arrays repeated to the take's length: the writers'
   cost depends on the sizes only).
 
-Each figure is the median of ``--runs`` runs; ``peak_mb`` is the child's peak RSS minus its RSS
-once its input was loaded (so the reader's figure includes its output arrays). Run it with
-``PYTHONPATH=<another checkout>`` to measure that code in the same session (the NPZ writer is
-skipped where it does not exist)::
+Each figure is the median of ``--runs`` runs, the runs of all ops interleaved (a shared
+machine's load moves them alike); ``peak MB`` is the child's peak RSS minus its RSS once its
+input was loaded (so the reader's figure includes its output arrays). ``--compare DIR`` also
+runs every op on the code under ``DIR`` (e.g. ``git archive main estimation | tar -x -C DIR``),
+interleaved, as ``<op> (before)`` (an op that code lacks, like ``npz``, is left out)::
 
-    .venv/bin/python benchmarks/io_speed.py --frames 6000 36000 144000 --runs 3
+    .venv/bin/python benchmarks/io_speed.py --frames 6000 36000 144000 --runs 3 \\
+        --compare /tmp/main-code
 """
 
 from __future__ import annotations
@@ -160,17 +162,35 @@ def nan_copy(path: Path) -> Path:
     return copy
 
 
-def measure(op: str, path: Path, out: Path, runs: int) -> dict[str, float]:
-    """Median seconds, largest peak RSS of ``runs`` child processes."""
-    found: list[dict[str, float]] = []
-    for _ in range(runs):
-        proc = subprocess.run([sys.executable, __file__, "--one", op, str(path), str(out)],
-                              check=True, capture_output=True, text=True)
-        found.append(json.loads(proc.stdout))
-    if not found[0]:
-        return {}
-    return {"s": statistics.median(f["s"] for f in found),
-            "peak_mb": max(f["peak_mb"] for f in found), "size_mb": found[-1]["size_mb"]}
+def child(op: str, path: Path, out: Path, base: Path | None) -> dict[str, float]:
+    """One run of ``op`` in a fresh process (the code under ``base`` when given)."""
+    env = dict(os.environ)
+    if base is not None:
+        env["PYTHONPATH"] = str(base)
+    proc = subprocess.run([sys.executable, __file__, "--one", op, str(path), str(out)],
+                          check=True, capture_output=True, text=True, env=env)
+    found: dict[str, float] = json.loads(proc.stdout)
+    return found
+
+
+def tasks(args: argparse.Namespace, frames: int, sensors: int
+          ) -> list[tuple[str, str, Path, Path, Path | None]]:
+    """(label, op, input, output, code) of one take: each op on this code, and on the
+    ``--compare`` code when given."""
+    take = take_path(args.scratch, frames, sensors)
+    out: list[tuple[str, str, Path, Path, Path | None]] = []
+    for op in args.ops:
+        if op in ("loadtxt", "read"):
+            source, target = take, take
+        elif sensors == args.sensors[0]:  # the writers depend on frames only
+            source = (motion_path if op == "bvh_text" else result_path)(args.scratch, frames)
+            target = args.scratch / f"out-{frames}.{op.replace('_text', '')}"
+        else:
+            continue
+        if args.compare is not None and op != "loadtxt":
+            out.append((f"{op} (before)", op, source, target, args.compare))
+        out.append((op, op, source, target, None))
+    return out
 
 
 def main() -> None:
@@ -179,6 +199,9 @@ def main() -> None:
     parser.add_argument("--sensors", type=int, nargs="+", default=[15, 11])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--scratch", type=Path, default=Path("/tmp/bonefit-io"))
+    parser.add_argument("--compare", type=Path, default=None, metavar="DIR",
+                        help="also run each op on the code under DIR (PYTHONPATH), "
+                             "interleaved with this code's runs")
     parser.add_argument("--ops", nargs="+", default=["loadtxt", "read", "json", "bvh_text",
                                                      "csv", "npz", "bvh"])
     parser.add_argument("--one", nargs=3, metavar=("OP", "PATH", "OUT"), help=argparse.SUPPRESS)
@@ -189,29 +212,35 @@ def main() -> None:
         return
     args.scratch.mkdir(parents=True, exist_ok=True)
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} load {os.getloadavg()[0]:.1f} on "
-          f"{os.cpu_count()} cores; numpy {np.__version__}; median of {args.runs}")
+          f"{os.cpu_count()} cores; numpy {np.__version__}; median of {args.runs}, "
+          "the ops' runs interleaved")
     print("| frames | sensors | op | s | x loadtxt | peak MB | size MB |")
     print("|---:|---:|---|---:|---:|---:|---:|")
     for frames in args.frames:
         for sensors in args.sensors:
-            take = take_path(args.scratch, frames, sensors)
-            rows: dict[str, dict[str, float]] = {}
-            for op in args.ops:
-                if op in ("loadtxt", "read"):
-                    rows[op] = measure(op, take, take, args.runs)
-                elif sensors == args.sensors[0]:  # the writers depend on frames only
-                    out = args.scratch / f"out-{frames}.{op.replace('_text', '')}"
-                    source = (motion_path if op == "bvh_text" else result_path)(args.scratch,
-                                                                                frames)
-                    rows[op] = measure(op, source, out, args.runs)
-            yard = rows.get("loadtxt", {}).get("s")
-            for op, row in rows.items():
-                if not row:
-                    continue
-                ratio = f"{row['s'] / yard:.2f}" if yard else ""
-                size = take.stat().st_size / 1e6 if op in ("loadtxt", "read") else row["size_mb"]
-                print(f"| {frames} | {sensors} | {op} | {row['s']:.2f} | {ratio} | "
-                      f"{row['peak_mb']:.0f} | {size:.1f} |", flush=True)
+            todo = tasks(args, frames, sensors)
+            runs: dict[str, list[dict[str, float]]] = {t[0]: [] for t in todo}
+            for _ in range(args.runs):
+                for label, op, source, target, base in todo:
+                    runs[label].append(child(op, source, target, base))
+            report(frames, sensors, runs, take_path(args.scratch, frames, sensors))
+            print(f"# load {os.getloadavg()[0]:.1f}", flush=True)
+
+
+def report(frames: int, sensors: int, runs: dict[str, list[dict[str, float]]],
+           take: Path) -> None:
+    """Table rows of one take: median seconds, ratio to loadtxt, largest peak, size."""
+    seconds = {k: statistics.median(r["s"] for r in v) for k, v in runs.items() if v[0]}
+    yard = seconds.get("loadtxt")
+    for label, found in runs.items():
+        if not found[0]:
+            continue
+        ratio = f"{seconds[label] / yard:.2f}" if yard else ""
+        peak = max(r["peak_mb"] for r in found)
+        size = take.stat().st_size / 1e6 if label.startswith(("loadtxt", "read")) else found[-1][
+            "size_mb"]
+        print(f"| {frames} | {sensors} | {label} | {seconds[label]:.2f} | {ratio} | {peak:.0f} | "
+              f"{size:.1f} |", flush=True)
 
 
 if __name__ == "__main__":
