@@ -277,31 +277,28 @@ def _line_blocks(handle: IO[str], first: int) -> Iterator[tuple[int, str]]:
 def _parse_block(text: str, first: int, header: list[str]
                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Cells (n, C) and line numbers (n,) of the data rows of ``text``, whose first line is
-    ``first``: by ``numpy.loadtxt`` when the block is plain numbers and empty cells, row by
-    row otherwise (naming the line and column of a fault)."""
+    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers and empty cells,
+    row by row otherwise (naming the line and column of a fault). loadtxt refuses a comment,
+    a quote or a malformed cell and skips a blank line (one row short): either sends the
+    block to the row-by-row parse."""
     n_lines = text.count("\n")
-    if "#" not in text and '"' not in text and "\n\n" not in text and text[0] != "\n":
-        filled = _empty_cells_as_nan(text)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error")
-                cells = np.loadtxt(io.StringIO(filled), delimiter=",", dtype=float, ndmin=2,
-                                   comments=None)
-        except (ValueError, UserWarning):
-            cells = None
-        if cells is not None and cells.shape == (n_lines, len(header)):
-            return cells, np.arange(first, first + n_lines, dtype=np.int64)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            cells = np.loadtxt(io.StringIO(_empty_cells_as_nan(text)), delimiter=",",
+                               dtype=float, ndmin=2, comments=None, quotechar=None)
+    except (ValueError, UserWarning):
+        cells = None
+    if cells is not None and cells.shape == (n_lines, len(header)):
+        return cells, np.arange(first, first + n_lines, dtype=np.int64)
     return _parse_rows(text, first, header)
 
 
 def _empty_cells_as_nan(text: str) -> str:
     """``text`` with every empty cell (a dropped sample) written ``nan``."""
-    while ",," in text:  # twice for a run of empty cells (",,," → ",nan,," → ",nan,nan,")
-        text = text.replace(",,", ",nan,")
-    if ",\n" in text:
-        text = text.replace(",\n", ",nan\n")
-    if "\n," in text:
-        text = text.replace("\n,", "\nnan,")
+    # a run of empty cells needs two passes: ",,," → ",nan,," → ",nan,nan,"
+    text = text.replace(",,", ",nan,").replace(",,", ",nan,")
+    text = text.replace(",\n", ",nan\n").replace("\n,", "\nnan,")
     return "nan" + text if text.startswith(",") else text
 
 
