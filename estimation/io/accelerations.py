@@ -96,6 +96,20 @@ def resolve_acceleration_units(
         f"{names}); declare acceleration_units", field="acceleration_units")
 
 
+def scaled_accelerations(raw: Mapping[str, NDArray[np.float64]],
+                         positions: Mapping[str, NDArray[np.float64]], declared: str | None,
+                         source: str, length_scale: float, fps: float
+                         ) -> tuple[dict[str, NDArray[np.float64]], str, str]:
+    """Raw foot accelerations in m/s², their frame and a note, once their units are decided
+    (:func:`resolve_acceleration_units`; second differences of positions in file length units
+    per frame² are scaled by ``length_scale * fps**2``)."""
+    unit, note = resolve_acceleration_units(raw, positions, declared, source)
+    scale, frame = ACCELERATION_UNITS[unit]
+    if unit == "second-differences":
+        scale = length_scale * fps * fps
+    return {f: a * scale for f, a in raw.items()}, frame, note
+
+
 def read_acceleration_csv(
     path: PathLike,
 ) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]], str | None]:

@@ -12,12 +12,7 @@ from numpy.typing import NDArray
 from ..bvh import BvhMotion, forward_kinematics, read_bvh
 from ..errors import InputError
 from ..kinematics import KinematicsRecording
-from .accelerations import (
-    ACCELERATION_UNITS,
-    acceleration_unit_key,
-    read_acceleration_csv,
-    resolve_acceleration_units,
-)
+from .accelerations import acceleration_unit_key, read_acceleration_csv, scaled_accelerations
 from .body import (
     find_bvh_feet,
     leg_length,
@@ -105,15 +100,13 @@ def read_bvh_kinematics(
         if sensor != foot:
             notes.append(f"accelerations of {foot} from sensor {sensor}")
         raw[foot] = _on_bvh_frames(a_raw[sensor], a_time, time, motion.fps)
-    unit, note = resolve_acceleration_units(
-        raw, {f: raw_pos[:, names.index(f)] for f in raw}, declared, Path(accelerations).name)
-    acc_scale, frame = ACCELERATION_UNITS[unit]
-    if unit == "second-differences":
-        acc_scale = scale * motion.fps ** 2
+    scaled, frame, note = scaled_accelerations(
+        raw, {f: raw_pos[:, names.index(f)] for f in raw}, declared, Path(accelerations).name,
+        scale, motion.fps)
     notes += [note, f"root translation of {names[root]} ignored"]
     return KinematicsRecording(
         joints=names, positions=raw_pos * scale, fps=motion.fps, time=time,
-        accelerations={f: a * acc_scale for f, a in raw.items()}, acceleration_frame=frame,
+        accelerations=scaled, acceleration_frame=frame,
         left_foot=feet.left, right_foot=feet.right, toes=dict(feet.toes),
         source_format="bvh", length_scale=scale, bvh=motion, root=names[root],
         source_path=str(path), notes=tuple(notes))

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..kinematics import KinematicsRecording
 from . import limits
-from .accelerations import ACCELERATION_UNITS, acceleration_unit_key, resolve_acceleration_units
+from .accelerations import acceleration_unit_key, scaled_accelerations
 from .body import Feet, find_column_feet, find_toe, parse_length_unit, resolve_length_unit
 from .tables import read_table
 
@@ -103,12 +103,9 @@ def read_kinematics_csv(
     time = table[:, col[time_key]].copy()
     fps = _kinematics_fps(time)
     raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
-    unit, note = resolve_acceleration_units(
-        raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name)
-    acc_scale, frame = ACCELERATION_UNITS[unit]
-    if unit == "second-differences":
-        acc_scale = scale * fps * fps
-    accelerations = {f: a * acc_scale for f, a in raw.items()}
+    accelerations, frame, note = scaled_accelerations(
+        raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name, scale,
+        fps)
     notes = [feet.note(), unit_note, note]
     toes, contacts = _csv_toes_and_contacts(header, table, joints, positions,
                                             (feet.left, feet.right), notes)
