@@ -38,7 +38,7 @@ _MARK: Final[str] = "\x00bonefit-array\x00"
 
 
 def fixed_blocks(table: NDArray[np.float64], decimals: int, *, sep: str = ",",
-                 row_start: str = "", row_end: str = "\n", trim: bool = False,
+                 row_start: str = "", row_end: str = "\n",
                  nan: str | None = None) -> Iterator[str]:
     """The text of the rows of ``table``, block by block.
 
@@ -52,9 +52,6 @@ def fixed_blocks(table: NDArray[np.float64], decimals: int, *, sep: str = ",",
         Between the numbers of a row.
     row_start, row_end : str
         Before and after each row.
-    trim : bool
-        Drop trailing zeros of the decimals, keeping one (``1.500`` → ``1.5``, ``2.000`` →
-        ``2.0``): the same value in fewer characters.
     nan : str, optional
         Text of a non-finite value (e.g. ``""``: an empty cell); by default ``printf``'s
         (``nan``, ``inf``).
@@ -69,7 +66,7 @@ def fixed_blocks(table: NDArray[np.float64], decimals: int, *, sep: str = ",",
         raise ValueError(f"table must be 2-D, got shape {table.shape}")
     if not 0 <= decimals <= _MAX_DECIMALS:
         raise ValueError(f"decimals must be 0 to {_MAX_DECIMALS}, got {decimals}")
-    layout = _Layout(decimals, sep, row_start, row_end, trim, nan)
+    layout = _Layout(decimals, sep, row_start, row_end, nan)
     step = max(1, BLOCK_VALUES // max(table.shape[1], 1))
     for start in range(0, table.shape[0], step):
         block = table[start:start + step]
@@ -89,18 +86,13 @@ class _Layout:
     sep: str
     row_start: str
     row_end: str
-    trim: bool
     nan: str | None
 
     def number(self, value: float) -> str:
         """One number as Python writes it (the reference the numpy path reproduces)."""
         if not np.isfinite(value) and self.nan is not None:
             return self.nan
-        text = f"{value:.{self.decimals}f}"
-        if self.trim and self.decimals and np.isfinite(value):
-            text = text.rstrip("0")
-            text = text + "0" if text.endswith(".") else text
-        return text
+        return f"{value:.{self.decimals}f}"
 
 
 def _python_block(block: NDArray[np.float64], layout: _Layout) -> str:
@@ -156,9 +148,6 @@ def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
     keep = mask[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
     if d:  # the decimals' zero padding may cover the point and int digits: written next
         _put_digits(frac, chars[..., field - len(sep) - n_frac:field - len(sep)])
-        if layout.trim:
-            keep[..., 2 + width:field - len(sep)] = _kept_decimals(
-                chars[..., 2 + width:field - len(sep)])
         chars[..., 1 + width] = ord(".")
     _put_digits(whole, chars[..., 1:1 + width])
     n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), whole, side="right")
@@ -175,20 +164,14 @@ def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
     return line[mask].tobytes().decode("utf-8")
 
 
-def _kept_decimals(digits: NDArray[np.uint8]) -> NDArray[np.bool_]:
-    """Decimal digits up to the last non-zero one (at least one)."""
-    columns = np.arange(1, digits.shape[-1] + 1, dtype=np.int8)
-    last = np.max(np.where(digits != _DIGIT0, columns, np.int8(1)), axis=-1)
-    return np.asarray(columns <= last[..., None])
-
-
 # --------------------------------------------------------------------------- JSON
 
 
 @dataclass(frozen=True, eq=False)
 class JsonArray:
-    """A numeric array in a JSON document: written as ``np.round(values, decimals).tolist()``
-    would be by ``json.dumps`` (the same values; no exponent notation), in bulk.
+    """A numeric array in a JSON document: written with the values
+    ``np.round(values, decimals).tolist()`` has, each with ``decimals`` decimals (``0.000061``
+    where ``json.dumps`` writes ``6.1e-05``, ``1.500000`` for ``1.5``), in bulk.
 
     Attributes
     ----------
@@ -216,7 +199,7 @@ class JsonArray:
         step = max(1, BLOCK_VALUES // max(table.shape[1], 1))
         for start in range(0, table.shape[0], step):
             rounded = np.round(table[start:start + step], self.decimals)
-            for text in fixed_blocks(rounded, self.decimals, sep=sep, trim=True,
+            for text in fixed_blocks(rounded, self.decimals, sep=sep,
                                      row_start=sep if flat else sep + "[",
                                      row_end="" if flat else "]"):
                 yield text[len(sep):] if first else text
