@@ -1,13 +1,13 @@
 """Speed and memory of the sensor-CSV reader and the skeleton writers on long takes.
 
-Generates 240 Hz takes of the synthetic example motion (``estimation.simulate``) with 15 and 11
-sensors into a scratch directory outside the repository (default ``/tmp/bonefit-io``), then
-times, each in a fresh process so that its peak RSS is its own:
+Generates 240 Hz takes of the synthetic example motion (``bonefit.estimation.simulate``) with
+15 and 11 sensors into a scratch directory outside the repository (default
+``/tmp/bonefit-io``), then times, each in a fresh process so that its peak RSS is its own:
 
 * ``loadtxt``: ``numpy.loadtxt`` of the same table (the C parser; the yardstick), from a copy
   whose empty cells (dropped samples) say ``nan`` because loadtxt refuses empty cells,
-* ``read``: ``estimation.io.sensor_csv.read_sensor_csv``,
-* ``bvh_text``: ``estimation.bvh.write_bvh`` alone (the text of a ready BVH motion),
+* ``read``: ``bonefit.estimation.io.sensor_csv.read_sensor_csv``,
+* ``bvh_text``: ``bonefit.estimation.bvh.write_bvh`` alone (the text of a ready BVH motion),
 * ``json``/``bvh``/``csv``/``npz``: the skeleton writers on a result of the take's size (the
   estimate of the first 6,000 frames, its arrays repeated to the take's length: the writers'
   cost depends on the sizes only).
@@ -15,7 +15,8 @@ times, each in a fresh process so that its peak RSS is its own:
 Each figure is the median of ``--runs`` runs, the runs of all ops interleaved (a shared
 machine's load moves them alike); ``peak MB`` is the child's peak RSS minus its RSS once its
 input was loaded (so the reader's figure includes its output arrays). ``--compare DIR`` also
-runs every op on the code under ``DIR`` (e.g. ``git archive main estimation | tar -x -C DIR``),
+runs every op on the code under ``DIR`` (e.g. ``git archive main bonefit estimation | tar -x
+-C DIR``: the ``bonefit.estimation`` layout),
 interleaved, as ``<op> (before)`` (an op that code lacks, like ``npz``, is left out)::
 
     .venv/bin/python benchmarks/io_speed.py --frames 6000 36000 144000 --runs 3 \\
@@ -64,8 +65,8 @@ def take_path(scratch: Path, frames: int, sensors: int) -> Path:
     """The generated take (written once)."""
     path = scratch / f"take-{frames}-{sensors}.csv"
     if not path.exists():
-        from estimation.io.sensor_csv import write_sensor_csv
-        from estimation.simulate import example_motion, simulate_sensors
+        from bonefit.estimation.io.sensor_csv import write_sensor_csv
+        from bonefit.estimation.simulate import example_motion, simulate_sensors
 
         motion = example_motion(frames, fps=FPS, seed=SEED)
         rec, _ = simulate_sensors(motion, units_m=0.01, n_sensors=sensors, seed=SEED + sensors)
@@ -81,8 +82,8 @@ def result_path(scratch: Path, frames: int) -> Path:
     """A pickled SkeletonResult of ``frames`` frames (the 6,000-frame estimate, repeated)."""
     path = scratch / f"result-{frames}.pkl"
     if not path.exists():
-        from estimation.io.sensor_csv import read_sensor_csv
-        from estimation.skeleton import estimate_skeleton
+        from bonefit.estimation.io.sensor_csv import read_sensor_csv
+        from bonefit.estimation.skeleton import estimate_skeleton
 
         base = estimate_skeleton(read_sensor_csv(take_path(scratch, BASE_FRAMES, 15)))
 
@@ -100,7 +101,7 @@ def motion_path(scratch: Path, frames: int) -> Path:
     channel values repeated (for the BVH text writer alone)."""
     path = scratch / f"motion-{frames}.pkl"
     if not path.exists():
-        from estimation.io.skeleton import skeleton_to_bvh
+        from bonefit.estimation.io.skeleton import skeleton_to_bvh
 
         base = skeleton_to_bvh(pickle.loads(result_path(scratch, BASE_FRAMES).read_bytes()))
         path.write_bytes(pickle.dumps(base.with_values(
@@ -118,7 +119,7 @@ def run_one(op: str, path: Path, out: Path) -> dict[str, float]:
         seconds = time.perf_counter() - started
         del table
     elif op == "read":
-        from estimation.io.sensor_csv import read_sensor_csv
+        from bonefit.estimation.io.sensor_csv import read_sensor_csv
 
         base = _rss_mb()
         started = time.perf_counter()
@@ -126,7 +127,7 @@ def run_one(op: str, path: Path, out: Path) -> dict[str, float]:
         seconds = time.perf_counter() - started
         del rec
     elif op == "bvh_text":
-        from estimation.bvh import write_bvh
+        from bonefit.estimation.bvh import write_bvh
 
         motion = pickle.loads(path.read_bytes())
         base = _rss_mb()
@@ -134,7 +135,7 @@ def run_one(op: str, path: Path, out: Path) -> dict[str, float]:
         write_bvh(motion, out)
         seconds = time.perf_counter() - started
     else:
-        from estimation.io import skeleton as writers
+        from bonefit.estimation.io import skeleton as writers
 
         result = pickle.loads(path.read_bytes())
         base = _rss_mb()

@@ -11,7 +11,7 @@ few megabytes of text at a time whatever the size of the table.
 Examples
 --------
 >>> import numpy as np
->>> from estimation.numtext import fixed_text
+>>> from bonefit.estimation.numtext import fixed_text
 >>> fixed_text(np.array([[1.25, -0.5], [3.0, 1e-9]]), 3, sep=",")
 '1.250,-0.500\\n3.000,0.000\\n'
 """

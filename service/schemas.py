@@ -7,7 +7,9 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from estimation.vocabulary import ResultFormat as ResultFormat  # re-exported: the API names it here
+from bonefit.estimation.vocabulary import (
+    ResultFormat as ResultFormat,  # re-exported: the API names it here
+)
 
 from .jobs import Job, Recording, Status
 from .kinds import RecordingFormat, SkeletonParams, TranslationParams

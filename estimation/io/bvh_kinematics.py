@@ -61,13 +61,13 @@ def read_bvh_kinematics(
         the times differ.
     left_foot, right_foot : str, optional
         Foot joints of the BVH hierarchy (overrides); by default found by name or topology
-        (:func:`estimation.io.body.find_bvh_feet`). The accelerations file names the sensors
+        (:func:`bonefit.estimation.io.body.find_bvh_feet`). The accelerations file names the sensors
         by these joints, or by the only foot-named sensor of each side.
     acceleration_units : str, optional
         As in :func:`read_kinematics_csv`; a unit in the header cells counts as declared.
     units : str or float, optional
         BVH length unit: ``"auto"`` (default: inferred from the legs' bone lengths), a name
-        of :data:`~estimation.io.body.LENGTH_UNITS` (``m``, ``cm``, ``mm``, ``in``, ``ft``,
+        of :data:`~bonefit.estimation.io.body.LENGTH_UNITS` (``m``, ``cm``, ``mm``, ``in``, ``ft``,
         ``cmu``) or metres per unit; a unit giving legs outside a person's range is refused
         naming the likely one.
 

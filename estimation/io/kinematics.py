@@ -8,13 +8,13 @@ Three inputs give the same :class:`KinematicsRecording` (metres, world frame, Y 
   written back unchanged;
 * **BVH + accelerations CSV** (``time,LeftFoot.ax,...``): positions by forward kinematics with
   the root translation of the BVH ignored;
-* **Xsens MVNX** (see :mod:`estimation.io.mvnx`).
+* **Xsens MVNX** (see :mod:`bonefit.estimation.io.mvnx`).
 
 This module detects the format, dispatches and sniffs; each format and concept has its own
-module (:mod:`~estimation.io.kinematics_csv`, :mod:`~estimation.io.bvh_kinematics`,
-:mod:`~estimation.io.accelerations`, :mod:`~estimation.io.tables`,
-:mod:`~estimation.io.translation_files` for the writers of a
-:class:`~estimation.translation.TranslationResult`), and their public names are importable
+module (:mod:`~bonefit.estimation.io.kinematics_csv`, :mod:`~bonefit.estimation.io.bvh_kinematics`,
+:mod:`~bonefit.estimation.io.accelerations`, :mod:`~bonefit.estimation.io.tables`,
+:mod:`~bonefit.estimation.io.translation_files` for the writers of a
+:class:`~bonefit.estimation.translation.TranslationResult`), and their public names are importable
 from here as before. Formats are described in ``docs/translation.md``.
 """
 

@@ -59,7 +59,7 @@ def read_kinematics_csv(
     path : path
     left_foot, right_foot : str, optional
         Foot joints (overrides); by default the columns named like a left and a right foot
-        (:func:`estimation.io.body.find_column_feet`). ``<Foot>.Dx/.Dy/.Dz`` and
+        (:func:`bonefit.estimation.io.body.find_column_feet`). ``<Foot>.Dx/.Dy/.Dz`` and
         ``<Foot>.ax/.ay/.az`` must exist.
     acceleration_units : str, optional
         One of :data:`ACCELERATION_UNITS`. By default the columns must look like g with
@@ -68,7 +68,7 @@ def read_kinematics_csv(
     units : str or float, optional
         Length unit of the positions: ``"auto"`` (default: inferred from the hips–feet
         distance, cm for the paper's layout), a name of
-        :data:`~estimation.io.body.LENGTH_UNITS` or metres per unit; a unit giving legs
+        :data:`~bonefit.estimation.io.body.LENGTH_UNITS` or metres per unit; a unit giving legs
         outside a person's range is refused naming the likely one.
 
     Returns

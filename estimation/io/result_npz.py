@@ -13,7 +13,7 @@ the document (``joints/l_knee``, ``orientations/pelvis``, ``root``), at full pre
         knee = npz[document["joints"]["l_knee"]]        # (F, 3), metres
 
 The archive is written uncompressed (the arrays at disk speed; float64 samples of motion
-barely compress) and read back within the limits of :mod:`estimation.io.limits`.
+barely compress) and read back within the limits of :mod:`bonefit.estimation.io.limits`.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def _members(document: Any, path: str, arrays: dict[str, Any]) -> Any:
 
 def write_document_npz(document: Mapping[str, Any], path: PathLike) -> None:
     """Write a result document (JSON types and
-    :class:`~estimation.numtext.JsonArray`) as an NPZ archive.
+    :class:`~bonefit.estimation.numtext.JsonArray`) as an NPZ archive.
 
     Parameters
     ----------

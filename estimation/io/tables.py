@@ -1,6 +1,6 @@
 """Numeric CSV tables (kinematics and accelerations CSVs): a header line of column names,
 then rows of numbers; parsed by ``numpy.loadtxt``, row by row to name a bad value's line
-and column, within the limits of :mod:`estimation.io.limits`."""
+and column, within the limits of :mod:`bonefit.estimation.io.limits`."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def table_header(first: str) -> list[str]:
 def read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
     """Header and numeric body of a CSV; a fast parse first, a row-by-row one to name the
     line and column of a bad value. Lines, columns and rows are bounded by
-    ``estimation.io.limits`` before they are read."""
+    ``bonefit.estimation.io.limits`` before they are read."""
     with open_csv(path) as handle:
         lines = limits.bounded_lines(handle)
         header = table_header(next(lines, ""))

@@ -52,7 +52,7 @@ def translation_document(result: TranslationResult,
     """The JSON document: root path (m), translation, contacts, floor, quality, timings; with
     the recording, its frame times, the feet and toes used, the corrected feet's heights (m,
     +Y, per frame), the input's length unit (metres per unit) and the reader's notes. Its
-    per-frame arrays are :class:`~estimation.numtext.JsonArray` (written in bulk)."""
+    per-frame arrays are :class:`~bonefit.estimation.numtext.JsonArray` (written in bulk)."""
     out: dict[str, Any] = {
         "kind": "translation",
         "method": result.method,
@@ -84,7 +84,7 @@ def translation_document(result: TranslationResult,
 def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
                      scale: float) -> BvhMotion:
     """The corrected positions as a BVH of rotation channels under a moving root (see
-    :func:`estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
+    :func:`bonefit.estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
     return point_joint_bvh(recording.joints, result.positions / scale,
                            recording.index(recording.root), 1.0 / result.fps)
 
@@ -93,7 +93,7 @@ def translated_bvh(result: TranslationResult, recording: KinematicsRecording) ->
     """The BVH of a translation result, written so that every BVH reader agrees.
 
     A BVH input comes back with the estimated root path in the root's position channels and
-    its position channels folded (:func:`estimation.bvh.fold_position_channels`: constant
+    its position channels folded (:func:`bonefit.estimation.bvh.fold_position_channels`: constant
     ones into OFFSETs, moving ones over a zero OFFSET). Other inputs (and a BVH whose root
     has no position channels) become a point-joint BVH in centimetres (the BVH's unit) of
     the corrected positions.
@@ -137,7 +137,7 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
         (input must be a kinematics CSV); ``bvh``: the input BVH with the root path in the
         root's position channels (a point-joint BVH in cm for other inputs); ``mvnx``: the
         input MVNX with corrected segment positions; ``json``: root path, contacts, quality;
-        ``npz``: the JSON's names, its arrays binary (:mod:`estimation.io.result_npz`).
+        ``npz``: the JSON's names, its arrays binary (:mod:`bonefit.estimation.io.result_npz`).
     """
     if format not in OUTPUT_FORMATS:
         raise InputError(f"unknown output format {format!r}; use {', '.join(OUTPUT_FORMATS)}",

@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from estimation import numtext
-from estimation.numtext import JsonArray, fixed_text, json_blocks, plain
+from bonefit.estimation import numtext
+from bonefit.estimation.numtext import JsonArray, fixed_text, json_blocks, plain
 
 
 def printf_rows(table: np.ndarray, decimals: int, sep: str, nan: str | None = None) -> str:
