@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from bonefit.cli import main
 from bonefit.estimation import skeleton as skeleton_module
 from bonefit.estimation.bvh import forward_kinematics, read_bvh
-from bonefit.estimation.cli import main
 from bonefit.estimation.io.sensors import example_path, read_recording, write_sensor_csv
 from bonefit.estimation.io.skeleton import BVH_NODES, read_skeleton_npz
 from bonefit.estimation.model import JOINTS, SEGMENTS
