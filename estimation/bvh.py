@@ -9,9 +9,10 @@ Position channels replace a joint's OFFSET; rotation channels compose in the ord
 from __future__ import annotations
 
 import io
+import itertools
 import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
@@ -20,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
+from .numtext import fixed_blocks, write_text_blocks
 
 if TYPE_CHECKING:  # scipy is imported where it is used: the readers serve processes without it
     from scipy.spatial.transform import Rotation
@@ -253,15 +255,16 @@ def read_bvh(source: str | os.PathLike[str] | io.TextIOBase) -> BvhMotion:
         text = source.read()
     else:
         text = Path(source).read_text(encoding="utf-8", errors="replace")
-    lines = iter(io.StringIO(text.removeprefix("\ufeff"), newline=None))
-    tokens = _Tokens(lines)
+    stream = io.StringIO(text.removeprefix("\ufeff"), newline=None)
+    del text
+    tokens = _Tokens(stream)
     tokens.take("HIERARCHY")
     tokens.take("ROOT")
     tree = _Hierarchy()
     _read_nodes(tokens, tree)
     tokens.take("MOTION")
     n_frames, frame_time, body_start = _read_motion_header(tokens)
-    values, notes = _read_motion_rows(lines, body_start, n_frames,
+    values, notes = _read_motion_rows(stream.read(), body_start, n_frames,
                                       sum(len(c) for c in tree.channels))
     return BvhMotion(tuple(tree.names), tuple(tree.parents), np.array(tree.offsets, dtype=float),
                      tuple(tree.channels), frame_time, values, notes=notes)
@@ -374,40 +377,52 @@ def _read_motion_header(tokens: _Tokens) -> tuple[int, float, int]:
     return int(count_tok), frame_time, tokens.line
 
 
-def _read_motion_rows(lines: Iterator[str], start: int, n_frames: int, n_channels: int
+def _read_motion_rows(rest: str, start: int, n_frames: int, n_channels: int
                       ) -> tuple[NDArray[np.float64], tuple[str, ...]]:
-    """Channel values (F, C) of the remaining non-blank lines, the first being line
-    ``start + 1``."""
+    """Channel values (F, C) of the non-blank lines of ``rest``, the text after the motion
+    header, whose first line is line ``start + 1``: parsed whole by ``numpy.loadtxt`` when
+    there is no blank line or "#" among the rows, else line by line (naming a bad row's line)."""
     if n_channels == 0:
         raise InputError("the hierarchy declares no channels", line=start)
-    numbered = [(n, ln) for n, ln in enumerate(lines, start + 1) if ln.strip()]
-    notes: tuple[str, ...] = ()
-    if len(numbered) < n_frames:
-        notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
-                 f"read {len(numbered)}",)
-    elif len(numbered) > n_frames:
-        notes = (f"header says {n_frames} frames, the file has {len(numbered)} rows: "
-                 f"read the first {n_frames}",)
-        numbered = numbered[:n_frames]
+    rows = rest.rstrip()
+    n_rows = rows.count("\n") + 1 if rows else 0
+    if n_rows and "\n\n" not in rows and "#" not in rows:
+        values = _parse_rows(io.StringIO(rows), min(n_rows, n_frames), n_channels)
+        if values is not None:
+            return values, _frame_count_notes(n_frames, n_rows)
+    numbered = [(n, ln) for n, ln in enumerate(rest.splitlines(), start + 1) if ln.strip()]
+    notes = _frame_count_notes(n_frames, len(numbered))
+    numbered = numbered[:n_frames]
     if not numbered:
         raise InputError("no motion rows after 'Frame Time:'", line=start)
-    values = _parse_rows([ln for _, ln in numbered], n_channels)
-    if values is None:
+    found = _parse_rows([ln for _, ln in numbered], len(numbered), n_channels)
+    if found is None:
         _raise_bad_row(numbered, n_channels)
-    assert values is not None
-    return values, notes
+    assert found is not None
+    return found, notes
 
 
-def _parse_rows(rows: list[str], n_channels: int) -> NDArray[np.float64] | None:
-    """All rows as floats, or None when any row is malformed (wrong count, not a number,
-    not finite)."""
+def _frame_count_notes(n_frames: int, n_rows: int) -> tuple[str, ...]:
+    """What the reader says when the rows present differ from the header's count."""
+    if n_rows < n_frames:
+        return (f"header says {n_frames} frames, the file has {n_rows} rows: read {n_rows}",)
+    if n_rows > n_frames:
+        return (f"header says {n_frames} frames, the file has {n_rows} rows: "
+                f"read the first {n_frames}",)
+    return ()
+
+
+def _parse_rows(rows: Iterable[str], n_rows: int, n_channels: int
+                ) -> NDArray[np.float64] | None:
+    """The first ``n_rows`` rows as floats, or None when any of them is malformed (wrong
+    count, not a number, not finite)."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            values = np.loadtxt(rows, dtype=float, ndmin=2)
+            values = np.loadtxt(rows, dtype=float, ndmin=2, max_rows=n_rows)
     except (ValueError, UserWarning):
         return None
-    if values.shape != (len(rows), n_channels) or not np.isfinite(values).all():
+    if values.shape != (n_rows, n_channels) or not np.isfinite(values).all():
         return None
     return values
 
@@ -470,12 +485,8 @@ def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,
     out.write("HIERARCHY\n")
     node(motion.parents.index(-1), 0)
     out.write(f"MOTION\nFrames: {motion.n_frames}\nFrame Time: {motion.frame_time:.8f}\n")
-    np.savetxt(out, motion.values, fmt=f"%.{precision}f", delimiter=" ")
-    text = out.getvalue()
-    if isinstance(target, io.TextIOBase):
-        target.write(text)
-    else:
-        Path(target).write_text(text, encoding="utf-8")
+    rows = fixed_blocks(motion.values.reshape(motion.n_frames, -1), precision, sep=" ")
+    write_text_blocks(itertools.chain([out.getvalue()], rows), target)
 
 
 # --------------------------------------------------------------------------- writer helpers

@@ -69,11 +69,13 @@ class SkeletonRunOptions:
 
 @dataclass(frozen=True)
 class SkeletonOutputs:
-    """Files a skeleton run writes; None: skip. JSON (metres), BVH (cm), CSV (metres)."""
+    """Files a skeleton run writes; None: skip. JSON (metres), BVH (cm), CSV (metres), NPZ
+    (the JSON's names, arrays binary; metres)."""
 
     json: PathLike | None = None
     bvh: PathLike | None = None
     csv: PathLike | None = None
+    npz: PathLike | None = None
 
 
 @dataclass(frozen=True)
@@ -139,7 +141,7 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     _stage(stages, "writing")
     result = replace(result, timings={**result.timings, "read_s": read_s})
     result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,
-                                  csv_path=outputs.csv)
+                                  csv_path=outputs.csv, npz_path=outputs.npz)
     return SkeletonRun(result, recording)
 
 

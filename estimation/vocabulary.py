@@ -44,9 +44,15 @@ KinematicsFormat = Literal["kinematics-csv", "bvh", "mvnx"]
 (:func:`bonefit.estimation.io.kinematics.read_kinematics`)."""
 KINEMATICS_FORMATS: Final[tuple[str, ...]] = get_args(KinematicsFormat)
 
-TranslationOutputFormat = Literal["kinematics-csv", "bvh", "mvnx", "json"]
+TranslationOutputFormat = Literal["kinematics-csv", "bvh", "mvnx", "json", "npz"]
 """Formats a translation result is written in (``write_translation``)."""
 TRANSLATION_OUTPUT_FORMATS: Final[tuple[str, ...]] = get_args(TranslationOutputFormat)
+
+ResultFormat = Literal["json", "bvh", "csv", "npz"]
+"""Formats a job's result is served in (``GET /v1/jobs/{id}/result?format=``): the JSON
+document, a BVH, a CSV (a skeleton's joint paths; a translation's corrected kinematics CSV)
+and an NPZ archive (the JSON document's names, its arrays binary: ``io.result_npz``)."""
+RESULT_FORMATS: Final[tuple[str, ...]] = get_args(ResultFormat)
 
 PositionUnit = Literal["m", "cm", "mm", "in"]
 """Units of a sensor recording's positions (``units`` of ``read_recording``)."""

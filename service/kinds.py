@@ -31,12 +31,14 @@ from bonefit.estimation.progress import Progress, scaled
 from bonefit.estimation.vocabulary import (
     ANTHROPOMETRY_KEYS,
     ANTHROPOMETRY_TABLES,
+    RESULT_FORMATS,
     AccelerationUnit,
     AnthropometryKey,
     AnthropometryTable,
     LengthUnit,
     Optimizer,
     PositionUnit,
+    ResultFormat,
     SkeletonMethod,
     TorsoEstimator,
     TranslationMethod,
@@ -45,8 +47,6 @@ from bonefit.estimation.vocabulary import (
 RecordingFormat = Literal["sensor-csv", "tracker", "npz", "kinematics-csv", "bvh", "mvnx",
                           "accelerations-csv"]
 """API names of the recording formats an upload may declare (or ``"auto"``)."""
-ResultFormat = Literal["json", "bvh", "csv"]
-"""Formats a job's result is served in."""
 
 SENSOR_FORMATS = {"sensor-csv": "csv", "tracker": "tracker", "npz": "npz"}
 """API format name → ``bonefit.estimation.io.sensors`` format name."""
@@ -253,8 +253,7 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
     from bonefit.estimation.io.skeleton import offsets_from_dict
 
     source = inputs["recording"]
-    out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
-           "csv": outdir / "skeleton.csv"}
+    out = {fmt: outdir / f"skeleton.{fmt}" for fmt in RESULT_FORMATS}
     pipeline.run_skeleton(
         pipeline.SensorSource(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
                               units=params.units, fps=params.fps, stations=params.stations,
@@ -265,7 +264,8 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
             w_l=params.w_l, smooth=params.smooth,
             offsets=None if params.offsets is None else offsets_from_dict(
                 {k: v.model_dump() for k, v in params.offsets.items()})),
-        pipeline.SkeletonOutputs(json=out["json"], bvh=out["bvh"], csv=out["csv"]),
+        pipeline.SkeletonOutputs(json=out["json"], bvh=out["bvh"], csv=out["csv"],
+                                 npz=out["npz"]),
         progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
     return out
 
@@ -277,10 +277,10 @@ def run_translation(inputs: Mapping[str, Input], params: TranslationParams, prog
 
     source = inputs["recording"]
     accelerations = inputs.get("accelerations")
-    out = {"json": outdir / "translation.json", "bvh": outdir / "translation.bvh"}
-    if source.format == "kinematics-csv":  # a corrected CSV needs a CSV input to correct
-        out["csv"] = outdir / "translation.csv"
-    writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv"}
+    out = {fmt: outdir / f"translation.{fmt}" for fmt in RESULT_FORMATS
+           # a corrected CSV needs a CSV input to correct
+           if fmt != "csv" or source.format == "kinematics-csv"}
+    writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv", "npz": "npz"}
     pipeline.run_translation(
         pipeline.KinematicsSource(
             source.path, format=KINEMATICS_FORMATS.get(source.format, "auto"),
@@ -315,5 +315,6 @@ def default_kinds() -> dict[str, Kind]:
 
 
 MEDIA_TYPES: dict[ResultFormat, str] = {"json": "application/json", "bvh": "application/x-bvh",
-               "csv": "text/csv; charset=utf-8"}
+                                        "csv": "text/csv; charset=utf-8",
+                                        "npz": "application/x-npz"}
 """Content type of each result format."""

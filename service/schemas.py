@@ -7,9 +7,12 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from bonefit.estimation.vocabulary import (
+    ResultFormat as ResultFormat,  # re-exported: the API names it here
+)
+
 from .jobs import Job, Recording, Status
 from .kinds import RecordingFormat, SkeletonParams, TranslationParams
-from .kinds import ResultFormat as ResultFormat  # re-exported: the API names it here
 from .uploads import cap_summary
 
 UploadFormat = Literal["auto", RecordingFormat]

@@ -77,4 +77,4 @@ def test_service_formats_are_one_list() -> None:
     assert set(kinds.SENSOR_FORMATS) | set(kinds.KINEMATICS_FORMATS) <= declared
     assert set(kinds.SENSOR_FORMATS.values()) == set(vocabulary.SENSOR_FORMATS)
     assert set(kinds.KINEMATICS_FORMATS.values()) == set(vocabulary.KINEMATICS_FORMATS)
-    assert set(kinds.MEDIA_TYPES) == set(get_args(kinds.ResultFormat))
+    assert set(kinds.MEDIA_TYPES) == set(vocabulary.RESULT_FORMATS)

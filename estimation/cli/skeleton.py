@@ -115,6 +115,9 @@ def register(sub: Any, summary: str) -> None:
     parser.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write a BVH file (cm)")
     parser.add_argument("--csv", default=None, metavar="OUT.csv",
                         help="write joint trajectories as CSV (metres)")
+    parser.add_argument("--npz", default=None, metavar="OUT.npz",
+                        help="write the result as NPZ: the JSON's names, arrays binary at full "
+                             "precision (for long takes; numpy reads it)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(run=run)
 
@@ -193,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--i0 {options.i0} is past the last frame "
                              f"({recording.n_frames - 1})", field="--i0")
 
-    outputs = SkeletonOutputs(json=args.output, bvh=args.bvh, csv=args.csv)
+    outputs = SkeletonOutputs(json=args.output, bvh=args.bvh, csv=args.csv, npz=args.npz)
     try:
         done = run_skeleton(SensorSource(source, format=fmt, units=units, fps=fps,
                                          stations=stations, tracker_layout=layout),
@@ -234,7 +237,7 @@ def _source_path(args: argparse.Namespace) -> Path:
 
 
 def _check_output_dirs(args: argparse.Namespace) -> None:
-    for out in [Path(p) for p in (args.output, args.bvh, args.csv) if p is not None]:
+    for out in [Path(p) for p in (args.output, args.bvh, args.csv, args.npz) if p is not None]:
         if not out.parent.is_dir():
             raise InputError(f"cannot write {out}: directory {out.parent} does not exist",
                              field="output")
@@ -243,7 +246,8 @@ def _check_output_dirs(args: argparse.Namespace) -> None:
 def _write_error(exc: OSError, outputs: SkeletonOutputs) -> Exception:
     """An output that cannot be written is the user's to fix (exit 2); other OS errors
     (the input) go on as they are."""
-    written = {str(Path(p)) for p in (outputs.json, outputs.bvh, outputs.csv) if p is not None}
+    written = {str(Path(p)) for p in (outputs.json, outputs.bvh, outputs.csv, outputs.npz)
+               if p is not None}
     if exc.filename is None or str(Path(exc.filename)) not in written:
         return exc
     return InputError(f"cannot write {exc.filename}: {exc.strerror}", field="output")

@@ -73,6 +73,9 @@ def register(sub: Any, summary: str) -> None:
     parser.add_argument("--bvh", metavar="OUT.bvh", help="also write a BVH with the root path")
     parser.add_argument("--json", metavar="OUT.json",
                         help="also write root path, contacts and quality as JSON")
+    parser.add_argument("--npz", metavar="OUT.npz",
+                        help="also write the JSON's content as NPZ (arrays binary, full "
+                             "precision)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(run=run)
 
@@ -88,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
         outputs.append(("bvh", args.bvh))
     if args.json:
         outputs.append(("json", args.json))
+    if args.npz:
+        outputs.append(("npz", args.npz))
     bar = None if args.quiet else ProgressBar(sys.stderr)
     try:
         done = run_translation(

@@ -2,7 +2,7 @@
 
 Sensor recordings (skeleton input): bonefit sensor CSV, tracker ASCII, NPZ.
 Kinematics recordings (translation input): kinematics CSV, BVH + accelerations, Xsens MVNX.
-Results: skeleton JSON/CSV/BVH; translation JSON/CSV/BVH/MVNX.
+Results: skeleton JSON/CSV/BVH/NPZ; translation JSON/CSV/BVH/MVNX/NPZ.
 """
 
 from typing import TYPE_CHECKING
@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from .skeleton import (
         offsets_from_dict,
         read_skeleton_json,
+        read_skeleton_npz,
         read_skeleton_offsets,
         skeleton_from_dict,
         skeleton_to_bvh,
@@ -36,6 +37,7 @@ if TYPE_CHECKING:
         write_skeleton_bvh,
         write_skeleton_csv,
         write_skeleton_json,
+        write_skeleton_npz,
     )
     from .tracker import (
         TrackerLayout,
@@ -57,6 +59,7 @@ __all__ = [
     "read_kinematics",
     "read_recording",
     "read_skeleton_json",
+    "read_skeleton_npz",
     "read_skeleton_offsets",
     "read_tracker_ascii",
     "skeleton_from_dict",
@@ -71,6 +74,7 @@ __all__ = [
     "write_skeleton_bvh",
     "write_skeleton_csv",
     "write_skeleton_json",
+    "write_skeleton_npz",
     "write_translation",
 ]
 
@@ -82,7 +86,8 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
                 "sniff_recording", "write_sensor_csv", "write_sensor_npz"),
     "tracker": ("TrackerLayout", "detect_tracker_layout", "parse_stations",
                 "parse_tracker_layout", "read_tracker_ascii"),
-    "skeleton": ("offsets_from_dict", "read_skeleton_json", "read_skeleton_offsets",
-                 "skeleton_from_dict", "skeleton_to_bvh", "skeleton_to_dict",
-                 "write_skeleton_bvh", "write_skeleton_csv", "write_skeleton_json"),
+    "skeleton": ("offsets_from_dict", "read_skeleton_json", "read_skeleton_npz",
+                 "read_skeleton_offsets", "skeleton_from_dict", "skeleton_to_bvh",
+                 "skeleton_to_dict", "write_skeleton_bvh", "write_skeleton_csv",
+                 "write_skeleton_json", "write_skeleton_npz"),
 })

@@ -70,12 +70,13 @@ def unit_scale(units: str) -> float:
 # --------------------------------------------------------------------------- helpers
 
 
-def open_text(path: PathLike) -> io.TextIOWrapper:
-    """Text handle of a recording (UTF-8, BOM dropped, bad bytes as U+FFFD); InputError for a
-    directory or an unreadable file."""
+def open_text(path: PathLike, newline: str | None = "") -> io.TextIOWrapper:
+    """Text handle of a recording (UTF-8, BOM dropped, bad bytes as U+FFFD; line ends kept
+    as they are, or translated to ``\\n`` with ``newline=None``); InputError for a directory
+    or an unreadable file."""
     try:
         # undecodable bytes become U+FFFD and then fail as a named column or number
-        return open(path, encoding="utf-8-sig", errors="replace", newline="")
+        return open(path, encoding="utf-8-sig", errors="replace", newline=newline)
     except IsADirectoryError:
         raise InputError(f"{os.fspath(path)} is a directory, not a recording",
                          field="input") from None

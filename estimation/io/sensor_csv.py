@@ -5,16 +5,19 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
+import warnings
 from collections.abc import Iterator
-from pathlib import Path
-from typing import TYPE_CHECKING, Final
+from dataclasses import dataclass
+from typing import IO, TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InputError
+from ..errors import InputError, LimitError
 from ..model import SEGMENTS
+from ..numtext import fixed_blocks, write_text_blocks
 from ..recording import SensorRecording
 from . import limits
 
@@ -88,21 +91,22 @@ def csv_header(rows: Iterator[tuple[int, list[str]]],
     raise InputError("the file is empty: no header line", line=1, field="header")
 
 
-def csv_rows(handle: io.TextIOWrapper) -> Iterator[tuple[int, list[str]]]:
+def csv_rows(handle: IO[str], start: int = 1) -> Iterator[tuple[int, list[str]]]:
     """(line number, cells) of the non-empty rows, metadata comments excluded; a line longer
-    than ``MAX_LINE_CHARS`` is refused before it is read whole."""
-    reader = csv.reader(limits.bounded_lines(handle))
-    start = 1
+    than ``MAX_LINE_CHARS`` is refused before it is read whole. The first line of ``handle``
+    is line ``start``."""
+    reader = csv.reader(limits.bounded_lines(handle, start=start))
+    offset = start - 1
     while True:
         try:
             row = next(reader)
         except StopIteration:
             return
         except csv.Error as exc:
-            raise InputError(f"unreadable CSV at line {reader.line_num}: {exc}",
-                             line=reader.line_num) from None
+            raise InputError(f"unreadable CSV at line {offset + reader.line_num}: {exc}",
+                             line=offset + reader.line_num) from None
         line = start
-        start = reader.line_num + 1
+        start = offset + reader.line_num + 1
         if not row or (len(row) == 1 and not row[0].strip()):
             continue
         yield line, row
@@ -120,7 +124,32 @@ def _cell(text: str) -> float:
     return float(text)
 
 
-def read_sensor_csv(path: PathLike, *, units: str | None = None,  # noqa: C901, PLR0912, PLR0915
+CHUNK_CHARS: Final[int] = 1 << 22
+"""Characters of the file parsed per block (4 MB: about 28,000 rows of a 15-sensor suit)."""
+
+
+@dataclass(frozen=True)
+class _Table:
+    """What the reader knows of the file once it has read the header."""
+
+    header: list[str]
+    header_line: int
+    time_col: int | None
+    sensors: list[str]
+    index: NDArray[np.int64]  # (S, 7) columns of each sensor's x, y, z, qw, qx, qy, qz
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """Rows of one block: sensor values (n, S, 7), a dropped sample all NaN; times (n,) or
+    None; the line of each row (n,)."""
+
+    values: NDArray[np.float64]
+    time: NDArray[np.float64] | None
+    lines: NDArray[np.int64]
+
+
+def read_sensor_csv(path: PathLike, *, units: str | None = None,
                     fps: float | None = None) -> SensorRecording:
     """Read a bonefit sensor CSV.
 
@@ -149,74 +178,172 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,  # noqa: C901, 
         Unknown or duplicate column, missing component, malformed number (with line and
         column), time missing or not increasing, non-unit quaternion, all-NaN sensor, positions
         whose size does not fit ``units``.
+
+    Notes
+    -----
+    The rows are parsed a block of :data:`CHUNK_CHARS` characters at a time by
+    ``numpy.loadtxt`` (a C parser); a block it cannot parse (a malformed cell, comments,
+    quotes) is read row by row, which names the line and column of a fault.
     """
     meta: dict[str, str] = {}
-    with open_text(path) as handle:
-        rows = csv_rows(handle)
-        header, header_line = csv_header(rows, meta)
+    with open_text(path, newline=None) as handle:
+        header, header_line = csv_header(csv_rows(handle), meta)
         time_col, sensors, index = parse_csv_header(header, header_line)
-        n_cols = len(header)
-        max_rows = limits.max_rows(n_cols)
-        data: list[list[float]] = []
-        lines: list[int] = []
-        for line, row in rows:
-            if row[0].lstrip().startswith("#"):
-                continue
-            if len(data) == max_rows:
-                limits.check_rows(len(data) + 1, n_cols, line=line)
-            if len(row) != n_cols:
-                raise InputError(f"line {line} has {len(row)} cells, the header has {n_cols}",
-                                 line=line, column=min(len(row), n_cols) + 1)
-            try:
-                try:
-                    data.append(list(map(float, row)))
-                except ValueError:  # empty cells (dropped samples) or a bad number
-                    data.append([_cell(c) for c in row])
-            except ValueError:
-                for col, cell in enumerate(row):
-                    try:
-                        _cell(cell)
-                    except ValueError:
-                        name = header[col].strip()
-                        raise InputError(f"malformed number {_short(cell.strip())} at line {line}, "
-                                         f"column {col + 1} ({name})", line=line,
-                                         column=col + 1, field=name) from None
-                raise
-            lines.append(line)
-    if not data:
-        raise InputError("the recording has no frames", field="frames", line=header_line + 1)
+        table = _Table(header, header_line, time_col, sensors, index)
+        values, times, lines = _join_blocks(list(_row_blocks(handle, table)), table)
     units = units if units is not None else meta.get("units", "m")
-    scale = unit_scale(units)
-    table = np.asarray(data, dtype=float)
-    line_arr = np.asarray(lines, dtype=np.int64)
-    _check_cells(table, line_arr, header)
-    values = table[:, index]  # (F, S, 7)
-    values[~np.isfinite(values).all(axis=-1)] = np.nan
-    positions = values[..., :3] * scale
-    quats = normalise_quaternions(values[..., 3:], tuple(sensors), line_arr)
-
+    positions = values[..., :3] * unit_scale(units)
+    quats = normalise_quaternions(values[..., 3:], tuple(sensors), lines)
+    del values
     if fps is None and "fps" in meta:
         fps = parse_fps(meta["fps"])
-    if time_col is not None:
-        time = table[:, time_col]
-        bad = ~np.isfinite(time)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise InputError(f"time is missing at line {lines[i]}", line=lines[i],
-                             column=time_col + 1, field="time")
-        steps = np.diff(time)
-        if (steps <= 0).any():
-            i = int(np.argmax(steps <= 0)) + 1
-            raise InputError(f"time does not increase at line {lines[i]}", line=lines[i],
-                             column=time_col + 1, field="time")
-        rate = parse_fps(fps) if fps is not None else fps_from_time(time)
-    elif fps is not None:
-        rate = parse_fps(fps)
-        time = time_from_fps(len(data), rate)
-    else:
-        raise InputError("no time column: give fps (frame rate, Hz)", field="fps")
-    rec = SensorRecording(tuple(sensors), positions, quats, rate, np.asarray(time, dtype=float))
+    time, rate = _frame_times(times, lines, fps, time_col)
+    rec = SensorRecording(tuple(sensors), positions, quats, rate, time)
     return check_recording(rec, units)
+
+
+def _frame_times(times: NDArray[np.float64] | None, lines: NDArray[np.int64],
+                 fps: float | None, time_col: int | None) -> tuple[NDArray[np.float64], float]:
+    """Frame times (s) and rate (Hz) from the time column (checked: present and increasing)
+    or from ``fps``."""
+    if times is not None and time_col is not None:
+        bad = ~np.isfinite(times)
+        if bad.any():
+            line = int(lines[int(np.argmax(bad))])
+            raise InputError(f"time is missing at line {line}", line=line,
+                             column=time_col + 1, field="time")
+        steps = np.diff(times)
+        if (steps <= 0).any():
+            line = int(lines[int(np.argmax(steps <= 0)) + 1])
+            raise InputError(f"time does not increase at line {line}", line=line,
+                             column=time_col + 1, field="time")
+        return times, parse_fps(fps) if fps is not None else fps_from_time(times)
+    if fps is not None:
+        rate = parse_fps(fps)
+        return time_from_fps(lines.size, rate), rate
+    raise InputError("no time column: give fps (frame rate, Hz)", field="fps")
+
+
+def _join_blocks(blocks: list[_Rows], table: _Table
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.int64]]:
+    """Values (F, S, 7), times (F,) or None and lines (F,) of all rows (``blocks`` is
+    emptied, so that the blocks' copies go once joined); InputError when there are none."""
+    if not blocks:
+        raise InputError("the recording has no frames", field="frames",
+                         line=table.header_line + 1)
+    values = np.concatenate([b.values for b in blocks])
+    times = None if table.time_col is None else np.concatenate(
+        [b.time for b in blocks if b.time is not None])
+    lines = np.concatenate([b.lines for b in blocks])
+    blocks.clear()
+    return values, times, lines
+
+
+def _row_blocks(handle: IO[str], table: _Table) -> Iterator[_Rows]:
+    """The rows after the header, a block of whole lines at a time, checked (cell count,
+    numbers, magnitudes, row limit) and laid out by sensor."""
+    n_cols = len(table.header)
+    max_rows = limits.max_rows(n_cols)
+    count = 0
+    for first, text in _line_blocks(handle, table.header_line + 1):
+        cells, lines = _parse_block(text, first, table.header)
+        if count + lines.size > max_rows:
+            limits.check_rows(max_rows + 1, n_cols, line=int(lines[max_rows - count]))
+        count += lines.size
+        if lines.size:
+            yield _by_sensor(cells, lines, table)
+
+
+def _line_blocks(handle: IO[str], first: int) -> Iterator[tuple[int, str]]:
+    """(number of its first line, text) of consecutive blocks of whole lines of about
+    :data:`CHUNK_CHARS` characters; a line longer than ``MAX_LINE_CHARS`` is refused before
+    it is read whole."""
+    carry = ""
+    while chunk := handle.read(CHUNK_CHARS):
+        text = carry + chunk
+        cut = text.rfind("\n") + 1
+        carry = text[cut:]
+        if len(carry) > limits.MAX_LINE_CHARS:
+            line = first + text.count("\n", 0, cut)
+            raise LimitError(f"line {line} is longer than {limits.MAX_LINE_CHARS} characters "
+                             "(MAX_LINE_CHARS)", limit="MAX_LINE_CHARS", line=line)
+        if cut:
+            yield first, text[:cut]
+            first += text.count("\n", 0, cut)
+    if carry:
+        yield first, carry + "\n"
+
+
+def _parse_block(text: str, first: int, header: list[str]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Cells (n, C) and line numbers (n,) of the data rows of ``text``, whose first line is
+    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers and empty cells,
+    row by row otherwise (naming the line and column of a fault). loadtxt refuses a comment,
+    a quote or a malformed cell and skips a blank line (one row short): either sends the
+    block to the row-by-row parse."""
+    n_lines = text.count("\n")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            cells = np.loadtxt(io.StringIO(_empty_cells_as_nan(text)), delimiter=",",
+                               dtype=float, ndmin=2, comments=None, quotechar=None)
+    except (ValueError, UserWarning):
+        cells = None
+    if cells is not None and cells.shape == (n_lines, len(header)):
+        return cells, np.arange(first, first + n_lines, dtype=np.int64)
+    return _parse_rows(text, first, header)
+
+
+def _empty_cells_as_nan(text: str) -> str:
+    """``text`` with every empty cell (a dropped sample) written ``nan``."""
+    # a run of empty cells needs two passes: ",,," → ",nan,," → ",nan,nan,"
+    text = text.replace(",,", ",nan,").replace(",,", ",nan,")
+    text = text.replace(",\n", ",nan\n").replace("\n,", "\nnan,")
+    return "nan" + text if text.startswith(",") else text
+
+
+def _parse_rows(text: str, first: int, header: list[str]
+                ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The data rows of ``text`` one by one (comments and blank lines skipped); InputError
+    naming the line (and column) of a row of the wrong length or a malformed number."""
+    rows = csv_rows(io.StringIO(text), start=first)
+    data: list[list[float]] = []
+    lines: list[int] = []
+    for line, row in rows:
+        if row[0].lstrip().startswith("#"):
+            continue
+        if len(row) != len(header):
+            raise InputError(f"line {line} has {len(row)} cells, the header has {len(header)}",
+                             line=line, column=min(len(row), len(header)) + 1)
+        try:
+            data.append([_cell(c) for c in row])
+        except ValueError:
+            col = next(i for i, c in enumerate(row) if not _is_number(c))
+            name = header[col].strip()
+            raise InputError(f"malformed number {_short(row[col].strip())} at line {line}, "
+                             f"column {col + 1} ({name})", line=line, column=col + 1,
+                             field=name) from None
+        lines.append(line)
+    return (np.asarray(data, dtype=float).reshape(len(data), len(header)),
+            np.asarray(lines, dtype=np.int64))
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        _cell(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _by_sensor(cells: NDArray[np.float64], lines: NDArray[np.int64], table: _Table) -> _Rows:
+    """Checked cells (no infinite or absurd value) laid out as (n, S, 7), a sample with any
+    non-finite value all NaN, and the time column."""
+    _check_cells(cells, lines, table.header)
+    values = cells[:, table.index]
+    values[~np.isfinite(values).all(axis=-1)] = np.nan
+    time = None if table.time_col is None else cells[:, table.time_col].copy()
+    return _Rows(values, time, lines)
 
 
 def _check_cells(table: NDArray[np.float64], lines: NDArray[np.int64],
@@ -248,12 +375,7 @@ def write_sensor_csv(recording: SensorRecording, path: PathLike, *, units: str =
     values = np.concatenate([recording.positions / scale, recording.quaternions], axis=-1)
     table = np.concatenate([recording.time[:, None],
                             values.reshape(recording.n_frames, -1)], axis=1)
-    out = io.StringIO()
-    out.write(f"# units: {units}\n")
-    out.write(",".join(header) + "\n")
-    fmt = f"{{:.{decimals}f}}"
-    for row in table:
-        out.write(",".join("" if not math.isfinite(v) else fmt.format(v) for v in row) + "\n")
-    Path(path).write_text(out.getvalue(), encoding="utf-8")
+    head = f"# units: {units}\n" + ",".join(header) + "\n"
+    write_text_blocks(itertools.chain([head], fixed_blocks(table, decimals, nan="")), path)
 
 

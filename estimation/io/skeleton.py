@@ -8,6 +8,7 @@ joint, driven by the orientation of the segment that joint moves.
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 import os
@@ -24,7 +25,9 @@ from scipy.spatial.transform import Rotation
 from ..bvh import BvhMotion, euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
+from ..numtext import JsonArray, fixed_blocks, json_blocks, plain, write_text_blocks
 from ..results import JointOffset, JointQuality, SkeletonResult, timings_document
+from .result_npz import read_document_npz, write_document_npz
 from .sensor_common import unit_scale
 
 PathLike = str | os.PathLike[str]
@@ -70,13 +73,12 @@ def _json_safe(value: Any) -> Any:  # noqa: PLR0911
     return str(value)
 
 
-def _rows(array: NDArray[np.float64], decimals: int, name: str) -> list[list[float]]:
+def _rows(array: NDArray[np.float64], decimals: int, name: str) -> JsonArray:
     arr = np.asarray(array, dtype=float)
     if not np.isfinite(arr).all():
         raise InputError(f"{name} has NaN or infinite values; the JSON contract has none",
                          field=name)
-    rows: list[list[float]] = np.round(arr, decimals).tolist()
-    return rows
+    return JsonArray(arr, decimals)
 
 
 def _ordered(keys: Mapping[str, Any], order: tuple[str, ...]) -> list[str]:
@@ -84,7 +86,26 @@ def _ordered(keys: Mapping[str, Any], order: tuple[str, ...]) -> list[str]:
 
 
 def skeleton_to_dict(result: SkeletonResult, *, decimals: int = 6) -> dict[str, Any]:
-    """The JSON document of ``result`` as plain Python objects.
+    """The JSON document of ``result`` as plain Python objects (:func:`skeleton_document`
+    with its arrays as lists).
+
+    Parameters
+    ----------
+    result : SkeletonResult
+    decimals : int
+        As in :func:`skeleton_document`.
+
+    Returns
+    -------
+    dict
+        Only JSON types; no NaN.
+    """
+    return dict(plain(skeleton_document(result, decimals=decimals)))
+
+
+def skeleton_document(result: SkeletonResult, *, decimals: int = 6) -> dict[str, Any]:
+    """The JSON document of ``result``, its per-frame arrays as
+    :class:`~bonefit.estimation.numtext.JsonArray` (written in bulk by the writers).
 
     Parameters
     ----------
@@ -97,7 +118,8 @@ def skeleton_to_dict(result: SkeletonResult, *, decimals: int = 6) -> dict[str, 
     -------
     dict
         ``kind, method, fps, frames, units, joints, offsets, bone_lengths, orientations,
-        quality, warnings, timings`` (see ``docs/skeleton-io.md``). Only JSON types; no NaN.
+        quality, warnings, timings`` (see ``docs/skeleton-io.md``). JSON types and
+        ``JsonArray``; no NaN.
 
     Raises
     ------
@@ -115,7 +137,7 @@ def skeleton_to_dict(result: SkeletonResult, *, decimals: int = 6) -> dict[str, 
         "joints": joints,
         "offsets": {name: {"sensor": off.sensor,
                            "local": _rows(np.asarray(off.local)[None], decimals,
-                                          f"offsets.{name}")[0]}
+                                          f"offsets.{name}").tolist()[0]}
                     for name, off in ((n, result.offsets[n])
                                       for n in _ordered(result.offsets, JOINTS))},
         "bone_lengths": _json_safe(dict(result.bone_lengths)),
@@ -147,7 +169,7 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
     timed). :func:`write_skeleton_files` writes BVH, CSV and JSON with one ``write_s``.
     """
     started = time.perf_counter()
-    document = skeleton_to_dict(result, decimals=decimals)
+    document = skeleton_document(result, decimals=decimals)
     if "write_s" not in result.timings:
         document["timings"]["write_s"] = time.perf_counter() - started
     _dump(document, path, indent)
@@ -155,15 +177,15 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
 
 def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None = None,
                          bvh_path: PathLike | None = None, csv_path: PathLike | None = None,
-                         decimals: int = 6) -> SkeletonResult:
-    """Write the BVH, the CSV, then the JSON whose ``timings.write_s`` covers all three.
+                         npz_path: PathLike | None = None, decimals: int = 6) -> SkeletonResult:
+    """Write the BVH, the CSV, the NPZ, then the JSON whose ``timings.write_s`` covers all.
 
     Parameters
     ----------
     result : SkeletonResult
         With ``read_s`` and ``estimate_s`` in its timings when the caller measured them.
-    json_path, bvh_path, csv_path : path, optional
-        Files to write; None: skip.
+    json_path, bvh_path, csv_path, npz_path : path, optional
+        Files to write; None: skip. The NPZ's ``timings`` stop before it.
     decimals : int
         Decimal places of JSON positions in metres.
 
@@ -178,8 +200,11 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
         write_skeleton_bvh(result, bvh_path)
     if csv_path is not None:
         write_skeleton_csv(result, csv_path)
+    if npz_path is not None:
+        timed = {**result.timings, "write_s": time.perf_counter() - started}
+        write_skeleton_npz(replace(result, timings=timed), npz_path)
     if json_path is not None:
-        document = skeleton_to_dict(result, decimals=decimals)
+        document = skeleton_document(result, decimals=decimals)
         document["timings"]["write_s"] = time.perf_counter() - started
         _dump(document, json_path, None)
     return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
@@ -187,11 +212,8 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
 
 def _dump(document: Mapping[str, Any], path: PathLike | io.TextIOBase,
           indent: int | None) -> None:
-    text = json.dumps(document, indent=indent, allow_nan=False)
-    if isinstance(path, io.TextIOBase):
-        path.write(text)
-    else:
-        Path(path).write_text(text + "\n", encoding="utf-8")
+    end = "" if isinstance(path, io.TextIOBase) else "\n"
+    write_text_blocks(json_blocks(document, indent=indent), path, end=end)
 
 
 def _array(value: Any, shape_tail: tuple[int, ...], field: str) -> NDArray[np.float64]:
@@ -331,6 +353,39 @@ def read_skeleton_offsets(path: PathLike) -> dict[str, JointOffset]:
     return offsets_from_dict(data["offsets"])
 
 
+# --------------------------------------------------------------------------- NPZ
+
+
+def write_skeleton_npz(result: SkeletonResult, path: PathLike) -> None:
+    """Write ``result`` as an NPZ archive: the JSON document's names, arrays at full
+    precision (see :mod:`bonefit.estimation.io.result_npz`; ``docs/skeleton-io.md``).
+
+    Parameters
+    ----------
+    result : SkeletonResult
+    path : path
+        Written as given (no ``.npz`` appended).
+
+    Raises
+    ------
+    InputError
+        If a joint trajectory or orientation holds NaN (as the JSON).
+    """
+    write_document_npz(skeleton_document(result), path)
+
+
+def read_skeleton_npz(path: PathLike) -> SkeletonResult:
+    """Read a skeleton NPZ archive written by :func:`write_skeleton_npz`.
+
+    Raises
+    ------
+    InputError
+        Not an NPZ result, or a document that is not a skeleton (as
+        :func:`skeleton_from_dict`).
+    """
+    return skeleton_from_dict(read_document_npz(path))
+
+
 # --------------------------------------------------------------------------- CSV
 
 
@@ -348,12 +403,7 @@ def write_skeleton_csv(result: SkeletonResult, path: PathLike | io.TextIOBase, *
     for j, name in enumerate(names):
         table[:, 1 + 3 * j:4 + 3 * j] = result.joints[name]
     header = ",".join(["time"] + [f"{name}.{c}" for name in names for c in "xyz"])
-    out = io.StringIO()
-    np.savetxt(out, table, fmt=f"%.{decimals}f", delimiter=",", header=header, comments="")
-    if isinstance(path, io.TextIOBase):
-        path.write(out.getvalue())
-    else:
-        Path(path).write_text(out.getvalue(), encoding="utf-8")
+    write_text_blocks(itertools.chain([header + "\n"], fixed_blocks(table, decimals)), path)
 
 
 # --------------------------------------------------------------------------- BVH

@@ -4,7 +4,6 @@ a BVH with the root path in the root's position channels, or JSON (docs/translat
 from __future__ import annotations
 
 import io
-import json
 import math
 import os
 import time
@@ -25,8 +24,10 @@ from ..bvh import (
 )
 from ..errors import InputError
 from ..kinematics import GRAVITY, KinematicsRecording
+from ..numtext import JsonArray, json_blocks, plain, write_text_blocks
 from ..results import timings_document
 from ..vocabulary import TRANSLATION_OUTPUT_FORMATS
+from .result_npz import write_document_npz
 
 if TYPE_CHECKING:
     from ..translation import TranslationResult
@@ -41,13 +42,17 @@ OUTPUT_FORMATS: Final[tuple[str, ...]] = TRANSLATION_OUTPUT_FORMATS
 
 def translation_to_dict(result: TranslationResult, recording: KinematicsRecording | None = None,
                         *, decimals: int = 5) -> dict[str, Any]:
-    """JSON-ready dict: root path (m), translation, contacts, floor, quality, timings; with
+    """JSON-ready dict (:func:`translation_document` with its arrays as lists)."""
+    return dict(plain(translation_document(result, recording, decimals=decimals)))
+
+
+def translation_document(result: TranslationResult,
+                         recording: KinematicsRecording | None = None, *,
+                         decimals: int = 5) -> dict[str, Any]:
+    """The JSON document: root path (m), translation, contacts, floor, quality, timings; with
     the recording, its frame times, the feet and toes used, the corrected feet's heights (m,
-    +Y, per frame), the input's length unit (metres per unit) and the reader's notes."""
-
-    def rows(a: NDArray[np.float64]) -> list[list[float]]:
-        return np.round(a, decimals).tolist()  # type: ignore[no-any-return]
-
+    +Y, per frame), the input's length unit (metres per unit) and the reader's notes. Its
+    per-frame arrays are :class:`~bonefit.estimation.numtext.JsonArray` (written in bulk)."""
     out: dict[str, Any] = {
         "kind": "translation",
         "method": result.method,
@@ -56,8 +61,8 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
         "units": "m",
         "up": "+Y",
         "root_joint": recording.root if recording is not None else None,
-        "root": rows(result.root),
-        "translation": rows(result.translation),
+        "root": JsonArray(result.root, decimals),
+        "translation": JsonArray(result.translation, decimals),
         "floor": np.round(result.floor, decimals).tolist(),
         "contacts": [str(c) for c in result.contacts],
         "quality": {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
@@ -65,11 +70,11 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
         "timings": timings_document(result.timings),
     }
     if recording is not None:
-        out["time"] = np.round(recording.time, 6).tolist()
+        out["time"] = JsonArray(recording.time, 6)
         out["feet"] = {"left": recording.left_foot, "right": recording.right_foot,
                        "toes": dict(recording.toes)}
         out["foot_heights"] = {
-            side: np.round(result.positions[:, recording.index(foot), 1], decimals).tolist()
+            side: JsonArray(result.positions[:, recording.index(foot), 1], decimals)
             for side, foot in (("left", recording.left_foot), ("right", recording.right_foot))}
         out["input_length_unit_m"] = recording.length_scale
         out["notes"] = list(recording.notes)
@@ -127,21 +132,27 @@ def write_translation(result: TranslationResult, recording: KinematicsRecording,
     recording : KinematicsRecording
         The input the result was estimated from.
     path : path or text stream
-    format : {"kinematics-csv", "bvh", "mvnx", "json"}
+    format : {"kinematics-csv", "bvh", "mvnx", "json", "npz"}
         ``kinematics-csv``: every column of the input CSV in its order, positions corrected
         (input must be a kinematics CSV); ``bvh``: the input BVH with the root path in the
         root's position channels (a point-joint BVH in cm for other inputs); ``mvnx``: the
-        input MVNX with corrected segment positions; ``json``: root path, contacts, quality.
+        input MVNX with corrected segment positions; ``json``: root path, contacts, quality;
+        ``npz``: the JSON's names, its arrays binary (:mod:`bonefit.estimation.io.result_npz`).
     """
     if format not in OUTPUT_FORMATS:
         raise InputError(f"unknown output format {format!r}; use {', '.join(OUTPUT_FORMATS)}",
                          field="format")
-    if format == "json":
+    if format in ("json", "npz"):
         started = time.perf_counter()
-        document = translation_to_dict(result, recording)
+        document = translation_document(result, recording)
         if "write_s" not in result.timings:  # the time to build it; the dump is not timed
             document["timings"]["write_s"] = time.perf_counter() - started
-        _emit(path, json.dumps(document, separators=(",", ":")))
+        if format == "npz":
+            if isinstance(path, io.TextIOBase):
+                raise InputError("NPZ output needs a file path", field="format")
+            write_document_npz(document, path)
+        else:
+            write_text_blocks(json_blocks(document, separators=(",", ":")), path)
     elif format == "bvh":
         write_bvh(translated_bvh(result, recording), path)
     elif format == "kinematics-csv":

@@ -146,14 +146,14 @@ def test_skeleton_flow(cluster: Cluster, sensor_csv_bytes: bytes) -> None:
         job = submit(client, {"kind": "skeleton", "recording_id": rec["id"]})
         done = wait_for_job(client, job["id"], timeout=120)
         assert done["status"] == "succeeded", done
-        assert set(done["results"]) == {"json", "bvh", "csv"}
+        assert set(done["results"]) == {"json", "bvh", "csv", "npz"}
         bvh = client.get(f"/v1/jobs/{job['id']}/result", params={"format": "bvh"})
         assert bvh.status_code == 200
         assert bvh.text.startswith("HIERARCHY")
         assert "root" in client.get(done["results"]["json"]).text
         assert client.get(done["results"]["csv"]).text.count("\n") > 240
     new = set(cluster.s3_keys()) - before
-    assert len(new) >= 4, new  # the recording and the three results live in the bucket
+    assert len(new) >= 5, new  # the recording and the four results live in the bucket
 
 
 def test_translation_flow(cluster: Cluster, kinematics_csv_bytes: bytes) -> None:

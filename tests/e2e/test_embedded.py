@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 
 from tests.e2e.conftest import (
@@ -91,10 +93,15 @@ def test_skeleton_flow(client: httpx.Client, sensor_csv_bytes: bytes) -> None:
     assert fractions == sorted(fractions)
     done = wait_for_job(client, job["id"])
     assert done["status"] == "succeeded", done["error"]
-    assert set(done["results"]) == {"json", "bvh", "csv"}
+    assert set(done["results"]) == {"json", "bvh", "csv", "npz"}
     r = client.get(done["results"]["json"])
     assert r.headers["content-type"] == "application/json"
     assert "root" in json.dumps(r.json())
+    document = r.json()
+    r = client.get(done["results"]["npz"])
+    assert r.headers["content-type"] == "application/x-npz"
+    with np.load(io.BytesIO(r.content)) as npz:  # the JSON's names, arrays at full precision
+        np.testing.assert_allclose(npz["joints/root"], document["joints"]["root"], atol=5e-7)
     r = client.get(f"/v1/jobs/{job['id']}/result", params={"format": "bvh"})
     assert r.status_code == 200
     assert r.headers["content-disposition"] == f'attachment; filename="skeleton-{job["id"]}.bvh"'
@@ -150,7 +157,7 @@ def test_translation_flow(client: httpx.Client, kinematics_csv_bytes: bytes) -> 
                           "params": {"method": "contact"}})
     done = wait_for_job(client, job["id"])
     assert done["status"] == "succeeded", done["error"]
-    assert set(done["results"]) == {"json", "bvh", "csv"}
+    assert set(done["results"]) == {"json", "bvh", "csv", "npz"}
     assert client.get(done["results"]["bvh"]).text.startswith("HIERARCHY")
     corrected = client.get(done["results"]["csv"]).text.splitlines()
     assert corrected[0] == kinematics_csv_bytes.decode().splitlines()[0]
@@ -175,7 +182,7 @@ def test_translation_of_a_bvh_with_accelerations(
     job = submit(client, {**body, "inputs": {"accelerations": acc["id"]}})
     done = wait_for_job(client, job["id"])
     assert done["status"] == "succeeded", done["error"]
-    assert set(done["results"]) == {"json", "bvh"}
+    assert set(done["results"]) == {"json", "bvh", "npz"}
     assert client.get(done["results"]["bvh"]).text.startswith("HIERARCHY")
 
 
@@ -358,4 +365,5 @@ def test_the_documented_httpx_flow_runs(server: ServerProcess, tmp_path: Path) -
                           capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "succeeded" in done.stdout
-    assert sorted(p.suffix for p in tmp_path.glob("skeleton-*")) == [".bvh", ".csv", ".json"]
+    assert sorted(p.suffix for p in tmp_path.glob("skeleton-*")) == [".bvh", ".csv", ".json",
+                                                                      ".npz"]

@@ -109,6 +109,10 @@ def test_upload_watch_view_and_download(start_server: Callable[..., ServerProces
         page.click("#downloads button[data-format=bvh]")
     assert download.value.suggested_filename == f"skeleton-{job_id}.bvh"
     assert Path(download.value.path()).read_text().startswith("HIERARCHY")
+    with page.expect_download() as download:  # the binary result is offered too
+        page.click("#downloads button[data-format=npz]")
+    assert download.value.suggested_filename == f"skeleton-{job_id}.npz"
+    assert Path(download.value.path()).read_bytes().startswith(b"PK")
     page.reload()  # the deep link works on its own
     page.wait_for_selector("#stage")
     assert page.errors == []  # type: ignore[attr-defined]

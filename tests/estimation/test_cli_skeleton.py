@@ -15,7 +15,7 @@ from bonefit.cli import main
 from bonefit.estimation import skeleton as skeleton_module
 from bonefit.estimation.bvh import forward_kinematics, read_bvh
 from bonefit.estimation.io.sensors import example_path, read_recording, write_sensor_csv
-from bonefit.estimation.io.skeleton import BVH_NODES
+from bonefit.estimation.io.skeleton import BVH_NODES, read_skeleton_npz
 from bonefit.estimation.model import JOINTS, SEGMENTS
 from bonefit.estimation.recording import SensorRecording
 from bonefit.estimation.results import SkeletonResult
@@ -195,7 +195,8 @@ def test_options_reach_the_estimator_and_outputs_are_written(
     monkeypatch.setattr(skeleton_module, "estimate_skeleton", estimate)
     code, out, err = run(capsys, "--example", "--method", "reduced", "--optimizer",
                          "Nelder-Mead", "--up=-z", "--i0", "7", "-o", str(tmp_path / "r.json"),
-                         "--bvh", str(tmp_path / "r.bvh"), "--csv", str(tmp_path / "r.csv"))
+                         "--bvh", str(tmp_path / "r.bvh"), "--csv", str(tmp_path / "r.csv"),
+                         "--npz", str(tmp_path / "r.npz"))
     assert (code, out, err) == (0, "", "")
     assert calls == [{"method": "reduced", "optimizer": "nelder-mead", "torso": "llsf",
                       "up": (0.0, 0.0, -1.0), "i0": 7, "anthropometry": "aist", "w_s": 0.01,
@@ -209,6 +210,9 @@ def test_options_reach_the_estimator_and_outputs_are_written(
     positions, _ = forward_kinematics(read_bvh(tmp_path / "r.bvh"))
     np.testing.assert_allclose(positions[:, 0] / 100, doc["joints"]["root"], atol=1e-6)
     assert len((tmp_path / "r.csv").read_text().splitlines()) == 301
+    binary = read_skeleton_npz(tmp_path / "r.npz")
+    np.testing.assert_allclose(binary.joints["root"], doc["joints"]["root"], atol=5e-7)
+    assert binary.timings["estimate_s"] == 0.25
 
 
 def test_fit_options_reach_the_estimator(capsys: pytest.CaptureFixture[str], tmp_path: Path,

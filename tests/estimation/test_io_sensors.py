@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from bonefit.estimation.errors import InputError
+from bonefit.estimation.io import sensor_csv
 from bonefit.estimation.io.sensors import (
     RowCounter,
     detect_format,
@@ -156,6 +157,31 @@ def test_malformed_number_names_line_and_column(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"'1\.4\.2' at line 6, column 10 \(chest\.y\)") as err:
         read_sensor_csv(path)
     assert (err.value.line, err.value.column, err.value.field) == (6, 10, "chest.y")
+
+
+@pytest.mark.parametrize("chunk", [64, 97, 1 << 22])
+def test_blocks_of_any_size_read_the_same_rows_and_name_the_same_lines(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk: int) -> None:
+    """The fast parse goes a block of lines at a time: rows, dropped samples, comments,
+    blank lines, CRLF and a last line without its end give what one pass gives, and a fault
+    in a later block is named at its line."""
+    monkeypatch.setattr(sensor_csv, "CHUNK_CHARS", chunk)
+    rec = small_recording(n_frames=40, seed=3)
+    write_sensor_csv(rec, tmp_path / "r.csv")
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    lines.insert(20, "# a comment between the rows")
+    lines.insert(30, "")
+    text = "\r\n".join(lines)  # CRLF, and no line end after the last row
+    back = read_sensor_csv(write(tmp_path / "mixed.csv", text))
+    np.testing.assert_allclose(back.positions, rec.positions, atol=1e-6)
+    np.testing.assert_allclose(back.time, rec.time, atol=1e-9)
+    assert back.valid().sum() == rec.valid().sum()
+    cells = lines[37].split(",")
+    cells[5] = "x"
+    lines[37] = ",".join(cells)
+    with pytest.raises(InputError, match=r"'x' at line 38, column 6") as err:
+        read_sensor_csv(write(tmp_path / "bad.csv", "\n".join(lines) + "\n"))
+    assert err.value.line == 38
 
 
 def test_short_row_names_its_line(tmp_path: Path) -> None:

@@ -18,12 +18,14 @@ from bonefit.estimation.errors import InputError
 from bonefit.estimation.io.skeleton import (
     BVH_NODES,
     read_skeleton_json,
+    read_skeleton_npz,
     skeleton_to_bvh,
     skeleton_to_dict,
     write_skeleton_bvh,
     write_skeleton_csv,
     write_skeleton_files,
     write_skeleton_json,
+    write_skeleton_npz,
 )
 from bonefit.estimation.model import JOINTS, SEGMENTS
 from bonefit.estimation.results import JointOffset, SkeletonResult
@@ -285,6 +287,48 @@ def test_json_refuses_nan_joints_and_foreign_documents(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="line 2") as err:
         read_skeleton_json(tmp_path / "bad.json")
     assert err.value.line == 2
+
+
+# --------------------------------------------------------------------------- NPZ
+
+
+def test_npz_round_trip_at_full_precision_with_the_json_names(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=9, seed=4)
+    write_skeleton_npz(result, tmp_path / "s.bin")  # written as named, no ".npz" added
+    back = read_skeleton_npz(tmp_path / "s.bin")
+    assert (back.method, back.fps, back.n_frames) == ("llsf", 30.0, 9)
+    for j in JOINTS:
+        np.testing.assert_array_equal(back.joints[j], result.joints[j])
+    for seg, q in result.orientations.items():
+        np.testing.assert_array_equal(back.orientations[seg], q)
+    assert back.offsets["l_knee"].sensor == "l_thigh"
+    assert back.quality["l_knee"]["hinge"] is True
+    assert back.warnings == result.warnings
+    # plain numpy and json read it: the JSON document, each array named by its path
+    write_skeleton_json(result, tmp_path / "s.json")
+    written = json.loads((tmp_path / "s.json").read_text())
+    with np.load(tmp_path / "s.bin") as npz:
+        document = json.loads(str(npz["document"]))
+        assert document["joints"]["l_knee"] == "joints/l_knee"
+        np.testing.assert_array_equal(npz["joints/l_knee"], result.joints["l_knee"])
+        np.testing.assert_array_equal(npz["orientations/spine"], result.orientations["spine"])
+    for key in ("kind", "method", "fps", "frames", "units", "offsets", "bone_lengths",
+                "quality", "warnings"):
+        assert document[key] == written[key], key
+    assert list(document) == list(written)
+
+
+def test_npz_refuses_nan_and_foreign_archives(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=4)
+    joints = {**result.joints, "l_knee": np.full((4, 3), np.nan)}
+    with pytest.raises(InputError, match=r"joints\.l_knee has NaN"):
+        write_skeleton_npz(replace(result, joints=joints), tmp_path / "nan.npz")
+    np.savez(tmp_path / "other.npz", positions=np.zeros((3, 2, 3)))
+    with pytest.raises(InputError, match="lacks the array 'document'"):
+        read_skeleton_npz(tmp_path / "other.npz")
+    (tmp_path / "text.npz").write_text("not a zip")
+    with pytest.raises(InputError, match="not an NPZ archive"):
+        read_skeleton_npz(tmp_path / "text.npz")
 
 
 # --------------------------------------------------------------------------- CSV

@@ -1,0 +1,260 @@
+"""Numbers as text in bulk: rows of fixed-decimal numbers and JSON arrays, formatted by
+numpy a block of rows at a time instead of one Python call per number.
+
+A number is written as ``f"{v:.{decimals}f}"`` would write it (C ``printf``, correctly
+rounded), byte for byte: its digits come from the integer ``rint(v * 10**decimals)``, which is
+the correct rounding except within a rounding error of a tie; a block holding such a value (or
+one too large for 52 bits, or a NaN where a text for it is needed) is formatted by Python
+instead. Text is produced in blocks of about :data:`BLOCK_VALUES` numbers, so a writer holds a
+few megabytes of text at a time whatever the size of the table.
+
+Examples
+--------
+>>> import numpy as np
+>>> from bonefit.estimation.numtext import fixed_text
+>>> fixed_text(np.array([[1.25, -0.5], [3.0, 1e-9]]), 3, sep=",")
+'1.250,-0.500\\n3.000,0.000\\n'
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+BLOCK_VALUES: Final[int] = 1 << 17
+"""Numbers formatted per block (about 1.5 MB of text, ~10 MB of scratch arrays)."""
+
+_MAX_DECIMALS: Final[int] = 15
+_DIGIT0: Final[int] = ord("0")
+_MARK: Final[str] = "\x00bonefit-array\x00"
+
+
+def fixed_blocks(table: NDArray[np.float64], decimals: int, *, sep: str = ",",
+                 row_start: str = "", row_end: str = "\n",
+                 nan: str | None = None) -> Iterator[str]:
+    """The text of the rows of ``table``, block by block.
+
+    Parameters
+    ----------
+    table : ndarray, shape (R, C)
+        Numbers to write.
+    decimals : int
+        Decimal places of every number (0 to 15).
+    sep : str
+        Between the numbers of a row.
+    row_start, row_end : str
+        Before and after each row.
+    nan : str, optional
+        Text of a non-finite value (e.g. ``""``: an empty cell); by default ``printf``'s
+        (``nan``, ``inf``).
+
+    Yields
+    ------
+    str
+        Consecutive pieces of the text; their concatenation is every row in order.
+    """
+    table = np.asarray(table, dtype=float)
+    if table.ndim != 2:
+        raise ValueError(f"table must be 2-D, got shape {table.shape}")
+    if not 0 <= decimals <= _MAX_DECIMALS:
+        raise ValueError(f"decimals must be 0 to {_MAX_DECIMALS}, got {decimals}")
+    layout = _Layout(decimals, sep, row_start, row_end, nan)
+    step = max(1, BLOCK_VALUES // max(table.shape[1], 1))
+    for start in range(0, table.shape[0], step):
+        block = table[start:start + step]
+        scaled = _scaled(block, layout)
+        yield (_python_block(block, layout) if scaled is None
+               else _numpy_block(block, scaled, layout))
+
+
+def fixed_text(table: NDArray[np.float64], decimals: int, **layout: Any) -> str:
+    """The whole text of :func:`fixed_blocks` (same parameters) as one string."""
+    return "".join(fixed_blocks(table, decimals, **layout))
+
+
+@dataclass(frozen=True)
+class _Layout:
+    decimals: int
+    sep: str
+    row_start: str
+    row_end: str
+    nan: str | None
+
+    def number(self, value: float) -> str:
+        """One number as Python writes it (the reference the numpy path reproduces)."""
+        if not np.isfinite(value) and self.nan is not None:
+            return self.nan
+        return f"{value:.{self.decimals}f}"
+
+
+def _python_block(block: NDArray[np.float64], layout: _Layout) -> str:
+    return "".join(layout.row_start + layout.sep.join(layout.number(v) for v in row.tolist())
+                   + layout.row_end for row in block)
+
+
+def _scaled(block: NDArray[np.float64], layout: _Layout) -> NDArray[np.float64] | None:
+    """``block * 10**decimals`` (non-finite values as 0) when its ``rint`` is the correct
+    rounding of every value: none within a rounding error of a tie nor beyond 2**52, and
+    non-finite values have a text the numpy path writes (empty); else None."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        scaled = block * 10.0 ** layout.decimals
+        finite = np.isfinite(scaled)
+        if not finite.all():
+            if layout.nan != "":
+                return None
+            scaled[~finite] = 0.0
+        size = np.abs(scaled)
+        tie_distance = np.abs(np.abs(scaled - np.trunc(scaled)) - 0.5)
+    if size.max(initial=0.0) < 2.0 ** 52 and (tie_distance > size * 2.0 ** -51).all():
+        return scaled
+    return None
+
+
+_TRIPLETS: Final = np.array([[ord(c) for c in f"{i:03d}"] for i in range(1000)], dtype=np.uint8)
+"""ASCII digits of 0 to 999, zero-padded."""
+
+
+def _put_digits(values: NDArray[np.int64], out: NDArray[np.uint8]) -> None:
+    """Zero-padded ASCII digits of non-negative integers (R, C) into ``out`` (R, C, W) with W
+    a multiple of 3, three at a time."""
+    q = values
+    for end in range(out.shape[-1], 0, -3):
+        q, group = np.divmod(q, 1000)
+        out[..., end - 3:end] = np.take(_TRIPLETS, group, axis=0)
+
+
+def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
+                 layout: _Layout) -> str:
+    """Rows of ``block`` with every digit computed by numpy: each number in a fixed-width
+    field of the row, a mask keeping the characters it uses."""
+    d, sep = layout.decimals, layout.sep.encode()
+    whole, frac = np.divmod(np.abs(np.rint(scaled)).astype(np.int64), 10 ** d)
+    width = 3 * -(-len(str(int(whole.max(initial=0)))) // 3)
+    n_frac = 3 * -(-d // 3)
+    field = 1 + width + (1 + d if d else 0) + len(sep)
+    n_rows, n_cols = block.shape
+    start, end = layout.row_start.encode(), layout.row_end.encode()
+    line = np.empty((n_rows, len(start) + n_cols * field + len(end)), dtype=np.uint8)
+    mask = np.ones(line.shape, dtype=bool)
+    chars = line[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
+    keep = mask[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
+    if d:  # the decimals' zero padding may cover the point and int digits: written next
+        _put_digits(frac, chars[..., field - len(sep) - n_frac:field - len(sep)])
+        chars[..., 1 + width] = ord(".")
+    _put_digits(whole, chars[..., 1:1 + width])
+    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), whole, side="right")
+    keep[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
+    chars[..., 0] = ord("-")
+    keep[..., 0] = np.signbit(block)
+    if sep:
+        chars[..., field - len(sep):] = np.frombuffer(sep, dtype=np.uint8)
+        keep[:, -1, field - len(sep):] = False
+    if layout.nan == "":
+        keep[~np.isfinite(block), :field - len(sep)] = False
+    line[:, :len(start)] = np.frombuffer(start, dtype=np.uint8)
+    line[:, line.shape[1] - len(end):] = np.frombuffer(end, dtype=np.uint8)
+    return line[mask].tobytes().decode("utf-8")
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+@dataclass(frozen=True, eq=False)
+class JsonArray:
+    """A numeric array in a JSON document: written with the values
+    ``np.round(values, decimals).tolist()`` has, each with ``decimals`` decimals (``0.000061``
+    where ``json.dumps`` writes ``6.1e-05``, ``1.500000`` for ``1.5``), in bulk.
+
+    Attributes
+    ----------
+    values : ndarray, shape (F,) or (F, C)
+        Finite numbers.
+    decimals : int
+        Decimal places they are rounded to.
+    """
+
+    values: NDArray[np.float64]
+    decimals: int
+
+    def tolist(self) -> list[Any]:
+        """The plain Python lists ``json`` would get."""
+        out: list[Any] = np.round(np.asarray(self.values, dtype=float), self.decimals).tolist()
+        return out
+
+    def blocks(self, sep: str) -> Iterator[str]:
+        """The JSON text of the array, block by block, items separated by ``sep``."""
+        values = np.asarray(self.values, dtype=float)
+        flat = values.ndim == 1
+        table = values.reshape(-1, 1) if flat else values
+        first = True
+        yield "["
+        step = max(1, BLOCK_VALUES // max(table.shape[1], 1))
+        for start in range(0, table.shape[0], step):
+            rounded = np.round(table[start:start + step], self.decimals)
+            for text in fixed_blocks(rounded, self.decimals, sep=sep,
+                                     row_start=sep if flat else sep + "[",
+                                     row_end="" if flat else "]"):
+                yield text[len(sep):] if first else text
+                first = False
+        yield "]"
+
+
+def plain(document: Any) -> Any:
+    """``document`` with every :class:`JsonArray` replaced by its lists."""
+    if isinstance(document, JsonArray):
+        return document.tolist()
+    if isinstance(document, Mapping):
+        return {k: plain(v) for k, v in document.items()}
+    if isinstance(document, list | tuple):
+        return [plain(v) for v in document]
+    return document
+
+
+def json_blocks(document: Any, *, indent: int | None = None,
+                separators: tuple[str, str] | None = None) -> Iterator[str]:
+    """The text of ``json.dumps(plain(document), indent=..., separators=...)`` up to the
+    layout inside the arrays, piece by piece: the document around its :class:`JsonArray`
+    values is dumped by ``json`` (``allow_nan=False``), each array in bulk."""
+    arrays: list[JsonArray] = []
+
+    def mark(value: Any) -> Any:
+        if isinstance(value, JsonArray):
+            arrays.append(value)
+            return f"{_MARK}{len(arrays) - 1}{_MARK}"
+        if isinstance(value, Mapping):
+            return {k: mark(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [mark(v) for v in value]
+        return value
+
+    item_sep = separators[0] if separators is not None else ", "
+    text = json.dumps(mark(document), indent=indent, separators=separators, allow_nan=False)
+    marker = json.dumps(_MARK)[1:-1]  # as json escapes it
+    parts = text.split(f'"{marker}')
+    yield parts[0]
+    for part in parts[1:]:
+        number, _, rest = part.partition(f'{marker}"')
+        yield from arrays[int(number)].blocks(item_sep)
+        yield rest
+
+
+def write_text_blocks(blocks: Iterable[str], target: str | os.PathLike[str] | io.TextIOBase,
+                      *, end: str = "") -> None:
+    """Write consecutive pieces of text to a path (UTF-8) or a text stream."""
+    if isinstance(target, io.TextIOBase):
+        for text in blocks:
+            target.write(text)
+        target.write(end)
+        return
+    with Path(target).open("w", encoding="utf-8", newline="") as handle:
+        for text in blocks:
+            handle.write(text)
+        handle.write(end)
