@@ -193,7 +193,9 @@ def test_data_sd_tells_how_well_the_recording_locates_a_joint() -> None:
         two_sensor = [j for j in JOINTS if j not in ("root", "chest")]
         assert all(np.isfinite(result.quality[j]["data_sd_m"]) for j in two_sensor)
         assert "data_sd_m" not in result.quality["root"]
-    assert 0.0 < sds[0] < 0.003, sds
+    # data_sd_m also carries the neck's own data-only fit, in which the 5 mm slip counts as
+    # correlated noise (issue 20 §4): 11 mm with the full motion (the shared model alone: 1.3)
+    assert 0.0 < sds[0] < 0.015, sds
     assert 2.0 * sds[0] < sds[1] < sds[2] / 2.0, sds
 
 
