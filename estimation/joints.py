@@ -712,7 +712,6 @@ class HingeRule(NamedTuple):
     neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None)
     bone_length: float | None = None
     hinge_prior: float = 0.005
-    rule_sd_m: float = 0.0  # > 0: the straight-limb rule as a prior of this sd (metres)
 
 
 def hinge_decision(model: JointModel, fit: RobustFit, c: NDArray[np.float64],
@@ -750,21 +749,9 @@ def hinge_decision(model: JointModel, fit: RobustFit, c: NDArray[np.float64],
     if rule is None:
         return HingeDecision(c, None, rejected, shift, 1.0)
     # Tikhonov prior on the weak coordinate: data weight lam0, prior weight tau
-    blend = lam0 / (lam0 + _rule_weight(model, fit, c, rule_in, step, rule))
+    blend = lam0 / (lam0 + rule_in.hinge_prior)
     shift *= 1.0 - blend
     return HingeDecision(c + (shift / step) * fit.weak, rule, rejected, shift, blend)
-
-
-def _rule_weight(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: HingeRule,
-                 step: float, rule: str) -> float:
-    """The rule's weight against the normalised data term along the weak coordinate:
-    ``hinge_prior``, or for the straight-limb rule with ``rule_sd_m`` the information
-    weight ``step² σ²/(N_eff s²)``: the data's variance along the axis (metres²,
-    ``step² σ²/(N_eff λ)``) against the rule's ``s²`` (how far real middle joints sit off
-    their neighbours' line), so the blend is the inverse-variance mean of data and rule."""
-    if rule != "straight-limb" or rule_in.rule_sd_m <= 0.0:
-        return rule_in.hinge_prior
-    return step**2 * model.variance_per_information(c, fit.w, fit.back) / rule_in.rule_sd_m**2
 
 
 def _along_bone(data: JointData, rule_in: HingeRule, centre: NDArray[np.float64],
@@ -910,7 +897,6 @@ def estimate_joint(
     neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
     hinge_ratio: float = 0.3,
     hinge_prior: float = 0.005,
-    rule_sd_m: float = 0.0,
     trust_data_sd_m: float = 0.0,
     min_range_deg: float = 2.0,
     range_of_motion_deg: float | None = None,
@@ -961,6 +947,10 @@ def estimate_joint(
         Weight of the hinge rule against the data along the weakest direction: the final
         position along the axis is ``β·LLSF + (1 − β)·rule`` with ``β = λ / (λ + hinge_prior)``
         and ``λ`` the smallest eigenvalue of the normalised normal matrix (a Tikhonov prior).
+    trust_data_sd_m : float
+        Where the data alone locate the centre to this standard deviation (metres,
+        :func:`fit_sd`, reported as ``quality["fit_sd_m"]``), the data-only centre is kept:
+        no prior, symmetry plane or hinge rule (LLSF only; 0 disables it).
     huber_k : float
         Robust-loss threshold in robust standard deviations of the residual.
     n_iterations : int
@@ -1083,7 +1073,7 @@ def estimate_joint(
     c = (gdke_centre(data, fit.w, bias_compensation=bias_compensation, point_m=gdke_point_m)
          if estimator == "gdke" else fit.c)
     hinge = hinge_value(fit.sv) < hinge_ratio
-    rule = HingeRule(neighbours, bone_length, hinge_prior, rule_sd_m)
+    rule = HingeRule(neighbours, bone_length, hinge_prior)
     decision = _hinge(model, fit, c, rule, priors, hinge)
     if decision is not None:
         c = decision.c

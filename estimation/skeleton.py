@@ -64,9 +64,6 @@ LIMB_PRIOR_SIGMA_M: Final[float] = 0.02
 # a joint whose own fit locates it to this (``quality["fit_sd_m"]``, metres) keeps it: the
 # shared slip model and the priors can only add their own misfit there (issue 20 §2)
 GOOD_DATA_SD_M: Final[float] = 0.002
-# how far real knees and elbows sit off the straight line of their neighbours (up to about
-# 15 mm): the straight-limb rule's standard deviation as a prior (issue 20 §3)
-HINGE_RULE_SD_M: Final[float] = 0.01
 # a joint is labelled "data" only where the recording alone locates it to this (metres,
 # ``quality["data_sd_m"]``; issue 20 §4)
 DATA_LABEL_SD_M: Final[float] = 0.01
@@ -634,7 +631,6 @@ def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
             pa, sensors.rotations[a], pb, sensors.rotations[b], method=plan.estimator,
             loss=opt.loss, valid=np.column_stack([sensors.ok[a], sensors.ok[b]]),
             neighbours=plan.neighbours, hinge_prior=0.0 if opt.plain else 0.01,
-            rule_sd_m=HINGE_RULE_SD_M if auto else 0.0,
             trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
             highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
             symmetry=plan.symmetry, prior=plan.prior if auto else None,

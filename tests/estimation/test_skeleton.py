@@ -433,8 +433,13 @@ def test_limb_joints_that_move_well_take_the_shared_slip_model(
                     errors[j].append(e)
             if shared_model:
                 for j in ("l_ankle", "r_ankle", "l_wrist", "r_wrist"):
-                    assert result.quality[j]["estimator"] == "llsf-shared-slip", j
-                    assert result.quality[j]["signal_share"] >= skeleton.EIV_SIGNAL_SHARE
+                    q = result.quality[j]
+                    if q["fit_sd_m"] <= skeleton.GOOD_DATA_SD_M:
+                        # the data alone locate it: they decide (issue 20 §2)
+                        assert q["estimator"] == "llsf", j
+                        continue
+                    assert q["estimator"] == "llsf-shared-slip", j
+                    assert q["signal_share"] >= skeleton.EIV_SIGNAL_SHARE
                 for j in ("l_knee", "r_knee", "l_elbow", "r_elbow"):
                     assert result.quality[j]["estimator"] == "llsf", j
         return {j: float(np.mean(v)) for j, v in errors.items()}
