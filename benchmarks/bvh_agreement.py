@@ -49,12 +49,12 @@ from skeleton_accuracy import (  # noqa: E402
     thinned,
 )
 
-from estimation.bvh import BvhMotion, forward_kinematics, read_bvh  # noqa: E402
-from estimation.io.skeleton import write_skeleton_bvh  # noqa: E402
-from estimation.model import JOINTS  # noqa: E402
-from estimation.results import SkeletonResult  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh  # noqa: E402
+from bonefit.estimation.io.skeleton import write_skeleton_bvh  # noqa: E402
+from bonefit.estimation.model import JOINTS  # noqa: E402
+from bonefit.estimation.results import SkeletonResult  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 START_FRAMES = 10
 FAIR_FLOOR_MM = 5.0

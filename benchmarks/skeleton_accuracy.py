@@ -1,7 +1,7 @@
 """Accuracy of skeleton estimation on sensor recordings simulated from real motion capture.
 
 For every BVH clip under ``<data>/motions`` a rigid 15-segment body is driven by the clip and
-virtual sensors are attached (``estimation.simulate.sensors``: 3–7 cm off the bone, random
+virtual sensors are attached (``bonefit.estimation.simulate.sensors``: 3–7 cm off the bone, random
 orientation, 2 mm / 0.5° white noise, 5 mm slow slip, 1 % dropped samples). Each method's
 joint paths are compared with the exact centres.
 
@@ -34,23 +34,23 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimation.bvh import BvhMotion, read_bvh  # noqa: E402
-from estimation.errors import BonefitError  # noqa: E402
-from estimation.model import JOINTS  # noqa: E402
-from estimation.recording import SensorRecording  # noqa: E402
-from estimation.simulate.sensors import (  # noqa: E402
+from bonefit.estimation.bvh import BvhMotion, read_bvh  # noqa: E402
+from bonefit.estimation.errors import BonefitError  # noqa: E402
+from bonefit.estimation.model import JOINTS  # noqa: E402
+from bonefit.estimation.recording import SensorRecording  # noqa: E402
+from bonefit.estimation.simulate.sensors import (  # noqa: E402
     HingeRig,
     SimulationTruth,
     simulate_sensors,
 )
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 # folder -> (metres per unit, fps override per clip-name prefix)
 DATASETS = {
@@ -252,6 +252,13 @@ class Label(NamedTuple):
     shared_sd_mm: float  # quality["shared_sd_m"] (before issue 20: data_sd_m), nan if absent
 
 
+def joint_label(mean_mm: float, q: dict[str, Any]) -> Label:
+    """The ``Label`` of a joint with mean error ``mean_mm`` and quality ``q``."""
+    sd_mm = 1000.0 * float(q.get("data_sd_m", math.nan))
+    shared_mm = 1000.0 * float(q.get("shared_sd_m", q.get("data_sd_m", math.nan)))
+    return Label(mean_mm, sd_mm, str(q.get("reliability", "")), shared_mm)
+
+
 class Variant(NamedTuple):
     """What is simulated: the noise levels and the rig (None: the BVH's own hinges)."""
 
@@ -266,7 +273,7 @@ class Variant(NamedTuple):
                                 rig=rig, **simulation_noise(self.noise))
 
 
-def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,
+def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,  # noqa: C901
              max_frames: int, only: str, verbose: bool,
              variant: Variant | None = None) -> Evaluation:
     """Simulate every clip with ``seed`` (and ``variant``, by default the protocol's noise
@@ -316,13 +323,10 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
                     per.setdefault(joint, []).append(e * 1000.0)
                     means.append(mean_mm)
                     pairs.setdefault(key, []).append((mean_mm, name, joint))
-                    q = result.quality[joint]
-                    sd_mm = 1000.0 * float(q.get("data_sd_m", math.nan))
-                    shared_mm = 1000.0 * float(q.get("shared_sd_m", q.get("data_sd_m", math.nan)))
-                    labels.setdefault(key, {})[(name, joint)] = Label(
-                        mean_mm, sd_mm, str(q.get("reliability", "")), shared_mm)
-                    if "data_sd_m" in q:
-                        data_sd.setdefault(key, []).append((mean_mm, sd_mm))
+                    lab = joint_label(mean_mm, result.quality[joint])
+                    labels.setdefault(key, {})[(name, joint)] = lab
+                    if math.isfinite(lab.sd_mm):
+                        data_sd.setdefault(key, []).append((mean_mm, lab.sd_mm))
                 line.append(f"{key}={np.median(means):.1f}/{np.max(means):.0f}")
         if verbose:
             print("  ".join(line), flush=True)
@@ -358,23 +362,28 @@ def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: l
                           flush=True)
 
 
+def print_realistic(summary: dict[str, dict[str, float]]) -> None:
+    """Issue 20 §3's acceptance on the realistic rigs."""
+    print("\nRealistic rigs (issue 20 §3)")
+    if "auto:15" in summary:
+        s = summary["auto:15"]
+        for text, value, bound in (
+                ("auto:15 clip-joint median", s["clip_joint_median"], REALISTIC_MEDIAN_15_MM),
+                ("auto:15 hinge clip-joint median", s["hinge_clip_joint_median"],
+                 REALISTIC_HINGE_15_MM)):
+            verdict = "PASS" if value <= bound else "FAIL"
+            print(f"  {verdict}  {text} {value:.1f} mm <= {bound:g}")
+    if "auto:11" in summary:
+        value = summary["auto:11"]["limb_clip_joint_median"]
+        print(f"  {'PASS' if value <= REALISTIC_LIMB_11_MM else 'FAIL'}  auto:11 limb "
+              f"clip-joint median {value:.1f} mm <= {REALISTIC_LIMB_11_MM:g}")
+
+
 def print_checks(ev: Evaluation, summary: dict[str, dict[str, float]], variant: Variant) -> None:
     """Issue 20's figures of one evaluation: the realistic-rig statistics, do no harm where
     the data are good, and the calibration of the "data" label."""
     if variant.realistic and variant.noise == PROTOCOL_NOISE:
-        print("\nRealistic rigs (issue 20 §3)")
-        if "auto:15" in summary:
-            s = summary["auto:15"]
-            for text, value, bound in (
-                    ("auto:15 clip-joint median", s["clip_joint_median"], REALISTIC_MEDIAN_15_MM),
-                    ("auto:15 hinge clip-joint median", s["hinge_clip_joint_median"],
-                     REALISTIC_HINGE_15_MM)):
-                verdict = "PASS" if value <= bound else "FAIL"
-                print(f"  {verdict}  {text} {value:.1f} mm <= {bound:g}")
-        if "auto:11" in summary:
-            value = summary["auto:11"]["limb_clip_joint_median"]
-            print(f"  {'PASS' if value <= REALISTIC_LIMB_11_MM else 'FAIL'}  auto:11 limb "
-                  f"clip-joint median {value:.1f} mm <= {REALISTIC_LIMB_11_MM:g}")
+        print_realistic(summary)
     for n, shared in ((15, False), (15, True), (11, False)):
         harm = no_harm(ev.labels, n, shared=shared)
         if harm is None:
@@ -397,7 +406,32 @@ def print_checks(ev: Evaluation, summary: dict[str, dict[str, float]], variant: 
             print(f"  {e:6.1f} mm, data_sd_m {sd:5.1f} mm  {clip:50s} {joint}")
 
 
-def main(argv: list[str] | None = None) -> int:
+def print_worst(pairs: dict[str, list[tuple[float, str, str]]], priors: list[str]) -> None:
+    """The worst (clip, joint) pairs of auto:15 and the joints flagged "prior"."""
+    if "auto:15" in pairs:
+        print("\nWorst (clip, joint) mean errors of auto:15 (mm)")
+        for err, clip, joint in sorted(pairs["auto:15"], reverse=True)[:12]:
+            print(f"  {err:6.1f}  {clip:50s} {joint}")
+    for item in priors:
+        print("  flagged \"prior\" (rotates < 2°; auto uses its priors there):", item)
+
+
+def print_sd_bins(data_sd: dict[str, list[tuple[float, float]]]) -> None:
+    """The (clip, joint) pairs of each run by their ``data_sd_m``."""
+    for key, found in data_sd.items():
+        print(f"\n{key}: (clip, joint) pairs by quality[joint][\"data_sd_m\"] (how well the "
+              "recording alone locates the joint)")
+        print(f"{'data_sd_m (mm)':>16s}{'pairs':>7s}{'median error':>14s}"
+              f"{f'above {P95_15_MM:g} mm':>13s}")
+        err, sd = np.array(found).T
+        for lo, hi in SD_BINS_MM:
+            inside = (sd >= lo) & (sd < hi)
+            if inside.any():
+                print(f"{f'{lo:g}–{hi:g}':>16s}{inside.sum():7d}{np.median(err[inside]):14.1f}"
+                      f"{np.sum(err[inside] > P95_15_MM):13d}")
+
+
+def main(argv: list[str] | None = None) -> int:  # noqa: C901
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
@@ -459,23 +493,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{s['median']:15.1f}{s['p95']:7.1f}{s['limb_clip_joint_median']:24.1f}"
               f"{s['limb_median']:20.1f}{s['hinge_clip_joint_median']:25.1f}"
               f"{s['seconds']:8.1f}")
-    if "auto:15" in pairs:
-        print("\nWorst (clip, joint) mean errors of auto:15 (mm)")
-        for err, clip, joint in sorted(pairs["auto:15"], reverse=True)[:12]:
-            print(f"  {err:6.1f}  {clip:50s} {joint}")
-    for item in priors:
-        print("  flagged \"prior\" (rotates < 2°; auto uses its priors there):", item)
-    for key, found in data_sd.items():
-        print(f"\n{key}: (clip, joint) pairs by quality[joint][\"data_sd_m\"] (how well the "
-              "recording alone locates the joint)")
-        print(f"{'data_sd_m (mm)':>16s}{'pairs':>7s}{'median error':>14s}"
-              f"{f'above {P95_15_MM:g} mm':>13s}")
-        err, sd = np.array(found).T
-        for lo, hi in SD_BINS_MM:
-            inside = (sd >= lo) & (sd < hi)
-            if inside.any():
-                print(f"{f'{lo:g}–{hi:g}':>16s}{inside.sum():7d}{np.median(err[inside]):14.1f}"
-                      f"{np.sum(err[inside] > P95_15_MM):13d}")
+    print_worst(pairs, priors)
+    print_sd_bins(data_sd)
     print_checks(ev, summary, variant)
     for f in failures:
         print("  refused:", f)

@@ -64,10 +64,10 @@ sys.path.insert(0, str(ROOT))
 
 from skeleton_accuracy import clips, thinned  # noqa: E402
 
-from estimation.errors import BonefitError  # noqa: E402
-from estimation.model import JOINT_SEGMENTS, SEGMENTS  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.errors import BonefitError  # noqa: E402
+from bonefit.estimation.model import JOINT_SEGMENTS, SEGMENTS  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 TARGET_MM = 25.0
 ALLOWED_SHARE = 0.05
@@ -167,7 +167,7 @@ def count_distribution(p: NDArray[np.float64]) -> NDArray[np.float64]:
     return dist
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0915
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--max-frames", type=int, default=600)

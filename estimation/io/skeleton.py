@@ -50,7 +50,7 @@ ROOT_POSITION_CHANNELS: Final[tuple[str, ...]] = ("Xposition", "Yposition", "Zpo
 # --------------------------------------------------------------------------- JSON
 
 
-def _json_safe(value: Any) -> Any:
+def _json_safe(value: Any) -> Any:  # noqa: PLR0911
     """Plain JSON types: numpy scalars and arrays converted, NaN/inf → None."""
     if isinstance(value, Mapping):
         return {str(k): _json_safe(v) for k, v in value.items()}
@@ -205,7 +205,7 @@ def _array(value: Any, shape_tail: tuple[int, ...], field: str) -> NDArray[np.fl
     return arr
 
 
-def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
+def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:  # noqa: C901
     """Rebuild a SkeletonResult from the JSON document of :func:`skeleton_to_dict`.
 
     Raises
@@ -339,7 +339,7 @@ def write_skeleton_csv(result: SkeletonResult, path: PathLike | io.TextIOBase, *
     """Write the joint trajectories as CSV: ``time,<joint>.x,<joint>.y,<joint>.z,...``.
 
     One row per frame; ``time`` = frame / fps in seconds, positions in metres, joints in
-    ``estimation.model.JOINTS`` order (others after).
+    ``bonefit.estimation.model.JOINTS`` order (others after).
     """
     names = _ordered(result.joints, JOINTS)
     n = result.n_frames
@@ -392,7 +392,7 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     a node's OFFSET is the frame mean of ``R_seg(t)ᵀ (child(t) − joint(t))``, in the parent
     node's segment frame. Rotation channels hold ``R_parent(t)⁻¹ R_seg(t)`` as intrinsic
     Euler angles in degrees, in an order per node that keeps its channels off gimbal lock
-    (``estimation.bvh.euler_channels``: a knee or elbow flexing about x gets x first or
+    (``bonefit.estimation.bvh.euler_channels``: a knee or elbow flexing about x gets x first or
     last, never in the middle), unwrapped over time; the root's position channels hold the
     ``root`` joint and its OFFSET is zero, so readers that add position channels to the
     OFFSET (three.js) and readers that replace it (Blender) agree.
@@ -400,8 +400,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     Parameters
     ----------
     result : SkeletonResult
-        Needs the 16 joints of ``estimation.model.JOINTS`` and the orientations of the driving
-        segments, including ``spine``.
+        Needs the 16 joints of ``bonefit.estimation.model.JOINTS`` and the orientations of the
+        driving segments, including ``spine``.
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
     euler_order : str, optional
@@ -417,7 +417,7 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     ------
     InputError
         If a joint or orientation the hierarchy needs is missing or not finite, or
-        ``euler_order`` is not one of ``estimation.bvh.EULER_ORDERS``.
+        ``euler_order`` is not one of ``bonefit.estimation.bvh.EULER_ORDERS``.
     """
     per_m = 1.0 / unit_scale(units)
     rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}

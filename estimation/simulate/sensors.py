@@ -121,7 +121,7 @@ class SimulationTruth:
     Attributes
     ----------
     joints : dict of str to ndarray, shape (F, 3)
-        Every joint of ``estimation.model.JOINTS`` in the world frame, metres. ``root`` and
+        Every joint of ``bonefit.estimation.model.JOINTS`` in the world frame, metres. ``root`` and
         ``chest`` are derived from the true centres as in Miura et al. (2015), eq. 1.
     segment_rotations : dict of str to Rotation
         Segment frame → world rotation of each of the 15 segments, length F.
@@ -289,7 +289,7 @@ def derived_joints(joints: Mapping[str, NDArray[np.float64]]) -> dict[str, NDArr
     Returns
     -------
     dict with ``root`` (centroid of W, LH, RH) and ``chest`` (see
-    ``estimation.skeleton.estimate_chest``).
+    ``bonefit.estimation.skeleton.estimate_chest``).
     """
     return {
         "root": estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"]),
@@ -327,7 +327,7 @@ def _drop_mask(rng: np.random.Generator, n_frames: int, n: int,
     return mask
 
 
-def simulate_sensors(
+def simulate_sensors(  # noqa: PLR0913
     motion: BvhMotion,
     *,
     units_m: float,
@@ -417,7 +417,7 @@ _TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
 """Segments whose length ``SimulationTruth.bone_lengths`` gives."""
 
 
-def _sensor_poses(segments: Sequence[str],
+def _sensor_poses(segments: Sequence[str],  # noqa: PLR0917
                   body: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
                   placement: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
                   slip: NDArray[np.float64], rng: np.random.Generator,

@@ -21,18 +21,23 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.cli import main
-from estimation.errors import BonefitError, InputError
-from estimation.io.sensors import detect_format, read_recording, sniff_recording, write_sensor_csv
-from estimation.io.tracker import (
+from bonefit.cli import main
+from bonefit.estimation.errors import BonefitError, InputError
+from bonefit.estimation.io.sensors import (
+    detect_format,
+    read_recording,
+    sniff_recording,
+    write_sensor_csv,
+)
+from bonefit.estimation.io.tracker import (
     MAX_STATIONS,
     detect_tracker_layout,
     parse_tracker_layout,
     read_tracker_ascii,
 )
-from estimation.recording import SensorRecording
-from estimation.simulate.sensors import example_motion, simulate_sensors
-from estimation.skeleton import estimate_skeleton
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
+from bonefit.estimation.skeleton import estimate_skeleton
 
 FPS = 60.0
 N_FRAMES = 150
@@ -109,7 +114,7 @@ def euler_fields(m: Motion, f: int, s: int, sep: str = " ") -> str:
     return sep.join(f2(v) for v in (*m.inches[f, s], *m.angles[f, s]))
 
 
-def quat_fields(m: Motion, f: int, s: int, order: str = "wxyz", sep: str = " ",
+def quat_fields(m: Motion, f: int, s: int, order: str = "wxyz", sep: str = " ", *,
                 metres: bool = False) -> str:
     q = dict(zip("wxyz", m.quats[f, s], strict=True))
     pos = [f"{v * 0.0254:.9f}" if metres else f2(v) for v in m.inches[f, s]]

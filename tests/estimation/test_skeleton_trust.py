@@ -10,9 +10,9 @@ from collections.abc import Mapping
 import numpy as np
 import pytest
 
-from estimation.model import JOINTS
-from estimation.simulate.sensors import HingeRig, example_motion, simulate_sensors
-from estimation.skeleton import estimate_skeleton
+from bonefit.estimation.model import JOINTS
+from bonefit.estimation.simulate.sensors import HingeRig, example_motion, simulate_sensors
+from bonefit.estimation.skeleton import estimate_skeleton
 
 HINGES = ("l_knee", "r_knee", "l_elbow", "r_elbow")
 
