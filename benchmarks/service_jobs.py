@@ -3,6 +3,10 @@
 1. Job overhead: submit → succeeded for a tiny skeleton job (the example walk cut to 60 frames),
    one at a time, polling the job every 10 ms; median, with the estimation's own time measured
    in this process for comparison.
+   Queue latency: ``started_at − created_at`` of ``--latency`` tiny jobs, each submitted
+   to an idle worker after a random pause (so the submissions fall at every phase of a
+   worker's wait); median, p95 and max; with ``--distributed`` also for a `bonefit worker`
+   on Redis and PostgreSQL.
 2. Status endpoint: GET /v1/jobs/{id} from 50 concurrent keep-alive clients (bare asyncio
    HTTP/1.1, one connection each) for a fixed time; requests/s and p50/p99 latency.
 3. Throughput: jobs/minute for a batch of skeleton jobs on the full example walk (300 frames)
@@ -10,8 +14,8 @@
    processes behind `bonefit serve --no-worker`, on the Redis, PostgreSQL and S3 named by the
    BONEFIT_* variables of the environment.
 
-    python benchmarks/service_jobs.py [--tiny-jobs 15] [--clients 50] [--seconds 5] [--batch 16]
-                                      [--distributed]
+    python benchmarks/service_jobs.py [--tiny-jobs 15] [--latency 50] [--clients 50]
+                                      [--seconds 5] [--batch 16] [--distributed] [--only latency]
 
 Everything runs on loopback; numbers depend on the machine (2 shared cores where measured).
 """
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import random
 import time
 from datetime import datetime
 from pathlib import Path
@@ -117,13 +122,41 @@ def job_overhead(tmp: Path, count: int) -> list[list[object]]:
         ["submit → succeeded (median)", ms(median(latencies)),
          f"min {ms(min(latencies))}, max {ms(max(latencies))}, n={count}"],
         ["  queued: created → started (median)", ms(median(queued)),
-         "the worker polls an empty queue every 0.2 s"],
+         "an idle worker is woken on enqueue"],
         ["  running: started → finished (median)", ms(median(ran)),
          "fetch input, estimate, write 3 results, store updates"],
         ["estimation alone (same file, in process)", ms(compute), ""],
         ["overhead (median − estimation)", ms(median(latencies) - compute),
          "queue, worker, store, artifacts, client polling (10 ms)"],
     ]
+
+
+def queue_latency(tmp: Path, count: int, distributed: bool = False) -> list[float]:
+    """``started_at − created_at`` of ``count`` tiny jobs, each submitted to an idle worker."""
+    if distributed:  # `serve --no-worker` + one `bonefit worker` on Redis and PostgreSQL
+        launch = running_server(tmp / "latency-d", no_worker=True, extra_env=distributed_env(),
+                                external_workers=1)
+    else:
+        launch = running_server(tmp / "latency", workers=1)
+    pauses = random.Random(19)
+    waits = []
+    with launch as server, httpx.Client(base_url=server.base_url, timeout=30) as client:
+        rec_id = upload(client, tiny_recording(tmp / "tiny.csv"))
+        if wait(client, submit(client, rec_id)) != "succeeded":  # warm the worker
+            raise SystemExit("the warm-up job failed")
+        for _ in range(count):
+            time.sleep(pauses.uniform(0.05, 0.5))  # the worker is idle, at a random phase
+            job_id = submit(client, rec_id)
+            if wait(client, job_id) != "succeeded":
+                raise SystemExit("a tiny job failed")
+            job = client.get(f"/v1/jobs/{job_id}").json()
+            waits.append(seconds(job["started_at"]) - seconds(job["created_at"]))
+    return waits
+
+
+def latency_row(label: str, waits: list[float]) -> list[object]:
+    return [label, f"{median(waits) * 1000:.1f} ms", f"{percentile(waits, 95) * 1000:.1f} ms",
+            f"{max(waits) * 1000:.1f} ms", len(waits)]
 
 
 async def hammer(base_url: str, path: str, clients: int, seconds: float) -> list[float]:
@@ -223,6 +256,10 @@ def throughput(tmp: Path, workers: int, batch: int,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tiny-jobs", type=int, default=15)
+    parser.add_argument("--latency", type=int, default=50,
+                        help="tiny jobs for the queue latency (0: skip)")
+    parser.add_argument("--only", choices=["latency"],
+                        help="measure only this (the queue latency)")
     parser.add_argument("--clients", type=int, default=50)
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--batch", type=int, default=16)
@@ -233,6 +270,16 @@ def main() -> None:
     args = parser.parse_args()
     print(machine(), flush=True)
     with temp_dir("bonefit-bench-jobs-") as tmp:
+        if args.latency:
+            rows = [latency_row("embedded (SQLite queue, 1 worker process)",
+                                queue_latency(tmp, args.latency))]
+            if args.distributed:
+                rows.append(latency_row("distributed (Redis queue, PostgreSQL, 1 `bonefit worker`)",
+                                        queue_latency(tmp, args.latency, distributed=True)))
+            print(table("Queue latency: started_at − created_at with an idle worker",
+                        ["mode", "median", "p95", "max", "jobs"], rows), flush=True)
+        if args.only == "latency":
+            return
         print(table("Job overhead (tiny skeleton job, 60 frames, 1 embedded worker)",
                     ["measure", "value", "note"], job_overhead(tmp, args.tiny_jobs)), flush=True)
         print(table("Status endpoint under load", ["measure", "throughput", "latency"],

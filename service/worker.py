@@ -42,6 +42,10 @@ from .tempdirs import private_tmp
 
 log = logging.getLogger("bonefit.worker")
 
+IDLE_POLL = 1.0
+"""Longest wait of an idle worker between looks at the queue: enqueuing wakes it at once,
+this is the fallback (and the pace of its heartbeat and housekeeping checks while idle)."""
+
 SUPERVISE_POLL = 0.1
 """Seconds between the checks of the thread watching a running job (shutdown grace)."""
 
@@ -83,12 +87,17 @@ class Worker:
         grace = self.runtime.settings.shutdown_grace_seconds if grace is None else grace
         self.deadline = self.clock() + grace
         self.stop.set()
+        self.runtime.queue.interrupt()
 
-    def serve(self, *, poll: float = 0.2, parent_pid: int | None = None) -> None:
-        """Take and run jobs until :meth:`shutdown`; reap and purge periodically."""
+    def serve(self, *, poll: float = IDLE_POLL, parent_pid: int | None = None) -> None:
+        """Take and run jobs until :meth:`shutdown`; reap and purge periodically.
+
+        An idle worker waits for the queue's wake-up on enqueue, at most ``poll`` seconds.
+        """
         try:
             self._serve(poll, parent_pid)
         finally:
+            self.runtime.queue.close()
             self._unregister()
 
     def _serve(self, poll: float, parent_pid: int | None) -> None:
@@ -108,8 +117,8 @@ class Worker:
                 log.exception("queue error; retrying")
                 self.stop.wait(1.0)
                 continue
-            if not worked:
-                self.stop.wait(poll)
+            if not worked and not self.stop.is_set():
+                self.runtime.queue.idle(poll)
 
     def run_job(self, job_id: str) -> None:
         """Claim the job and run it to an end (or hand it back); never raises."""

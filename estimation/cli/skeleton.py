@@ -182,19 +182,23 @@ def run(args: argparse.Namespace) -> int:
 
     layout = _tracker_layout(source, fmt, args.tracker_layout)
 
+    bar = None if args.quiet else ProgressBar()
+
     def on_read(recording: SensorRecording) -> None:
+        if bar is not None:
+            bar.frames = recording.n_frames
         if layout is not None and args.tracker_layout is None:
             print(f"detected: {layout.describe()}", file=sys.stderr)
         if options.i0 >= recording.n_frames:
             raise InputError(f"--i0 {options.i0} is past the last frame "
                              f"({recording.n_frames - 1})", field="--i0")
 
-    bar = None if args.quiet else ProgressBar()
     outputs = SkeletonOutputs(json=args.output, bvh=args.bvh, csv=args.csv)
     try:
         done = run_skeleton(SensorSource(source, format=fmt, units=units, fps=fps,
                                          stations=stations, tracker_layout=layout),
-                            options, outputs, progress=bar, on_read=on_read)
+                            options, outputs, progress=bar, on_read=on_read,
+                            stages=None if bar is None else bar.stage)
     except OSError as exc:
         raise _write_error(exc, outputs) from None
     finally:

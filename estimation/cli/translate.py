@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -94,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
                              left_foot=args.left_foot, right_foot=args.right_foot,
                              acceleration_units=args.acceleration_units, units=args.units,
                              subject=args.subject),
-            TranslationRunOptions(args.method), outputs, progress=bar, on_read=_print_notes)
+            TranslationRunOptions(args.method), outputs, progress=bar,
+            stages=None if bar is None else bar.stage, on_read=_notes(bar))
     finally:
         if bar is not None:
             bar.close()
@@ -106,6 +108,17 @@ def run(args: argparse.Namespace) -> int:
           f"(read {result.timings['read_s']:.2f} s, "
           f"estimate {result.timings.get('estimate_s', 0.0):.2f} s)", file=sys.stderr)
     return 0
+
+
+def _notes(bar: ProgressBar | None) -> Callable[[KinematicsRecording], None]:
+    """The ``on_read`` of a run: the take's length to the bar, then :func:`_print_notes`."""
+
+    def on_read(recording: KinematicsRecording) -> None:
+        if bar is not None:
+            bar.frames = recording.n_frames
+        _print_notes(recording)
+
+    return on_read
 
 
 def _print_notes(recording: KinematicsRecording) -> None:

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import shutil
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 import sqlalchemy as sa
@@ -19,9 +20,19 @@ from bonefit.service.artifacts import ArtifactStore, LocalArtifactStore, open_ar
 from bonefit.service.errors import QueueUnavailable, StorageFull, StoreUnavailable
 from bonefit.service.jobs import Job, JobStore, Recording, Status, new_id
 from bonefit.service.queue import HueyQueue, JobQueue, open_queue
+from bonefit.service.runtime import Runtime
 from bonefit.service.settings import Settings
 from bonefit.service.sql_store import SqlJobStore, open_store
-from tests.service.helpers import local_queue, require_services
+from bonefit.service.wake import Waker
+from bonefit.service.worker import Worker
+from tests.service.helpers import (
+    FAKE_KINDS,
+    TestClient,
+    local_queue,
+    require_services,
+    submit,
+    upload,
+)
 
 POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]
                    if os.environ.get("BONEFIT_TEST_POSTGRES_URL") else
@@ -434,15 +445,9 @@ def test_listing_leases_counts_and_purge(store: JobStore) -> None:
 # ---------------------------------------------------------------------------------- queue
 
 
-@pytest.fixture(params=["memory-huey", "sqlite", "redis"])
-def queue(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobQueue]:
-    """The queue on each huey storage."""
-    if request.param == "memory-huey":
-        yield local_queue()
-        return
-    if request.param == "sqlite":
-        yield open_queue(f"sqlite:///{tmp_path / 'queue.db'}")
-        return
+def redis_queues(count: int) -> Iterator[list[HueyQueue]]:
+    """``count`` connections to one Redis queue of this test's own (other sessions may use
+    the same database); flushed afterwards."""
     import redis
     from huey import RedisHuey
 
@@ -454,10 +459,22 @@ def queue(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobQueue]:
         unavailable(f"Redis not reachable at {url}")
     finally:
         client.close()
-    # a queue name of its own: other sessions may use the same database
-    huey = RedisHuey(f"bonefit-test-{uuid.uuid4().hex[:8]}", url=url, results=False)
-    yield HueyQueue(huey)
-    huey.flush()
+    name = f"bonefit-test-{uuid.uuid4().hex[:8]}"
+    hueys = [RedisHuey(name, url=url, results=False) for _ in range(count)]
+    yield [HueyQueue(huey) for huey in hueys]
+    hueys[0].flush()
+
+
+@pytest.fixture(params=["memory-huey", "sqlite", "redis"])
+def queue(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobQueue]:
+    """The queue on each huey storage."""
+    if request.param == "memory-huey":
+        yield local_queue()
+    elif request.param == "sqlite":
+        yield open_queue(f"sqlite:///{tmp_path / 'queue.db'}")
+    else:
+        for (one,) in redis_queues(1):
+            yield one
 
 
 def test_queue_delivers_each_id_once(queue: JobQueue) -> None:
@@ -479,6 +496,59 @@ def test_sqlite_queue_is_shared_between_instances(tmp_path: Path) -> None:
     got: list[str] = []
     assert open_queue(url).run_next(got.append)
     assert got == ["x"]
+
+
+@pytest.fixture(params=["sqlite", "redis"])
+def two_ends(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[list[HueyQueue]]:
+    """Two connections to one shared queue: the enqueuing process's and a worker's."""
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path / 'queue.db'}"
+        yield [cast(HueyQueue, open_queue(url)), cast(HueyQueue, open_queue(url))]
+    else:
+        yield from redis_queues(2)
+
+
+def test_an_idle_worker_is_woken_on_enqueue(two_ends: list[HueyQueue], client: TestClient,
+                                            runtime: Runtime) -> None:
+    # the worker looks at the queue every 60 s: only the wake-up on enqueue can start the job
+    api, worker_end = two_ends
+    runtime.queue = api
+    worker = Worker(dataclasses.replace(runtime, queue=worker_end), FAKE_KINDS,
+                    worker_id="test:wake")
+    idle_calls = []
+    real_idle = worker_end.idle
+    worker_end.idle = lambda timeout: (idle_calls.append(timeout), real_idle(timeout))[1]
+    thread = threading.Thread(target=worker.serve, kwargs={"poll": 60.0})
+    thread.start()
+    try:
+        until(lambda: len(idle_calls) >= 2, "the worker never went idle")  # now it waits
+        job = submit(client, upload(client)["id"])
+        until(lambda: client.get(f"/v1/jobs/{job['id']}").json()["status"] == "succeeded",
+              "the queued job was not taken")
+    finally:
+        worker.shutdown()
+        thread.join(30)
+    assert not thread.is_alive(), "shutdown did not end the worker's 60 s wait"
+
+
+def until(condition: Callable[[], bool], failure: str, timeout: float = 30.0) -> None:
+    """Wait for ``condition`` (a generous deadline far below the 60 s poll); fail if never."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(failure)
+        time.sleep(0.02)
+
+
+def test_a_notification_to_a_gone_worker_unlists_it(tmp_path: Path) -> None:
+    waker = Waker(tmp_path / "queue.db.wake")
+    (waker.directory / "999999999").touch()  # listed, but no process listens there
+    waker.listen()
+    waker.notify()
+    assert sorted(p.name for p in waker.directory.iterdir()) == [str(os.getpid())]
+    waker.drain()
+    waker.close()
+    assert list(waker.directory.iterdir()) == []
 
 
 def test_bad_urls_are_refused() -> None:

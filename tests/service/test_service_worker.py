@@ -93,6 +93,49 @@ def test_cancel_stops_a_running_job_at_its_next_report(client: TestClient,
     assert reports == [0.0, 0.1, 0.2]
 
 
+def test_a_cancel_is_noticed_between_lease_renewals(client: TestClient,
+                                                    runtime: Runtime) -> None:
+    # neither a lease renewal (every 200 s) nor a progress write (every 60 s) comes: the
+    # heartbeat thread's look for a cancel stops the job at one of its next reports
+    runtime.settings.lease_seconds, runtime.settings.progress_interval_seconds = 600, 60
+    job = submit(client, upload(client)["id"])
+    reports: list[float] = []
+
+    def body(progress: Progress) -> None:
+        progress(0.1, "work")
+        assert client.post(f"/v1/jobs/{job['id']}/cancel").status_code == 202
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            progress(0.2, "work")
+            reports.append(0.2)
+            time.sleep(0.05)
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "cancelled"
+    assert reports  # it ran on after the cancel until the watch saw it, then stopped
+
+
+def test_held_back_progress_reaches_the_store(client: TestClient, runtime: Runtime) -> None:
+    # a report inside the throttle's interval is written once the interval is over, by the
+    # heartbeat thread, although the job reports nothing more
+    runtime.settings.lease_seconds, runtime.settings.progress_interval_seconds = 600, 0.5
+    job = submit(client, upload(client)["id"])
+    stored: list[tuple[float, str]] = []
+
+    def body(progress: Progress) -> None:
+        progress(0.6, "writing")
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (0.6, "writing") not in stored:
+            now = runtime.store.get_job(job["id"])
+            assert now is not None
+            stored.append((now.fraction, now.stage))
+            time.sleep(0.05)
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    assert stored[0] == (0.0, "starting")  # held back at first
+    assert stored[-1] == (0.6, "writing")
+
+
 def test_shutdown_hands_the_running_job_back(client: TestClient, runtime: Runtime) -> None:
     job = submit(client, upload(client)["id"])
     worker = Worker(runtime, kind_with(lambda progress: (worker.shutdown(grace=0),
