@@ -34,7 +34,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -44,7 +44,12 @@ sys.path.insert(0, str(ROOT))
 from bonefit.estimation.bvh import BvhMotion, read_bvh  # noqa: E402
 from bonefit.estimation.errors import BonefitError  # noqa: E402
 from bonefit.estimation.model import JOINTS  # noqa: E402
-from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.recording import SensorRecording  # noqa: E402
+from bonefit.estimation.simulate.sensors import (  # noqa: E402
+    HingeRig,
+    SimulationTruth,
+    simulate_sensors,
+)
 from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 # folder -> (metres per unit, fps override per clip-name prefix)
@@ -56,6 +61,7 @@ DATASETS = {
 }
 LIMB_JOINTS = ("l_elbow", "r_elbow", "l_wrist", "r_wrist", "l_knee", "r_knee",
                "l_ankle", "r_ankle")
+HINGE_JOINTS = ("l_elbow", "r_elbow", "l_knee", "r_knee")
 # (label, n_sensors, estimate_skeleton kwargs)
 RUNS = [
     ("llsf", 15, {"method": "llsf"}),
@@ -76,6 +82,17 @@ LIMB_MEDIAN_11_MM = 25.0
 LIMB_GAIN_11 = 0.30
 SD_BINS_MM = ((0.0, 5.0), (5.0, 10.0), (10.0, 15.0), (15.0, 25.0), (25.0, 50.0),
               (50.0, math.inf))
+# issue 20: realistic rigs (knees, elbows off the line), do no harm where the data are good,
+# calibrated uncertainty
+REALISTIC_MEDIAN_15_MM = 6.0
+REALISTIC_HINGE_15_MM = 10.0
+REALISTIC_LIMB_11_MM = 20.0
+GOOD_DATA_SD_MM = 2.0  # data_sd_m at or below: the recording alone locates the joint
+NO_HARM_MM = 0.5  # the default may be at most this much worse than llsf there
+CALIBRATION_K = 3.0  # a "data" joint's error should be below K · data_sd_m + 5 mm
+CALIBRATION_FLOOR_MM = 5.0
+CALIBRATION_SHARE = 0.95
+LOW_NOISE = {"position": 1.0, "orientation": 0.3, "slip": 0.0, "drop": 0.01}
 
 
 def clips(data: Path) -> list[tuple[str, Path, float, float | None]]:
@@ -137,11 +154,47 @@ def summarise(per_joint: dict[str, list[np.ndarray]], clips_done: int,
     limbs = np.concatenate([e for j in LIMB_JOINTS for e in per_joint[j]])
     cj = [float(e.mean()) for per in per_joint.values() for e in per]
     limb_cj = [float(e.mean()) for j in LIMB_JOINTS for e in per_joint[j]]
+    hinge_cj = [float(e.mean()) for j in HINGE_JOINTS for e in per_joint[j]]
     return {"clips": clips_done, "median": float(np.median(pooled)),
             "p95": float(np.percentile(pooled, 95)), "limb_median": float(np.median(limbs)),
             "clip_joint_median": float(np.median(cj)),
             "clip_joint_p95": float(np.percentile(cj, 95)),
-            "limb_clip_joint_median": float(np.median(limb_cj)), "seconds": seconds}
+            "limb_clip_joint_median": float(np.median(limb_cj)),
+            "hinge_clip_joint_median": float(np.median(hinge_cj)), "seconds": seconds}
+
+
+def no_harm(labels: dict[str, dict[tuple[str, str], Label]], n: int, *, shared: bool = False
+            ) -> tuple[int, float, float, int, list[tuple[float, float, str, str]]] | None:
+    """Issue 20 §2 on the (clip, joint) pairs the recording alone locates well
+    (``auto``'s ``data_sd_m`` <= 2 mm; ``shared``: its ``shared_sd_m``, data_sd_m's
+    definition before issue 20): their count, the median error of ``auto`` and ``llsf``,
+    how many of them ``auto`` loses by more than 0.5 mm, and those (auto, llsf, clip,
+    joint), worst first. None without both runs."""
+    auto, llsf = labels.get(f"auto:{n}"), labels.get(f"llsf:{n}")
+    if auto is None or llsf is None:
+        return None
+    good = [(lab.error_mm, llsf[k].error_mm, *k) for k, lab in auto.items()
+            if (lab.shared_sd_mm if shared else lab.sd_mm) <= GOOD_DATA_SD_MM and k in llsf]
+    if not good:
+        return 0, math.nan, math.nan, 0, []
+    a, b = np.array([g[:2] for g in good]).T
+    worse = sorted((g for g in good if g[0] > g[1] + NO_HARM_MM),
+                   key=lambda g: g[1] - g[0])
+    return len(good), float(np.median(a)), float(np.median(b)), len(worse), worse
+
+
+def calibration(labels: dict[tuple[str, str], Label]
+                ) -> tuple[int, float, list[tuple[float, float, str, str]]]:
+    """Issue 20 §4: of the pairs labelled ``"data"`` that carry ``data_sd_m``, how many,
+    the share whose error is below 3 · data_sd_m + 5 mm, and the others (error, sd, clip,
+    joint), worst first."""
+    data = [(lab.error_mm, lab.sd_mm, *k) for k, lab in labels.items()
+            if lab.reliability == "data" and math.isfinite(lab.sd_mm)]
+    if not data:
+        return 0, math.nan, []
+    bad = sorted((d for d in data if d[0] >= CALIBRATION_K * d[1] + CALIBRATION_FLOOR_MM),
+                 reverse=True)
+    return len(data), 1.0 - len(bad) / len(data), bad
 
 
 def acceptance(summary: dict[str, dict[str, float]], refused: dict[str, list[str]],
@@ -184,12 +237,48 @@ class Evaluation(NamedTuple):
     n_total: int
     # run -> (mean error mm, quality data_sd_m in mm) of the pairs that carry it
     data_sd: dict[str, list[tuple[float, float]]]
+    # run -> (clip, joint) -> (mean error mm, data_sd_m in mm or nan, reliability,
+    # shared_sd_m in mm or nan: the shared slip model's part of data_sd_m, which is all
+    # data_sd_m was before issue 20)
+    labels: dict[str, dict[tuple[str, str], Label]]
+
+
+class Label(NamedTuple):
+    """One (clip, joint) of one run: its mean error and what the result says of it."""
+
+    error_mm: float
+    sd_mm: float  # quality["data_sd_m"], nan where absent
+    reliability: str
+    shared_sd_mm: float  # quality["shared_sd_m"] (before issue 20: data_sd_m), nan if absent
+
+
+def joint_label(mean_mm: float, q: dict[str, Any]) -> Label:
+    """The ``Label`` of a joint with mean error ``mean_mm`` and quality ``q``."""
+    sd_mm = 1000.0 * float(q.get("data_sd_m", math.nan))
+    shared_mm = 1000.0 * float(q.get("shared_sd_m", q.get("data_sd_m", math.nan)))
+    return Label(mean_mm, sd_mm, str(q.get("reliability", "")), shared_mm)
+
+
+class Variant(NamedTuple):
+    """What is simulated: the noise levels and the rig (None: the BVH's own hinges)."""
+
+    noise: dict[str, float]
+    realistic: bool = False
+
+    def simulate(self, motion: BvhMotion, units: float, n: int, rate: float, seed: int
+                 ) -> tuple[SensorRecording, SimulationTruth]:
+        """The recording and truth of one clip with ``n`` sensors and ``seed``."""
+        rig = HingeRig(seed=seed) if self.realistic else None
+        return simulate_sensors(motion, units_m=units, n_sensors=n, fps=rate, seed=seed,
+                                rig=rig, **simulation_noise(self.noise))
 
 
 def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,  # noqa: C901
              max_frames: int, only: str, verbose: bool,
-             noise: dict[str, float] = PROTOCOL_NOISE) -> Evaluation:
-    """Simulate every clip with ``seed`` (and ``noise``) and run every method on it."""
+             variant: Variant | None = None) -> Evaluation:
+    """Simulate every clip with ``seed`` (and ``variant``, by default the protocol's noise
+    on the BVH rigs) and run every method on it."""
+    variant = Variant(PROTOCOL_NOISE) if variant is None else variant
     errors: dict[str, dict[str, list[np.ndarray]]] = {}
     n_clips: dict[str, int] = {}
     seconds: dict[str, float] = {}
@@ -198,6 +287,7 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
     priors: list[str] = []
     pairs: dict[str, list[tuple[float, str, str]]] = {}
     data_sd: dict[str, list[tuple[float, float]]] = {}
+    labels: dict[str, dict[tuple[str, str], Label]] = {}
     n_total = 0
     for name, path, units, fps in clips(data):
         if only and only not in name:
@@ -206,8 +296,7 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
         motion, rate = thinned(path, fps, max_frames)
         line = [f"{name:50s} {motion.n_frames:5d} fr {rate:5.1f} fps"]
         for n in sorted({r[1] for r in runs}, reverse=True):
-            rec, truth = simulate_sensors(motion, units_m=units, n_sensors=n, fps=rate,
-                                          seed=seed, **simulation_noise(noise))
+            rec, truth = variant.simulate(motion, units, n, rate, seed)
             for label, n_sensors, kwargs in runs:
                 if n_sensors != n:
                     continue
@@ -234,33 +323,115 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
                     per.setdefault(joint, []).append(e * 1000.0)
                     means.append(mean_mm)
                     pairs.setdefault(key, []).append((mean_mm, name, joint))
-                    if "data_sd_m" in result.quality[joint]:
-                        data_sd.setdefault(key, []).append(
-                            (mean_mm, 1000.0 * float(result.quality[joint]["data_sd_m"])))
+                    lab = joint_label(mean_mm, result.quality[joint])
+                    labels.setdefault(key, {})[(name, joint)] = lab
+                    if math.isfinite(lab.sd_mm):
+                        data_sd.setdefault(key, []).append((mean_mm, lab.sd_mm))
                 line.append(f"{key}={np.median(means):.1f}/{np.max(means):.0f}")
         if verbose:
             print("  ".join(line), flush=True)
     return Evaluation(errors, n_clips, seconds, failures, refused, priors, pairs, n_total,
-                      data_sd)
+                      data_sd, labels)
 
 
 def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: list[int], *,
-               max_frames: int, only: str, noise: dict[str, float]) -> None:
+               max_frames: int, only: str, variant: Variant) -> None:
     """The acceptance statistics of every run for each simulation seed: how much of a
-    figure is the particular draw of sensor placement, noise and slip."""
+    figure is the particular draw of sensor placement, noise, slip and rig."""
     print(f"{'seed':>4s}  {'method:sensors':16s}{'clip-joint median':>18s}{'p95':>7s}"
-          f"{'pairs > 25 mm':>15s}{'limb clip-joint median':>24s}{'pooled p95':>12s}")
+          f"{'pairs > 25 mm':>15s}{'limb median':>12s}{'hinge median':>13s}"
+          f"{'pooled p95':>11s}{'calibrated (n)':>18s}")
     for seed in seeds:
         ev = evaluate(data, runs, seed=seed, max_frames=max_frames, only=only, verbose=False,
-                      noise=noise)
+                      variant=variant)
         for key, per in ev.errors.items():
             s = summarise(per, ev.n_clips[key], ev.seconds[key])
             over = sum(e > P95_15_MM for e, _, _ in ev.pairs[key])
+            n_cal, share, _ = calibration(ev.labels[key])
+            cal = f"{100 * share:.1f} % ({n_cal})" if n_cal else "-"
             print(f"{seed:4d}  {key:16s}{s['clip_joint_median']:18.1f}{s['clip_joint_p95']:7.1f}"
-                  f"{over:15d}{s['limb_clip_joint_median']:24.1f}{s['p95']:12.1f}", flush=True)
+                  f"{over:15d}{s['limb_clip_joint_median']:12.1f}"
+                  f"{s['hinge_clip_joint_median']:13.1f}{s['p95']:11.1f}{cal:>18s}", flush=True)
+        for n in (15, 11):
+            for shared, name in ((False, "data_sd_m"), (True, "shared_sd_m")):
+                harm = no_harm(ev.labels, n, shared=shared)
+                if harm is not None:
+                    print(f"{seed:4d}  no harm, {n} sensors: {harm[0]} pairs with {name} <= "
+                          f"{GOOD_DATA_SD_MM:g} mm, median auto {harm[1]:.2f} / llsf "
+                          f"{harm[2]:.2f} mm, auto worse by > {NO_HARM_MM:g} mm on {harm[3]}",
+                          flush=True)
 
 
-def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0912
+def print_realistic(summary: dict[str, dict[str, float]]) -> None:
+    """Issue 20 §3's acceptance on the realistic rigs."""
+    print("\nRealistic rigs (issue 20 §3)")
+    if "auto:15" in summary:
+        s = summary["auto:15"]
+        for text, value, bound in (
+                ("auto:15 clip-joint median", s["clip_joint_median"], REALISTIC_MEDIAN_15_MM),
+                ("auto:15 hinge clip-joint median", s["hinge_clip_joint_median"],
+                 REALISTIC_HINGE_15_MM)):
+            verdict = "PASS" if value <= bound else "FAIL"
+            print(f"  {verdict}  {text} {value:.1f} mm <= {bound:g}")
+    if "auto:11" in summary:
+        value = summary["auto:11"]["limb_clip_joint_median"]
+        print(f"  {'PASS' if value <= REALISTIC_LIMB_11_MM else 'FAIL'}  auto:11 limb "
+              f"clip-joint median {value:.1f} mm <= {REALISTIC_LIMB_11_MM:g}")
+
+
+def print_checks(ev: Evaluation, summary: dict[str, dict[str, float]], variant: Variant) -> None:
+    """Issue 20's figures of one evaluation: the realistic-rig statistics, do no harm where
+    the data are good, and the calibration of the "data" label."""
+    if variant.realistic and variant.noise == PROTOCOL_NOISE:
+        print_realistic(summary)
+    for n, shared in ((15, False), (15, True), (11, False)):
+        harm = no_harm(ev.labels, n, shared=shared)
+        if harm is None:
+            continue
+        name = "shared_sd_m" if shared else "data_sd_m"
+        print(f"\nDo no harm (issue 20 §2), {n} sensors: {harm[0]} (clip, joint) pairs with "
+              f"{name} <= {GOOD_DATA_SD_MM:g} mm; median auto {harm[1]:.2f} mm, llsf "
+              f"{harm[2]:.2f} mm; auto worse by more than {NO_HARM_MM:g} mm on {harm[3]}")
+        for a, b, clip, joint in harm[4][:10]:
+            print(f"  {a:6.1f} vs {b:6.1f}  {clip:50s} {joint}")
+    for key, found in ev.labels.items():
+        n_cal, share, bad = calibration(found)
+        if not n_cal:
+            continue
+        verdict = "PASS" if share >= CALIBRATION_SHARE else "FAIL"
+        print(f"\nCalibration (issue 20 §4), {key}: {n_cal} pairs labelled \"data\"; "
+              f"{100 * share:.1f} % with error < {CALIBRATION_K:g} x data_sd_m + "
+              f"{CALIBRATION_FLOOR_MM:g} mm ({verdict}: target >= {100 * CALIBRATION_SHARE:g} %)")
+        for e, sd, clip, joint in bad[:8]:
+            print(f"  {e:6.1f} mm, data_sd_m {sd:5.1f} mm  {clip:50s} {joint}")
+
+
+def print_worst(pairs: dict[str, list[tuple[float, str, str]]], priors: list[str]) -> None:
+    """The worst (clip, joint) pairs of auto:15 and the joints flagged "prior"."""
+    if "auto:15" in pairs:
+        print("\nWorst (clip, joint) mean errors of auto:15 (mm)")
+        for err, clip, joint in sorted(pairs["auto:15"], reverse=True)[:12]:
+            print(f"  {err:6.1f}  {clip:50s} {joint}")
+    for item in priors:
+        print("  flagged \"prior\" (rotates < 2°; auto uses its priors there):", item)
+
+
+def print_sd_bins(data_sd: dict[str, list[tuple[float, float]]]) -> None:
+    """The (clip, joint) pairs of each run by their ``data_sd_m``."""
+    for key, found in data_sd.items():
+        print(f"\n{key}: (clip, joint) pairs by quality[joint][\"data_sd_m\"] (how well the "
+              "recording alone locates the joint)")
+        print(f"{'data_sd_m (mm)':>16s}{'pairs':>7s}{'median error':>14s}"
+              f"{f'above {P95_15_MM:g} mm':>13s}")
+        err, sd = np.array(found).T
+        for lo, hi in SD_BINS_MM:
+            inside = (sd >= lo) & (sd < hi)
+            if inside.any():
+                print(f"{f'{lo:g}–{hi:g}':>16s}{inside.sum():7d}{np.median(err[inside]):14.1f}"
+                      f"{np.sum(err[inside] > P95_15_MM):13d}")
+
+
+def main(argv: list[str] | None = None) -> int:  # noqa: C901
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
@@ -270,14 +441,23 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0912
     parser.add_argument("--seeds", default="",
                         help="comma-separated seeds: only the summary statistics per seed")
     parser.add_argument("--json", type=Path, help="write the raw numbers here")
+    parser.add_argument("--rig", choices=("bvh", "realistic"), default="bvh",
+                        help="realistic: knees and elbows 5-15 mm off their neighbours' line "
+                             "with an axial rotation coupled to flexion (HingeRig)")
+    parser.add_argument("--low-noise", action="store_true",
+                        help="1 mm, 0.3 degrees, no slip (issue 20 §2; overrides --noise)")
     parser.add_argument("--noise", type=parse_noise, default=dict(PROTOCOL_NOISE),
                         help="none, or levels overriding the protocol's "
                              "(position=2,orientation=0.5,slip=5,drop=0.01: mm, degrees, mm, "
                              "share); no acceptance verdicts unless they are the protocol's")
     args = parser.parse_args(argv)
-    protocol = args.noise == PROTOCOL_NOISE
+    if args.low_noise:
+        args.noise = dict(LOW_NOISE)
+    variant = Variant(args.noise, args.rig == "realistic")
+    protocol = args.noise == PROTOCOL_NOISE and not variant.realistic
     print("noise: " + ", ".join(f"{k} {v:g}" for k, v in args.noise.items())
-          + ("" if protocol else " (not the evaluation protocol's)"))
+          + ("" if args.noise == PROTOCOL_NOISE else " (not the evaluation protocol's)")
+          + f"; rig: {args.rig}")
     if not (args.data / "motions").is_dir():
         print(f"no motions under {args.data}", file=sys.stderr)
         return 2
@@ -287,11 +467,11 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0912
         runs = [r for r in RUNS if f"{r[0]}:{r[1]}" in wanted]
     if args.seeds:
         seed_table(args.data, runs, [int(x) for x in args.seeds.split(",")],
-                   max_frames=args.max_frames, only=args.only, noise=args.noise)
+                   max_frames=args.max_frames, only=args.only, variant=variant)
         return 0
-    errors, n_clips, seconds, failures, refused, priors, pairs, n_total, data_sd = evaluate(
-        args.data, runs, seed=args.seed, max_frames=args.max_frames, only=args.only,
-        verbose=True, noise=args.noise)
+    ev = evaluate(args.data, runs, seed=args.seed, max_frames=args.max_frames, only=args.only,
+                  verbose=True, variant=variant)
+    errors, n_clips, seconds, failures, refused, priors, pairs, n_total, data_sd, _ = ev
 
     keys = [f"{label}:{n}" for label, n, _ in runs if f"{label}:{n}" in errors]
     print("\nMean error per joint (mm), averaged over clips")
@@ -306,29 +486,16 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0912
           f" wrists, knees, ankles. {n_total} clips.")
     print(f"{'method:sensors':16s}{'clips':>6s}{'clip-joint median':>18s}{'p95':>7s}"
           f"{'pooled median':>15s}{'p95':>7s}{'limb clip-joint median':>24s}"
-          f"{'limb pooled median':>20s}{'time s':>8s}")
+          f"{'limb pooled median':>20s}{'hinge clip-joint median':>25s}{'time s':>8s}")
     for k in keys:
         s = summary[k]
         print(f"{k:16s}{s['clips']:6d}{s['clip_joint_median']:18.1f}{s['clip_joint_p95']:7.1f}"
               f"{s['median']:15.1f}{s['p95']:7.1f}{s['limb_clip_joint_median']:24.1f}"
-              f"{s['limb_median']:20.1f}{s['seconds']:8.1f}")
-    if "auto:15" in pairs:
-        print("\nWorst (clip, joint) mean errors of auto:15 (mm)")
-        for err, clip, joint in sorted(pairs["auto:15"], reverse=True)[:12]:
-            print(f"  {err:6.1f}  {clip:50s} {joint}")
-    for item in priors:
-        print("  flagged \"prior\" (rotates < 2°; auto uses its priors there):", item)
-    for key, found in data_sd.items():
-        print(f"\n{key}: (clip, joint) pairs by quality[joint][\"data_sd_m\"] (how well the "
-              "recording alone locates the joint)")
-        print(f"{'data_sd_m (mm)':>16s}{'pairs':>7s}{'median error':>14s}"
-              f"{f'above {P95_15_MM:g} mm':>13s}")
-        err, sd = np.array(found).T
-        for lo, hi in SD_BINS_MM:
-            inside = (sd >= lo) & (sd < hi)
-            if inside.any():
-                print(f"{f'{lo:g}–{hi:g}':>16s}{inside.sum():7d}{np.median(err[inside]):14.1f}"
-                      f"{np.sum(err[inside] > P95_15_MM):13d}")
+              f"{s['limb_median']:20.1f}{s['hinge_clip_joint_median']:25.1f}"
+              f"{s['seconds']:8.1f}")
+    print_worst(pairs, priors)
+    print_sd_bins(data_sd)
+    print_checks(ev, summary, variant)
     for f in failures:
         print("  refused:", f)
     verdicts = acceptance(summary, refused, n_total) if protocol else []
@@ -338,7 +505,8 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0912
             print(f"  {'PASS' if ok else 'FAIL'}  {text}")
         print(f"  overall: {'PASS' if verdicts and all(ok for _, ok in verdicts) else 'FAIL'}")
     else:
-        print("\nNo acceptance verdicts: the acceptance criteria hold for the protocol's noise.")
+        print("\nNo acceptance verdicts: the acceptance criteria hold for the protocol's noise "
+              "and the BVH rigs.")
     if args.json:
         args.json.write_text(json.dumps({"summary": summary, "per_joint": {
             k: {j: float(np.mean([e.mean() for e in errors[k][j]])) for j in JOINTS}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
@@ -651,6 +652,7 @@ class RobustFit(NamedTuple):
     weak: NDArray[np.float64]  # (6,) weakest direction, sign fixed
     prior_weight: float
     back: NDArray[np.float64]  # slip recovery of the last normal equations
+    normal: NDArray[np.float64] | None = None  # (6, 6) the last normalised normal matrix
 
 
 def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "huber",
@@ -669,7 +671,22 @@ def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "
         if it == iterations:
             break
         w = _weights(model.frame_residuals(c, system.back), w0, loss, huber_k)
-    return RobustFit(c, c_data, w, sv, weak, prior_weight, system.back)
+    return RobustFit(c, c_data, w, sv, weak, prior_weight, system.back, system.normal)
+
+
+def fit_sd(model: JointModel, fit: RobustFit) -> float:
+    """How well the joint's own data locate its centre: the standard deviation (metres, the
+    square root of the trace of the covariance in frame a) of the data-only centre
+    ``fit.c_data``, ``σ²/N_eff · N⁻¹`` with ``N`` the normalised normal matrix, ``σ²`` the
+    residual variance per axis and ``N_eff`` its effective sample count (slow slip counts as
+    few samples, so slip makes it large)."""
+    normal = fit.normal if fit.normal is not None else model.normal_equations(fit.w).normal
+    lam, vec = np.linalg.eigh(normal)
+    # a singular system (no motion) gets a huge but finite sd (it goes into JSON)
+    lam = np.maximum(lam, 1e-12 * max(float(lam[-1]), 1e-300))
+    cov_a = (vec[:3] / lam) @ vec[:3].T
+    return math.sqrt(model.variance_per_information(fit.c_data, fit.w, fit.back)
+                     * float(np.trace(cov_a)))
 
 
 def hinge_value(sv: NDArray[np.float64]) -> float:
@@ -820,7 +837,7 @@ def _motion_range(rotations_a: Rotation, rotations_b: Rotation, both: NDArray[np
 def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,  # noqa: PLR0913
                    decision: HingeDecision | None, *, estimator: str, loss: str, rom: float,
                    hinge_ratio: float, prior: Priors, bias_compensation: bool,
-                   centre: NDArray[np.float64]) -> dict[str, Any]:
+                   centre: NDArray[np.float64], sd: float) -> dict[str, Any]:
     """``JointFit.quality`` (see there) of the final centre ``centre`` (6,)."""
     sv = fit.sv
     ratio = hinge_value(sv)
@@ -834,6 +851,7 @@ def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,  # noqa
         "loss": loss,
         # w is 0 wherever not both are valid
         "outlier_fraction": (np.count_nonzero(fit.w < 0.5) - data.excluded.size) / data.n_both,
+        "fit_sd_m": sd,
     }
     if estimator == "gdke":
         quality["bias_compensation"] = bias_compensation
@@ -879,6 +897,7 @@ def estimate_joint(  # noqa: PLR0913
     neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
     hinge_ratio: float = 0.3,
     hinge_prior: float = 0.005,
+    trust_data_sd_m: float = 0.0,
     min_range_deg: float = 2.0,
     range_of_motion_deg: float | None = None,
     warn_range_deg: float = 20.0,
@@ -928,6 +947,10 @@ def estimate_joint(  # noqa: PLR0913
         Weight of the hinge rule against the data along the weakest direction: the final
         position along the axis is ``β·LLSF + (1 − β)·rule`` with ``β = λ / (λ + hinge_prior)``
         and ``λ`` the smallest eigenvalue of the normalised normal matrix (a Tikhonov prior).
+    trust_data_sd_m : float
+        Where the data alone locate the centre to this standard deviation (metres,
+        :func:`fit_sd`, reported as ``quality["fit_sd_m"]``), the data-only centre is kept:
+        no prior, symmetry plane or hinge rule (LLSF only; 0 disables it).
     huber_k : float
         Robust-loss threshold in robust standard deviations of the residual.
     n_iterations : int
@@ -1042,11 +1065,16 @@ def estimate_joint(  # noqa: PLR0913
     priors = Priors(symmetry, symmetry_weight, prior)
     fit = robust_fit(model, priors, loss=loss, huber_k=huber_k, n_iterations=n_iterations)
     estimator = "gdke" if method == "gdke" else "llsf"
+    sd = fit_sd(model, fit)
+    if sd <= trust_data_sd_m and estimator == "llsf":
+        # the data alone locate the centre: priors and rules could only add their misfit
+        fit = fit._replace(c=fit.c_data, prior_weight=0.0)
+        priors, neighbours = Priors(), (None, None)
     c = (gdke_centre(data, fit.w, bias_compensation=bias_compensation, point_m=gdke_point_m)
          if estimator == "gdke" else fit.c)
     hinge = hinge_value(fit.sv) < hinge_ratio
-    decision = _hinge(model, fit, c, HingeRule(neighbours, bone_length, hinge_prior), priors,
-                      hinge)
+    rule = HingeRule(neighbours, bone_length, hinge_prior)
+    decision = _hinge(model, fit, c, rule, priors, hinge)
     if decision is not None:
         c = decision.c
         if decision.rule is not None:
@@ -1055,6 +1083,6 @@ def estimate_joint(  # noqa: PLR0913
     rec = reconstruct(model, c, fit.back)
     quality = _joint_quality(data, fit, rec, decision, estimator=estimator, loss=loss, rom=rom,
                              hinge_ratio=hinge_ratio, prior=priors,
-                             bias_compensation=bias_compensation, centre=c)
+                             bias_compensation=bias_compensation, centre=c, sd=sd)
     return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals, quality,
                     tuple(warnings))

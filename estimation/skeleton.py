@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time as _time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -60,6 +61,12 @@ NECK_RISE: Final[float] = 0.15
 PRIOR_SIGMA_M: Final[dict[str, float]] = {"neck": 0.03, "mirror": 0.03}
 """Standard deviation of each anatomical prior, metres."""
 LIMB_PRIOR_SIGMA_M: Final[float] = 0.02
+# a joint whose own fit locates it to this (``quality["fit_sd_m"]``, metres) keeps it: the
+# shared slip model and the priors can only add their own misfit there (issue 20 §2)
+GOOD_DATA_SD_M: Final[float] = 0.002
+# a joint is labelled "data" only where the recording alone locates it to this (metres,
+# ``quality["data_sd_m"]``; issue 20 §4)
+DATA_LABEL_SD_M: Final[float] = 0.01
 """Standard deviation (metres) of the prior that a limb joint's own robust fit (with its
 hinge rule) puts on its centre from the shared slip model."""
 SYMMETRY_SIGMA_M: Final[float] = 0.03
@@ -610,20 +617,33 @@ def shared_role(ctx: SkeletonContext, name: str) -> str | None:
 
 
 def own_fit(ctx: SkeletonContext, plan: JointPlan) -> JointFit:
-    """``joints.estimate_joint`` of the joint (on the positions without slip for the
-    wrists when the shared model runs); EstimationError naming the joint."""
+    """``joints.estimate_joint`` of the joint (for the wrists, when the shared model runs
+    and the raw positions do not locate them to ``GOOD_DATA_SD_M``, on the positions
+    without slip); EstimationError naming the joint."""
+    a, b = JOINT_SEGMENTS[plan.name]
+    sensors = ctx.sensors
+    fit = _fit_on(ctx, plan, sensors.positions[a], sensors.positions[b])
+    if ctx.shared is not None and plan.name in _DESLIPPED \
+            and fit.quality["fit_sd_m"] > GOOD_DATA_SD_M:
+        fit = _fit_on(ctx, plan, ctx.shared.without_slip[a], ctx.shared.without_slip[b])
+    return fit
+
+
+def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
+            pb: NDArray[np.float64]) -> JointFit:
+    """``estimate_joint`` of the joint on the sensor positions ``pa``, ``pb``; with ``auto``
+    the data alone decide where they locate the centre to ``GOOD_DATA_SD_M``."""
     a, b = JOINT_SEGMENTS[plan.name]
     sensors, opt = ctx.sensors, ctx.options
-    pa, pb = sensors.positions[a], sensors.positions[b]
-    if ctx.shared is not None and plan.name in _DESLIPPED:
-        pa, pb = ctx.shared.without_slip[a], ctx.shared.without_slip[b]
+    auto = opt.method == "auto"
     try:
         return estimate_joint(
             pa, sensors.rotations[a], pb, sensors.rotations[b], method=plan.estimator,
             loss=opt.loss, valid=np.column_stack([sensors.ok[a], sensors.ok[b]]),
             neighbours=plan.neighbours, hinge_prior=0.0 if opt.plain else 0.01,
+            trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
             highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
-            symmetry=plan.symmetry, prior=plan.prior if opt.method == "auto" else None,
+            symmetry=plan.symmetry, prior=plan.prior if auto else None,
             range_of_motion_deg=ctx.motion.rom.get(plan.name))
     except EstimationError as exc:
         raise EstimationError(f"{plan.name}: {exc.detail}", field=plan.name) from None
@@ -647,6 +667,8 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
     if role != "torso" or own is None:
         own = own_fit(ctx, plan)
     fit, posterior = own, None
+    if role is not None and own.quality.get("fit_sd_m", math.inf) <= GOOD_DATA_SD_M:
+        role = None
     if ctx.shared is not None and role is not None:
         a, b = JOINT_SEGMENTS[plan.name]
         sensors, without = ctx.sensors, ctx.shared.without_slip
@@ -664,16 +686,23 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
 
 
 def _with_data_sd(ctx: SkeletonContext, name: str, fit: JointFit) -> JointFit:
-    """How well the recording alone locates the centre: the shared model's posterior with a
-    flat prior (every sensor's slip integrated out), in frame a."""
+    """How well the recording alone locates the centre (``data_sd_m``, frame a): the larger
+    of the shared model's posterior sd with a flat prior (every sensor's slip integrated
+    out; ``shared_sd_m``) and the joint's own data-only fit's (``fit_sd_m``, slip counted
+    as correlated noise). The shared model alone is overconfident along a hinge's axis and
+    for joints that rotate a few degrees (orientation noise passes for motion)."""
     if ctx.shared is None or name not in ctx.shared.index:
         return fit
     cov_a = ctx.shared.fit.covariances[ctx.shared.index[name]][:3, :3]
-    return replace(fit, quality={**fit.quality, "data_sd_m": float(np.sqrt(np.trace(cov_a)))})
+    shared_sd = float(np.sqrt(np.trace(cov_a)))
+    sd = max(shared_sd, float(fit.quality.get("fit_sd_m", 0.0)))
+    return replace(fit, quality={**fit.quality, "shared_sd_m": shared_sd, "data_sd_m": sd})
 
 
 def _with_reliability(ctx: SkeletonContext, plan: JointPlan, fit: JointFit) -> JointFit:
-    """``quality["reliability"]``, and the warning of a joint that barely rotates."""
+    """``quality["reliability"]``, and the warning of a joint that barely rotates. "data"
+    only where the data carry the estimate (``data_weight`` >= 0.5) and locate it to
+    ``DATA_LABEL_SD_M``."""
     name = plan.name
     if name in ctx.motion.static:
         source = ("anatomical priors" if plan.prior is not None or plan.neighbours[0] is not None
@@ -683,7 +712,8 @@ def _with_reliability(ctx: SkeletonContext, plan: JointPlan, fit: JointFit) -> J
         return replace(fit, quality={**fit.quality, "reliability": "prior"},
                        warnings=(note, *(w for w in fit.warnings
                                          if not w.startswith("small range"))))
-    assisted = fit.quality.get("data_weight", 1.0) < 0.5
+    assisted = (fit.quality.get("data_weight", 1.0) < 0.5
+                or fit.quality.get("data_sd_m", 0.0) > DATA_LABEL_SD_M)
     return replace(fit, quality={**fit.quality, "reliability":
                                  "prior-assisted" if assisted else "data"})
 

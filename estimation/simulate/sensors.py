@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
-from ..model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
+from ..model import JOINT_SEGMENTS, JOINTS, LIMBS, REDUCED_SEGMENTS, SEGMENTS
 from ..recording import SensorRecording
 from ..skeleton import estimate_chest, estimate_root
 
@@ -158,6 +158,7 @@ def detect_skeleton(motion: BvhMotion) -> str:
 
 def rigid_body_model(
     motion: BvhMotion, *, units_m: float, mapping: Mapping[str, str] | None = None,
+    rig: HingeRig | None = None,
 ) -> tuple[dict[str, NDArray[np.float64]], dict[str, Rotation],
            dict[str, NDArray[np.float64]], dict[str, tuple[NDArray[np.float64],
                                                             NDArray[np.float64]]]]:
@@ -170,6 +171,9 @@ def rigid_body_model(
         Metres per BVH unit.
     mapping : mapping of role to node name, optional
         Defaults to the entry of ``SKELETON_MAPS`` detected from the node names.
+    rig : HingeRig, optional
+        Knees and elbows off their neighbours' line with an axial rotation coupled to
+        flexion; by default the BVH's own (near-ideal) hinges.
 
     Returns
     -------
@@ -197,6 +201,10 @@ def rigid_body_model(
         rel = node[role] - node[_SEGMENT_DEF[seg][1]]
         return np.asarray(rotations[seg].inv().apply(rel).mean(axis=0))
 
+    carried = {joint: local(seg, joint) for joint, seg in _JOINT_CARRIER.items()}
+    bones = {seg: (local(seg, d[2]), local(seg, d[3])) for seg, d in _SEGMENT_DEF.items()}
+    if rig is not None:
+        _realistic_hinges(rig, rotations, carried, bones)
     origins: dict[str, NDArray[np.float64]] = {"pelvis": node["pelvis"]}
     joints: dict[str, NDArray[np.float64]] = {}
     # segments in topological order: each origin is a joint carried by an earlier segment
@@ -205,9 +213,70 @@ def rigid_body_model(
             origins[seg] = joints[_SEGMENT_DEF[seg][1]]
         for joint, carrier in _JOINT_CARRIER.items():
             if carrier == seg:
-                joints[joint] = origins[seg] + rotations[seg].apply(local(seg, joint))
-    bones = {seg: (local(seg, d[2]), local(seg, d[3])) for seg, d in _SEGMENT_DEF.items()}
+                joints[joint] = origins[seg] + rotations[seg].apply(carried[joint])
     return origins, rotations, joints, bones
+
+
+@dataclass(frozen=True)
+class HingeRig:
+    """Knees and elbows as they are (issue 20 §3), for ``simulate_sensors(rig=...)``.
+
+    BVH skeletons put the knee and the elbow on the straight line of their neighbours to
+    about a millimetre, and make them pure hinges. Real knees sit up to about 15 mm off the
+    hip–ankle line and rotate a few degrees about the shank as they flex (the screw-home
+    motion; the forearm likewise). With a ``HingeRig`` each knee and elbow is moved
+    ``offset_range_m`` off the line in a random direction across the proximal bone (the
+    distal joint stays where it was at the clip's mean pose), and the shank (forearm)
+    turns about its own long axis by ``c · (θ − median θ)``, ``θ`` the flexion angle, ``c``
+    of random sign and magnitude in ``coupling_range`` (radians per radian: 0.05 is 4.5°
+    over 90° of flexion).
+
+    Attributes
+    ----------
+    offset_range_m : (float, float)
+        Range of the middle joint's distance off its neighbours' line, metres.
+    coupling_range : (float, float)
+        Range of the axial rotation per flexion, radians per radian.
+    seed : int or None
+        Seed of the rig's own draws (independent of the sensors', so the sensor placement,
+        noise and slip of a seed are the same with and without the rig).
+    """
+
+    offset_range_m: tuple[float, float] = (0.005, 0.015)
+    coupling_range: tuple[float, float] = (0.03, 0.10)
+    seed: int | None = 0
+
+
+def _realistic_hinges(rig: HingeRig, rotations: dict[str, Rotation],
+                      carried: dict[str, NDArray[np.float64]],
+                      bones: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]
+                      ) -> None:
+    """Move each limb's middle joint off its neighbours' line and couple an axial rotation
+    of the middle segment to flexion (``HingeRig``), in place."""
+    rng = np.random.default_rng(rig.seed)
+    for limb in LIMBS.values():
+        upper, middle, _ = limb.segments
+        _, mid, dist = limb.joints
+        knee = carried[mid]  # in the upper segment's frame, from the proximal joint
+        along = knee / max(float(np.linalg.norm(knee)), 1e-12)
+        d = rng.normal(size=3)
+        d -= d.dot(along) * along
+        d *= rng.uniform(*rig.offset_range_m) / max(float(np.linalg.norm(d)), 1e-12)
+        # the distal joint stays put at the mean pose: -d in the middle segment's frame
+        mean_rel = (rotations[upper].inv() * rotations[middle]).mean()
+        shin = carried[dist] - mean_rel.inv().apply(d)
+        carried[mid] = knee + d
+        carried[dist] = shin
+        bones[upper] = (bones[upper][0], bones[upper][1] + d)
+        bones[middle] = (bones[middle][0], shin)
+        shin_dir = shin / max(float(np.linalg.norm(shin)), 1e-12)
+        cos = np.einsum("ti,ti->t", rotations[upper].apply(along),
+                        rotations[middle].apply(shin_dir))
+        flexion = np.arccos(np.clip(cos, -1.0, 1.0))
+        coupling = rng.choice((-1.0, 1.0)) * rng.uniform(*rig.coupling_range)
+        twist = coupling * (flexion - np.median(flexion))
+        rotations[middle] = rotations[middle] * Rotation.from_rotvec(
+            twist[:, None] * shin_dir[None, :])
 
 
 def derived_joints(joints: Mapping[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:
@@ -272,6 +341,7 @@ def simulate_sensors(  # noqa: PLR0913
     fps: float | None = None,
     mapping: Mapping[str, str] | None = None,
     offset_range_m: tuple[float, float] = (0.03, 0.07),
+    rig: HingeRig | None = None,
 ) -> tuple[SensorRecording, SimulationTruth]:
     """Virtual 6-DOF sensors on a rigid body driven by a BVH clip, with exact truth.
 
@@ -302,6 +372,9 @@ def simulate_sensors(  # noqa: PLR0913
         For skeletons not in ``SKELETON_MAPS``.
     offset_range_m : (float, float)
         Range of the sensor distance from the bone, metres.
+    rig : HingeRig, optional
+        Realistic knees and elbows (off their neighbours' line, axial rotation coupled to
+        flexion); by default the BVH's near-ideal hinges.
 
     Returns
     -------
@@ -315,7 +388,7 @@ def simulate_sensors(  # noqa: PLR0913
     segments = _sensor_segments(n_sensors, segments)
     rng = np.random.default_rng(seed)
     origins, rotations, joints, bones = rigid_body_model(motion, units_m=units_m,
-                                                         mapping=mapping)
+                                                         mapping=mapping, rig=rig)
     rate = float(fps) if fps is not None else motion.fps
     n_frames = motion.n_frames
     time = np.arange(n_frames) / rate

@@ -193,7 +193,9 @@ def test_data_sd_tells_how_well_the_recording_locates_a_joint() -> None:
         two_sensor = [j for j in JOINTS if j not in ("root", "chest")]
         assert all(np.isfinite(result.quality[j]["data_sd_m"]) for j in two_sensor)
         assert "data_sd_m" not in result.quality["root"]
-    assert 0.0 < sds[0] < 0.003, sds
+    # data_sd_m also carries the neck's own data-only fit, in which the 5 mm slip counts as
+    # correlated noise (issue 20 §4): 11 mm with the full motion (the shared model alone: 1.3)
+    assert 0.0 < sds[0] < 0.015, sds
     assert 2.0 * sds[0] < sds[1] < sds[2] / 2.0, sds
 
 
@@ -431,8 +433,13 @@ def test_limb_joints_that_move_well_take_the_shared_slip_model(
                     errors[j].append(e)
             if shared_model:
                 for j in ("l_ankle", "r_ankle", "l_wrist", "r_wrist"):
-                    assert result.quality[j]["estimator"] == "llsf-shared-slip", j
-                    assert result.quality[j]["signal_share"] >= skeleton.EIV_SIGNAL_SHARE
+                    q = result.quality[j]
+                    if q["fit_sd_m"] <= skeleton.GOOD_DATA_SD_M:
+                        # the data alone locate it: they decide (issue 20 §2)
+                        assert q["estimator"] == "llsf", j
+                        continue
+                    assert q["estimator"] == "llsf-shared-slip", j
+                    assert q["signal_share"] >= skeleton.EIV_SIGNAL_SHARE
                 for j in ("l_knee", "r_knee", "l_elbow", "r_elbow"):
                     assert result.quality[j]["estimator"] == "llsf", j
         return {j: float(np.mean(v)) for j, v in errors.items()}
