@@ -3,7 +3,9 @@
 Times ``estimation.io.skeleton.skeleton_to_bvh`` (hierarchy, rest rotations, Euler orders,
 continuous channels; not the text formatting of ``write_bvh``) on synthetic rigid skeleton
 results of 36,000 and 144,000 frames (2.5 and 10 minutes at 240 Hz): median of several runs,
-each version in its own process. With ``--baseline DIR`` (another checkout of the code, e.g.
+each version in its own process. Times are the process's CPU time (``time.process_time``;
+BLAS on one thread), which a machine shared with other work does not inflate as it does wall
+time. With ``--baseline DIR`` (another checkout of the code, e.g.
 ``git archive main | tar -x -C DIR``) the same takes are timed with that version, back to
 back, and the ratio printed. Usage::
 
@@ -31,17 +33,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def time_writer(n_frames: int, runs: int) -> list[float]:
-    """Seconds per ``skeleton_to_bvh`` call of an ``n_frames`` take, ``runs`` times (in the
-    code found first on ``sys.path``)."""
+    """CPU seconds per ``skeleton_to_bvh`` call of an ``n_frames`` take, ``runs`` times (in
+    the code found first on ``sys.path``)."""
     from estimation.io.skeleton import skeleton_to_bvh
     from tests.estimation.test_io_skeleton import rigid_result
 
     result = rigid_result(n_frames=n_frames, seed=1, yaw_turns=n_frames / 7200)
     times = []
     for _ in range(runs):
-        start = time.perf_counter()
+        start = time.process_time()
         skeleton_to_bvh(result)
-        times.append(time.perf_counter() - start)
+        times.append(time.process_time() - start)
     return times
 
 
@@ -68,14 +70,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.child is not None:
         print(json.dumps(time_writer(args.child, args.runs)))
         return 0
-    print(f"{'frames':>8s} {'this (s)':>10s} {'baseline (s)':>13s} {'ratio':>7s}   runs")
+    print(f"{'frames':>8s} {'this (CPU s)':>12s} {'baseline (CPU s)':>16s} {'ratio':>7s}   runs")
     for n_frames in args.frames:
         base = in_process(args.baseline, n_frames, args.runs) if args.baseline else []
         this = in_process(ROOT, n_frames, args.runs)
         ratio = (f"{statistics.median(base) / statistics.median(this):6.1f}x"
                  if base else "")
-        print(f"{n_frames:8d} {statistics.median(this):10.2f} "
-              f"{statistics.median(base) if base else float('nan'):13.2f} {ratio:>7s}   "
+        print(f"{n_frames:8d} {statistics.median(this):12.2f} "
+              f"{statistics.median(base) if base else float('nan'):16.2f} {ratio:>7s}   "
               f"{args.runs}", flush=True)
     return 0
 

@@ -591,19 +591,45 @@ def half_frame_error(rotation: Rotation, angles: NDArray[np.float64], order: str
     """
     if len(angles) < 2:
         return np.zeros(0)
-    return _halfway_error(rotation[:-1], rotation[1:], angles[:-1], angles[1:], order)
+    quats = rotation.as_quat()
+    return _quat_angle(_euler_quaternions(order, (angles[:-1] + angles[1:]) / 2),
+                       _halfway(quats[:-1], quats[1:]))
 
 
-def _halfway_error(before: Rotation, after: Rotation, angles_before: NDArray[np.float64],
-                   angles_after: NDArray[np.float64], order: str) -> NDArray[np.float64]:
-    """Degrees (S,) between the channels' midpoint and the shortest-path halfway rotation
-    of S steps ``before[s]`` → ``after[s]``."""
-    from scipy.spatial.transform import Rotation
+_UNIT_AXES: Final[dict[str, int]] = {"X": 0, "Y": 1, "Z": 2}
 
-    step = (before.inv() * after).as_rotvec()
-    halfway = before * Rotation.from_rotvec(step / 2)
-    interpolated = Rotation.from_euler(order, (angles_before + angles_after) / 2, degrees=True)
-    return np.asarray(np.degrees((interpolated.inv() * halfway).magnitude()))
+
+def _euler_quaternions(order: str, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Scalar-last quaternions (S, 4) of intrinsic Euler angles (S, 3), degrees
+    (``Rotation.from_euler(order, angles, degrees=True)``, without its overhead)."""
+    half = np.radians(angles) / 2
+    out = np.tile([0.0, 0.0, 0.0, 1.0], (len(angles), 1))
+    for k, axis in enumerate(order):
+        turn = np.zeros_like(out)
+        turn[:, _UNIT_AXES[axis]] = np.sin(half[:, k])
+        turn[:, 3] = np.cos(half[:, k])
+        out = _quat_multiply(out, turn)
+    return out
+
+
+def _conjugate(q: NDArray[np.float64]) -> NDArray[np.float64]:
+    out: NDArray[np.float64] = q * np.array([-1.0, -1.0, -1.0, 1.0])
+    return out
+
+
+def _quat_angle(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Degrees (S,) of the rotation from unit quaternions p to q (S, 4), scalar last."""
+    rel = _quat_multiply(_conjugate(p), q)
+    return np.asarray(np.degrees(2.0 * np.arctan2(np.linalg.norm(rel[:, :3], axis=1),
+                                                  np.abs(rel[:, 3]))))
+
+
+def _halfway(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Quaternions (S, 4) halfway along the shortest path from p to q (S, 4)."""
+    sign = np.where(np.einsum("ij,ij->i", p, q) < 0, -1.0, 1.0)
+    mid = p + sign[:, None] * q
+    out: NDArray[np.float64] = mid / np.maximum(np.linalg.norm(mid, axis=1), 1e-12)[:, None]
+    return out
 
 
 def jump_steps(rotations: list[Rotation], max_turn_deg: float = JUMP_DEG
@@ -636,19 +662,37 @@ error 50:1 at equal weight and chose, for a dancer's shoulder, an order 2.3x fur
 half frames (9.2° against 4.0°); it now decides between orders that play back alike."""
 
 
-def _step_cost(before: Rotation, after: Rotation, order: str) -> float:
-    """Sum over the steps ``before[s]`` → ``after[s]`` of the squared half-frame error and,
-    weighted by ``SWING_WEIGHT``, the squared channel swing beyond the node's own turn
-    (degrees²): both grow near gimbal lock. Steps turning more than :data:`JUMP_DEG` (jumps
-    in the data) are left out."""
-    if len(before) == 0:
+@dataclass(frozen=True, eq=False)
+class _Steps:
+    """Steps between frames a choice is made on: rotations before and after (S, 4), scalar
+    last), the turn (S,), degrees), which steps are motion (not jumps) and the halfway
+    rotations (S, 4)."""
+
+    before: NDArray[np.float64]
+    after: NDArray[np.float64]
+    turn: NDArray[np.float64]
+    keep: NDArray[np.bool_]
+    halfway: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, before: NDArray[np.float64], after: NDArray[np.float64]) -> _Steps:
+        turn = _quat_angle(before, after)
+        return cls(before, after, turn, turn <= JUMP_DEG, _halfway(before, after))
+
+
+def _step_cost(steps: _Steps, order: str) -> float:
+    """Sum over the steps of the squared half-frame error and, weighted by ``SWING_WEIGHT``,
+    the squared channel swing beyond the node's own turn (degrees²): both grow near gimbal
+    lock. Steps turning more than :data:`JUMP_DEG` (jumps in the data) are left out."""
+    from scipy.spatial.transform import Rotation
+
+    if len(steps.turn) == 0:
         return 0.0
-    turn = np.degrees((before.inv() * after).magnitude())
-    keep = turn <= JUMP_DEG
-    angles = continuous_euler(np.stack([euler_degrees(before, order),
-                                        euler_degrees(after, order)]))
-    swing = np.maximum(np.abs(angles[1] - angles[0]).max(axis=1) - turn, 0.0)
-    half = _halfway_error(before, after, angles[0], angles[1], order)
+    angles = continuous_euler(np.stack([euler_degrees(Rotation.from_quat(steps.before), order),
+                                        euler_degrees(Rotation.from_quat(steps.after), order)]))
+    swing = np.maximum(np.abs(angles[1] - angles[0]).max(axis=1) - steps.turn, 0.0)
+    half = _quat_angle(_euler_quaternions(order, (angles[0] + angles[1]) / 2), steps.halfway)
+    keep = steps.keep
     return float(np.sum(half[keep] ** 2) + SWING_WEIGHT * np.sum(swing[keep] ** 2))
 
 
@@ -696,19 +740,25 @@ def _central_rotation(rotation: Rotation) -> Rotation:
     return rotation[near].mean() if near.any() else mean
 
 
-def _best_channels(seen: Rotation, orders: tuple[str, ...], centre: bool
-                   ) -> tuple[Rotation, str]:
-    """The rest rotation (identity, or the inverse of ``seen``'s mean) and the Euler order
-    whose channels of ``seen · rest`` cost least (:func:`_step_cost`, ties to the first)."""
+def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: bool
+                   ) -> tuple[NDArray[np.float64], str]:
+    """The rest rotation (identity, or the inverse of the mean of ``seen`` (F, 4), scalar
+    last) and the Euler order whose channels of ``seen · rest`` cost least
+    (:func:`_step_cost`, ties to the first)."""
     from scipy.spatial.transform import Rotation
 
-    rests = [Rotation.identity()]
+    rests = [np.array([0.0, 0.0, 0.0, 1.0])]
     if centre and len(seen) > 1:
-        rests.append(_central_rotation(seen).inv())
-    steps = _choice_steps(len(seen))
-    options = [(rest, order) for rest in rests for order in orders]
-    cost = np.array([_step_cost(seen[steps] * rest, seen[steps + 1] * rest, order)
-                     for rest, order in options])
+        rests.append(_central_rotation(Rotation.from_quat(seen)).inv().as_quat())
+    first = _choice_steps(len(seen))
+    costs, options = [], []
+    for rest in rests:
+        steps = _Steps.of(_quat_multiply(seen[first], rest[None]),
+                          _quat_multiply(seen[first + 1], rest[None]))
+        for order in orders:
+            costs.append(_step_cost(steps, order))
+            options.append((rest, order))
+    cost = np.array(costs)
     return options[int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0])]
 
 
@@ -755,19 +805,20 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Ro
     from scipy.spatial.transform import Rotation
 
     orders = _orders(order)
-    rests: list[Rotation] = []
-    chosen: list[tuple[Rotation, str]] = []
+    rests: list[NDArray[np.float64]] = []
+    chosen: list[tuple[NDArray[np.float64], str]] = []
     for n, rotation in enumerate(rotations):
-        above = rests[parents[n]] if parents[n] >= 0 else Rotation.identity()
-        seen = above.inv() * rotation
+        above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
+        seen = _quat_multiply(_conjugate(above)[None], rotation.as_quat())
         rest, best = _best_channels(seen, orders, centre)
         rests.append(rest)
-        chosen.append((seen * rest, best))
-    values = [continuous_euler(euler_degrees(local, o)) for local, o in chosen]
+        chosen.append((_quat_multiply(seen, rest[None]), best))
+    values = [continuous_euler(euler_degrees(Rotation.from_quat(local), o))
+              for local, o in chosen]
     return NodeChannels(
         channels=tuple(tuple(f"{axis}rotation" for axis in o) for _, o in chosen),
         values=np.stack(values, axis=1) if values else np.zeros((0, 0, 3)),
-        rest=np.array([r.as_quat() for r in rests]).reshape(-1, 4))
+        rest=np.array(rests).reshape(-1, 4))
 
 
 def euler_channels(rotations: list[Rotation], order: str | None = None
@@ -912,12 +963,12 @@ def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
 
 
 def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton products p·q of scalar-last quaternions (N, 4)."""
+    """Hamilton products p·q of scalar-last quaternions (N, 4) (either may be (1, 4))."""
     pv, pw = p[:, :3], p[:, 3:]
     qv, qw = q[:, :3], q[:, 3:]
-    out: NDArray[np.float64] = np.concatenate(
-        [pw * qv + qw * pv + np.cross(pv, qv),
-         pw * qw - np.einsum("ij,ij->i", pv, qv)[:, None]], axis=1)
+    vector = pw * qv + qw * pv + np.cross(pv, qv)
+    scalar = pw * qw - np.einsum("...j,...j->...", pv, qv)[:, None]
+    out: NDArray[np.float64] = np.concatenate([vector, scalar], axis=1)
     return out
 
 
