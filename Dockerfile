@@ -35,16 +35,21 @@ WORKDIR /src
 
 # Dependencies first, from pyproject.toml alone: this layer survives source edits.
 COPY pyproject.toml README.md ./
+# The base dependencies plus the `service` extra (which names `bonefit[estimation]`: scipy).
 RUN python3 -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; \
-print('\n'.join(p['dependencies'] + p['optional-dependencies']['service']))" > requirements.txt \
+x = p['optional-dependencies']; d = p['dependencies'] + x['estimation'] + x['service']; \
+print('\n'.join(r for r in d if not r.startswith('bonefit')))" > requirements.txt \
     && pip install --no-cache-dir -r requirements.txt
 
+# bonefit/estimation and bonefit/service are symlinks to these two (one `bonefit` namespace);
+# the wheel built from "." holds copies of the files.
 COPY bonefit ./bonefit
 COPY estimation ./estimation
 COPY service ./service
 # The project itself ("."), not a registry package: its pins live in pyproject.toml.
 # hadolint ignore=DL3013
 RUN pip install --no-cache-dir --no-deps . \
+    && bonefit --version \
     && bonefit serve --help > /dev/null \
     && bonefit worker --help > /dev/null
 

@@ -7,7 +7,7 @@ skeleton with ``method="auto"``, write its BVH, read it back and measure:
 - ``key max/med``: joint positions of the BVH (forward kinematics) against the JSON's, at
   the frames (mm, every joint and frame), and ``start``: the largest over the first 10 frames;
 - ``jumps``: steps between frames where a segment of the JSON turns by more than
-  ``estimation.bvh.JUMP_DEG`` (60°; a T-pose frame before the take turns segments 76–180°):
+  ``bonefit.estimation.bvh.JUMP_DEG`` (60°; a T-pose frame before the take turns segments 76–180°):
   no interpolation of rotations can follow them, so the half-frame numbers below leave them
   out and this column says how many were left out;
 - ``half max`` / ``p95``: positions at half frames with the channels interpolated linearly,
@@ -58,16 +58,16 @@ from skeleton_accuracy import (  # noqa: E402
     thinned,
 )
 
-from estimation.bvh import BvhMotion, forward_kinematics, jump_steps, read_bvh  # noqa: E402
-from estimation.io.skeleton import (  # noqa: E402
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics, jump_steps, read_bvh  # noqa: E402
+from bonefit.estimation.io.skeleton import (  # noqa: E402
     read_skeleton_json,
     write_skeleton_bvh,
     write_skeleton_json,
 )
-from estimation.model import JOINTS  # noqa: E402
-from estimation.results import SkeletonResult  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.model import JOINTS  # noqa: E402
+from bonefit.estimation.results import SkeletonResult  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 START_FRAMES = 10
 FAIR_FLOOR_MM = 5.0
@@ -168,7 +168,7 @@ def reader_errors(result: SkeletonResult, motion: BvhMotion) -> dict[str, float]
 
     from _pytest.outcomes import Skipped
 
-    from estimation.bvh import write_bvh
+    from bonefit.estimation.bvh import write_bvh
     from tests.estimation.bvh_readers import bvhio_positions, install_three, threejs_positions
 
     truth = np.stack([result.joints[j] for j in JOINTS], axis=1)

@@ -1,6 +1,6 @@
 """Speed of the skeleton BVH writer's channel computation on long takes.
 
-Times ``estimation.io.skeleton.skeleton_to_bvh`` (hierarchy, rest rotations, Euler orders,
+Times ``bonefit.estimation.io.skeleton.skeleton_to_bvh`` (hierarchy, rest rotations, Euler orders,
 continuous channels; not the text formatting of ``write_bvh``) on synthetic rigid skeleton
 results of 36,000 and 144,000 frames (2.5 and 10 minutes at 240 Hz): median of several runs,
 each version in its own process. Times are the process's CPU time (``time.process_time``;
@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def time_writer(n_frames: int, runs: int) -> list[float]:
     """CPU seconds per ``skeleton_to_bvh`` call of an ``n_frames`` take, ``runs`` times (in
     the code found first on ``sys.path``)."""
-    from estimation.io.skeleton import skeleton_to_bvh
+    from bonefit.estimation.io.skeleton import skeleton_to_bvh
     from tests.estimation.test_io_skeleton import rigid_result
 
     result = rigid_result(n_frames=n_frames, seed=1, yaw_turns=n_frames / 7200)

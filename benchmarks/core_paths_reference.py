@@ -33,11 +33,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from skeleton_accuracy import clips, thinned  # noqa: E402
 from translation_accuracy import CLIPS as TRANSLATION_CLIPS  # noqa: E402
 
-from estimation.bvh import read_bvh  # noqa: E402
-from estimation.simulate.inertial import simulate_inertial, simulate_walker  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
-from estimation.translation import estimate_translation  # noqa: E402
+from bonefit.estimation.bvh import read_bvh  # noqa: E402
+from bonefit.estimation.simulate.inertial import simulate_inertial, simulate_walker  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.translation import estimate_translation  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 TRANSLATION_SUBSET = ("cmu_bvh11/131_01.bvh",

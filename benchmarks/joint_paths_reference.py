@@ -29,9 +29,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from skeleton_accuracy import PROTOCOL_NOISE, clips, simulation_noise, thinned  # noqa: E402
 
-import estimation.skeleton as skeleton  # noqa: E402
-from estimation.results import SkeletonResult  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
+import bonefit.estimation.skeleton as skeleton  # noqa: E402
+from bonefit.estimation.results import SkeletonResult  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
 
 # one or two clips of each source and kind of motion
 CLIPS = ("cmu_bvh11/131_01", "cmu_fairmotion/01_01", "cmu_acrnn/indian/04",

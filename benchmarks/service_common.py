@@ -27,12 +27,12 @@ THREADS_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THR
 
 
 def bonefit_command() -> list[str]:
-    """``bonefit`` next to this Python, else on PATH, else ``python -m estimation.cli``."""
+    """``bonefit`` next to this Python, else on PATH, else ``python -m bonefit``."""
     beside = Path(sys.executable).parent / "bonefit"
     if beside.is_file():
         return [str(beside)]
     found = shutil.which("bonefit")
-    return [found] if found else [sys.executable, "-m", "estimation.cli"]
+    return [found] if found else [sys.executable, "-m", "bonefit"]
 
 
 def free_port() -> int:

@@ -80,7 +80,7 @@ def seed_ids(client: httpx.Client, deletable: int = 4) -> Ids:
 def worker_elsewhere(data_dir: Path) -> None:
     """A worker heartbeat in the server's job store, fresh for a day: /readyz answers 200
     without workers here running the fuzzer's jobs (`bonefit serve --no-worker`)."""
-    from service.jobs import SqlJobStore
+    from bonefit.service.jobs import SqlJobStore
 
     store = SqlJobStore.from_url(f"sqlite:///{data_dir / 'jobs.db'}")
     try:

@@ -79,8 +79,8 @@ def wait(client: httpx.Client, job_id: str, timeout: float = 300.0) -> str:
 
 def estimation_seconds(path: Path, repeats: int = 5) -> float:
     """The skeleton estimation alone on ``path``, in this process (median)."""
-    from estimation.io.sensors import read_recording
-    from estimation.skeleton import estimate_skeleton
+    from bonefit.estimation.io.sensors import read_recording
+    from bonefit.estimation.skeleton import estimate_skeleton
 
     times = []
     for _ in range(repeats):

@@ -1,7 +1,7 @@
 """Accuracy of skeleton estimation on sensor recordings simulated from real motion capture.
 
 For every BVH clip under ``<data>/motions`` a rigid 15-segment body is driven by the clip and
-virtual sensors are attached (``estimation.simulate.sensors``: 3–7 cm off the bone, random
+virtual sensors are attached (``bonefit.estimation.simulate.sensors``: 3–7 cm off the bone, random
 orientation, 2 mm / 0.5° white noise, 5 mm slow slip, 1 % dropped samples). Each method's
 joint paths are compared with the exact centres.
 
@@ -41,11 +41,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimation.bvh import BvhMotion, read_bvh  # noqa: E402
-from estimation.errors import BonefitError  # noqa: E402
-from estimation.model import JOINTS  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.bvh import BvhMotion, read_bvh  # noqa: E402
+from bonefit.estimation.errors import BonefitError  # noqa: E402
+from bonefit.estimation.model import JOINTS  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 # folder -> (metres per unit, fps override per clip-name prefix)
 DATASETS = {

@@ -64,10 +64,10 @@ sys.path.insert(0, str(ROOT))
 
 from skeleton_accuracy import clips, thinned  # noqa: E402
 
-from estimation.errors import BonefitError  # noqa: E402
-from estimation.model import JOINT_SEGMENTS, SEGMENTS  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.errors import BonefitError  # noqa: E402
+from bonefit.estimation.model import JOINT_SEGMENTS, SEGMENTS  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 TARGET_MM = 25.0
 ALLOWED_SHARE = 0.05

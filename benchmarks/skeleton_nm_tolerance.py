@@ -34,10 +34,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from skeleton_accuracy import MAX_FRAMES, clips, thinned  # noqa: E402
 
-import estimation.limbs as limbs  # noqa: E402
-from estimation.gaps import fill_gaps  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+import bonefit.estimation.limbs as limbs  # noqa: E402
+from bonefit.estimation.gaps import fill_gaps  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 # (proximal joint, upper sensor, distal sensor, standard-length keys)
 LIMBS = (("l_hip", "l_thigh", "l_foot", ("thigh", "shank")),

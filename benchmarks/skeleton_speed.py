@@ -1,9 +1,10 @@
 """Speed of skeleton estimation on a recording the size of the paper's RT1 (6,283 frames, 30 fps).
 
-Builds synthetic 15- and 11-sensor recordings (``estimation.simulate.sensors``, docs/benchmarks.md's
-noise protocol) from a real clip in ``../shared/data/motions``, played forwards and backwards
-until it has the wanted number of frames, and times ``estimate_skeleton`` per method by its
-own ``timings["estimate_s"]`` (median of several runs, every method in the same process).
+Builds synthetic 15- and 11-sensor recordings (``bonefit.estimation.simulate.sensors``,
+docs/benchmarks.md's noise protocol) from a real clip in ``../shared/data/motions``, played
+forwards and backwards until it has the wanted number of frames, and times
+``estimate_skeleton`` per method by its own ``timings["estimate_s"]`` (median of several runs,
+every method in the same process).
 
 Run from the project root::
 
@@ -35,10 +36,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from estimation.bvh import BvhMotion, read_bvh  # noqa: E402
-from estimation.recording import SensorRecording  # noqa: E402
-from estimation.simulate.sensors import simulate_sensors  # noqa: E402
-from estimation.skeleton import estimate_skeleton  # noqa: E402
+from bonefit.estimation.bvh import BvhMotion, read_bvh  # noqa: E402
+from bonefit.estimation.recording import SensorRecording  # noqa: E402
+from bonefit.estimation.simulate.sensors import simulate_sensors  # noqa: E402
+from bonefit.estimation.skeleton import estimate_skeleton  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "motions"
 DEFAULT_CLIP = "cmu_acrnn/martial/03.bvh"  # karate, 120 fps, cm

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from estimation.bvh import read_bvh
-from estimation.io.kinematics import read_kinematics
-from estimation.simulate.inertial import simulate_inertial
-from estimation.translation import estimate_translation
+from bonefit.estimation.bvh import read_bvh
+from bonefit.estimation.io.kinematics import read_kinematics
+from bonefit.estimation.simulate.inertial import simulate_inertial
+from bonefit.estimation.translation import estimate_translation
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 

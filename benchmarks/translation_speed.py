@@ -15,8 +15,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from estimation.io.kinematics import GRAVITY, KinematicsRecording
-from estimation.translation import HACHAJ_EPS_M, estimate_translation, hachaj_smooth
+from bonefit.estimation.io.kinematics import GRAVITY, KinematicsRecording
+from bonefit.estimation.translation import HACHAJ_EPS_M, estimate_translation, hachaj_smooth
 
 
 def synthetic(n_frames: int, n_joints: int = 25, seed: int = 0) -> KinematicsRecording:

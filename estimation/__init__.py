@@ -7,11 +7,15 @@ Skeleton (magnetic 6-DOF trackers, Miura et al. 2015): `estimate_skeleton`, buil
 `estimate_joint` (LLSF/GDKE with hinge handling), `estimate_slip` (every sensor's soft-tissue
 slip from all joints at once), `estimate_limb` (limbs without forearm and lower-leg sensors)
 and `estimate_orientations`. Root translation (inertial suits, Hachaj &
-Ogiela): `estimate_translation`. File formats live in `estimation.io`, synthetic recordings
-with exact ground truth in `estimation.simulate`.
+Ogiela): `estimate_translation`. File formats live in `bonefit.estimation.io`, synthetic recordings
+with exact ground truth in `bonefit.estimation.simulate`.
 """
 
 from typing import TYPE_CHECKING
+
+if __name__ != "bonefit.estimation":  # one name only: two would make two BonefitError classes
+    raise ImportError(f"import bonefit.estimation, not {__name__} (the package is installed "
+                      "only inside the bonefit namespace)")
 
 from ._lazy import lazy_attributes
 

@@ -1,7 +1,7 @@
 """Anthropometric segment-length ratios for the standard lengths of the paper's eq. 4.
 
 Each table gives segment lengths as fractions of one common reference length. Only ratios
-matter: :func:`estimation.limbs.standard_lengths` scales them by the subject's torso length
+matter: :func:`bonefit.estimation.limbs.standard_lengths` scales them by the subject's torso length
 ``L'_T`` measured from the torso joints, so ``L = L_β · L'_T / L_T``.
 
 Tables

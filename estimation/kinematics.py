@@ -1,7 +1,7 @@
 """In-memory form of an inertial-suit recording: global joint positions and foot accelerations.
 
-The input of :func:`estimation.translation.estimate_translation`; the readers of
-:mod:`estimation.io.kinematics` and :mod:`estimation.io.mvnx` build it from files.
+The input of :func:`bonefit.estimation.translation.estimate_translation`; the readers of
+:mod:`bonefit.estimation.io.kinematics` and :mod:`bonefit.estimation.io.mvnx` build it from files.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Levenberg–Marquardt on small normal equations, for sums of squares over many frames.
 
-The limb fits (``estimation.limbs``) minimise sums of squares with 6 or 7 unknowns over
+The limb fits (``bonefit.estimation.limbs``) minimise sums of squares with 6 or 7 unknowns over
 thousands of frames; forming the ``P × P`` normal equations in one pass over the frames and
 solving them directly costs less than MINPACK's QR of the full Jacobian at every iteration.
 """

@@ -169,7 +169,7 @@ def standard_lengths(torso_length: float,
     torso_length : float
         The subject's torso length ``L'_T`` (see :func:`torso_length`), metres.
     table : str or mapping, default "aist"
-        ``"aist"`` or ``"winter"`` (see :mod:`estimation.anthropometry`), or a mapping with
+        ``"aist"`` or ``"winter"`` (see :mod:`bonefit.estimation.anthropometry`), or a mapping with
         keys ``torso``, ``thigh``, ``shank``, ``upperarm``, ``forearm`` giving lengths or
         ratios in any one unit.
 

@@ -245,7 +245,7 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
     Parameters
     ----------
     joints : mapping of str to array_like, shape (F, 3)
-        World positions (metres) of the 16 joints of ``estimation.model.JOINTS``.
+        World positions (metres) of the 16 joints of ``bonefit.estimation.model.JOINTS``.
     sensor_rotations : mapping of str to Rotation
         Sensor → world rotation (length F) of the sensors present, by segment name. The hand,
         foot and head sensors give those segments' orientations (eq. 7); the thigh and upper-arm
@@ -265,7 +265,7 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
     -------
     dict of str to ndarray, shape (F, 4)
         Segment frame → world rotation, scalar-first unit quaternions, for the 15 segments of
-        ``estimation.model.SEGMENTS`` plus ``"spine"`` (waist–chest) and ``"cervical"``
+        ``bonefit.estimation.model.SEGMENTS`` plus ``"spine"`` (waist–chest) and ``"cervical"``
         (chest–neck).
 
     Raises

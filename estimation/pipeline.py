@@ -51,7 +51,7 @@ class SensorSource:
 
 @dataclass(frozen=True)
 class SkeletonRunOptions:
-    """Options of :func:`estimation.skeleton.estimate_skeleton` a run passes on (its
+    """Options of :func:`bonefit.estimation.skeleton.estimate_skeleton` a run passes on (its
     defaults). ``up`` is the source frame's up direction; ``offsets`` a calibration: the run
     then calls ``estimate_skeleton_from_offsets`` (``up``, ``i0`` and ``smooth`` only)."""
 
@@ -159,7 +159,7 @@ class KinematicsSource:
 
 @dataclass(frozen=True)
 class TranslationRunOptions:
-    """The method of :func:`estimation.translation.estimate_translation` and its options
+    """The method of :func:`bonefit.estimation.translation.estimate_translation` and its options
     (``ContactOptions`` fields, or ``window`` and ``eps``); empty: the method's defaults."""
 
     method: str = "contact"

@@ -18,7 +18,7 @@ class SensorRecording:
     Attributes
     ----------
     sensors : tuple of str
-        Segment name of each sensor (see ``estimation.model.SEGMENTS``), length S.
+        Segment name of each sensor (see ``bonefit.estimation.model.SEGMENTS``), length S.
     positions : ndarray, shape (F, S, 3)
         Sensor origin in the source (world) frame, metres. NaN where a sample was dropped.
     quaternions : ndarray, shape (F, S, 4)

@@ -136,7 +136,7 @@ class SkeletonResult:
     fps : float
         Frame rate, Hz.
     joints : mapping of str to ndarray, shape (F, 3)
-        Global position of each joint of ``estimation.model.JOINTS`` per frame, metres,
+        Global position of each joint of ``bonefit.estimation.model.JOINTS`` per frame, metres,
         source frame. No NaN: gaps are filled.
     offsets : mapping of str to JointOffset
         For each joint located in a sensor frame, that sensor and the local position.

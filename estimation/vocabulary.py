@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Final, Literal, get_args
 
 SkeletonMethod = Literal["auto", "llsf", "gdke", "reduced"]
-"""``method`` of :func:`estimation.skeleton.estimate_skeleton`."""
+"""``method`` of :func:`bonefit.estimation.skeleton.estimate_skeleton`."""
 SKELETON_METHODS: Final[tuple[str, ...]] = get_args(SkeletonMethod)
 
 Optimizer = Literal["least-squares", "nelder-mead"]
@@ -24,7 +24,7 @@ TorsoEstimator = Literal["llsf", "gdke"]
 TORSO_ESTIMATORS: Final[tuple[str, ...]] = get_args(TorsoEstimator)
 
 AnthropometryTable = Literal["aist", "winter"]
-"""Named anthropometric tables (:mod:`estimation.anthropometry`)."""
+"""Named anthropometric tables (:mod:`bonefit.estimation.anthropometry`)."""
 ANTHROPOMETRY_TABLES: Final[tuple[str, ...]] = get_args(AnthropometryTable)
 
 AnthropometryKey = Literal["torso", "thigh", "shank", "upperarm", "forearm"]
@@ -32,15 +32,16 @@ AnthropometryKey = Literal["torso", "thigh", "shank", "upperarm", "forearm"]
 ANTHROPOMETRY_KEYS: Final[tuple[str, ...]] = get_args(AnthropometryKey)
 
 TranslationMethod = Literal["contact", "hachaj2018"]
-"""``method`` of :func:`estimation.translation.estimate_translation`."""
+"""``method`` of :func:`bonefit.estimation.translation.estimate_translation`."""
 TRANSLATION_METHODS: Final[tuple[str, ...]] = get_args(TranslationMethod)
 
 SensorFormat = Literal["csv", "tracker", "npz"]
-"""Formats of a 6-DOF sensor recording (:func:`estimation.io.sensors.read_recording`)."""
+"""Formats of a 6-DOF sensor recording (:func:`bonefit.estimation.io.sensors.read_recording`)."""
 SENSOR_FORMATS: Final[tuple[str, ...]] = get_args(SensorFormat)
 
 KinematicsFormat = Literal["kinematics-csv", "bvh", "mvnx"]
-"""Formats of an inertial-suit recording (:func:`estimation.io.kinematics.read_kinematics`)."""
+"""Formats of an inertial-suit recording
+(:func:`bonefit.estimation.io.kinematics.read_kinematics`)."""
 KINEMATICS_FORMATS: Final[tuple[str, ...]] = get_args(KinematicsFormat)
 
 TranslationOutputFormat = Literal["kinematics-csv", "bvh", "mvnx", "json"]

@@ -20,9 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.io.sensors import write_sensor_csv
-from estimation.model import SEGMENTS
-from estimation.recording import SensorRecording
+from bonefit.estimation.io.sensors import write_sensor_csv
+from bonefit.estimation.model import SEGMENTS
+from bonefit.estimation.recording import SensorRecording
 
 OUT = Path(__file__).resolve().parents[1] / "estimation" / "examples" / "walk.csv"
 

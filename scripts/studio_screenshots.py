@@ -60,10 +60,10 @@ def server(data: Path) -> Iterator[str]:
 
 def make_takes(folder: Path) -> tuple[Path, Path, Path]:
     """A 15-sensor take (CSV, cm), an inertial-suit take (kinematics CSV) and a broken file."""
-    from estimation.io.kinematics import write_kinematics_csv
-    from estimation.io.sensors import write_sensor_csv
-    from estimation.simulate.inertial import simulate_walker
-    from estimation.simulate.sensors import example_motion, simulate_sensors
+    from bonefit.estimation.io.kinematics import write_kinematics_csv
+    from bonefit.estimation.io.sensors import write_sensor_csv
+    from bonefit.estimation.simulate.inertial import simulate_walker
+    from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
 
     recording, _ = simulate_sensors(example_motion(n_frames=360, fps=60.0, seed=3),
                                     units_m=0.01, seed=3)

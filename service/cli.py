@@ -1,4 +1,4 @@
-"""The ``bonefit serve`` and ``bonefit worker`` commands (registered as entry points)."""
+"""The ``bonefit serve`` and ``bonefit worker`` commands (registered by :mod:`bonefit.cli`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import re
 import signal
 import sys
 import threading
-from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -128,10 +127,10 @@ def _positive(text: str) -> int:
     return value
 
 
-def register_serve(sub: Any) -> None:
+def register_serve(sub: Any, summary: str) -> None:
     """Add ``serve`` to the ``bonefit`` sub-commands."""
     parser: argparse.ArgumentParser = sub.add_parser(
-        "serve", help="run the REST API (with embedded workers unless --no-worker)",
+        "serve", help=summary,
         description="Run the REST API. Settings come from BONEFIT_* variables; flags win.")
     parser.add_argument("--host", help="interface to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port (default 8000)")
@@ -143,10 +142,10 @@ def register_serve(sub: Any) -> None:
     parser.set_defaults(run=_guarded(serve))
 
 
-def register_worker(sub: Any) -> None:
+def register_worker(sub: Any, summary: str) -> None:
     """Add ``worker`` to the ``bonefit`` sub-commands."""
     parser: argparse.ArgumentParser = sub.add_parser(
-        "worker", help="run job workers against the configured queue",
+        "worker", help=summary,
         description="Take jobs from BONEFIT_QUEUE_URL and run them.")
     parser.add_argument("--concurrency", type=_positive, default=1, metavar="N",
                         help="worker processes (default 1)")
@@ -154,17 +153,3 @@ def register_worker(sub: Any) -> None:
     parser.add_argument("--parent-pid", type=int, help=argparse.SUPPRESS)
     parser.set_defaults(run=_guarded(worker))
 
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m service.cli``."""
-    parser = argparse.ArgumentParser(prog="bonefit")
-    sub = parser.add_subparsers(dest="command", required=True)
-    register_serve(sub)
-    register_worker(sub)
-    args = parser.parse_args(argv)
-    code: int = args.run(args)
-    return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

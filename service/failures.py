@@ -1,6 +1,6 @@
 """How a job fails: the problem document each failure records in the job's ``error``.
 
-The problems are :class:`~service.problems.Problem` objects, the type the API answers with;
+The problems are :class:`~bonefit.service.problems.Problem` objects, the type the API answers with;
 :class:`InputFault` wraps a numerical error on the job's input.
 """
 
@@ -10,7 +10,7 @@ import logging
 import uuid
 from collections.abc import Collection
 
-from estimation.errors import BonefitError
+from bonefit.estimation.errors import BonefitError
 
 from .job_lease import TimedOut
 from .limits import MemoryLimitExceeded

@@ -37,7 +37,7 @@ class TimedOut(Exception):
 
 
 class Holder(Protocol):
-    """What a lease needs of the worker holding it (a :class:`~service.worker.Worker`)."""
+    """What a lease needs of the worker holding it (a :class:`~bonefit.service.worker.Worker`)."""
 
     id: str
     runtime: Runtime

@@ -335,7 +335,8 @@ def create_engine(url: str) -> Engine:
 @translate_methods(sql_error)
 class SqlJobStore:
     """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core; its methods raise
-    :class:`~service.errors.StorageFull` and :class:`~service.errors.StoreUnavailable`."""
+    :class:`~bonefit.service.errors.StorageFull` and
+    :class:`~bonefit.service.errors.StoreUnavailable`."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine

@@ -19,7 +19,7 @@ from pydantic import (
     field_validator,
 )
 
-from estimation.params import (
+from bonefit.estimation.params import (
     CONTACT_OPTION_RANGES,
     HACHAJ_EPS_RANGE,
     HACHAJ_WINDOW_RANGE,
@@ -27,8 +27,8 @@ from estimation.params import (
     MIN_FPS,
     WEIGHT_MAX,
 )
-from estimation.progress import Progress, scaled
-from estimation.vocabulary import (
+from bonefit.estimation.progress import Progress, scaled
+from bonefit.estimation.vocabulary import (
     ANTHROPOMETRY_KEYS,
     ANTHROPOMETRY_TABLES,
     AccelerationUnit,
@@ -49,9 +49,9 @@ ResultFormat = Literal["json", "bvh", "csv"]
 """Formats a job's result is served in."""
 
 SENSOR_FORMATS = {"sensor-csv": "csv", "tracker": "tracker", "npz": "npz"}
-"""API format name → ``estimation.io.sensors`` format name."""
+"""API format name → ``bonefit.estimation.io.sensors`` format name."""
 KINEMATICS_FORMATS = {"kinematics-csv": "kinematics-csv", "bvh": "bvh", "mvnx": "mvnx"}
-"""API format name → ``estimation.io.kinematics`` format name."""
+"""API format name → ``bonefit.estimation.io.kinematics`` format name."""
 
 
 @dataclass(frozen=True)
@@ -62,8 +62,9 @@ class Input:
     format: str
 
 
-NUMERICAL_MODULES = ("estimation.skeleton", "estimation.translation", "estimation.io.sensors",
-                     "estimation.io.skeleton", "estimation.io.kinematics", "estimation.pipeline")
+NUMERICAL_MODULES = ("bonefit.estimation.skeleton", "bonefit.estimation.translation",
+                     "bonefit.estimation.io.sensors", "bonefit.estimation.io.skeleton",
+                     "bonefit.estimation.io.kinematics", "bonefit.estimation.pipeline")
 """What the run functions import: the API process never needs them (nor scipy)."""
 
 
@@ -146,7 +147,7 @@ class SkeletonParams(BaseModel):
 
 
 def _ranged(default: float | None, name: str, description: str) -> Any:
-    """A field bounded as ``estimation.params.CONTACT_OPTION_RANGES[name]``."""
+    """A field bounded as ``bonefit.estimation.params.CONTACT_OPTION_RANGES[name]``."""
     low, high, low_open = CONTACT_OPTION_RANGES[name]
     if low_open:
         return Field(default, gt=low, le=high, description=description)
@@ -154,8 +155,8 @@ def _ranged(default: float | None, name: str, description: str) -> Any:
 
 
 class ContactOptionsIn(BaseModel):
-    """Options of the ``contact`` translation method (``estimation.translation.ContactOptions``:
-    times in seconds, lengths in metres)."""
+    """Options of the ``contact`` translation method
+    (``bonefit.estimation.translation.ContactOptions``: times in seconds, lengths in metres)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -245,8 +246,8 @@ def _stages(progress: Progress) -> Callable[[str], None]:
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
-    from estimation import pipeline
-    from estimation.io.skeleton import offsets_from_dict
+    from bonefit.estimation import pipeline
+    from bonefit.estimation.io.skeleton import offsets_from_dict
 
     source = inputs["recording"]
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",
@@ -269,7 +270,7 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
 def run_translation(inputs: Mapping[str, Input], params: TranslationParams, progress: Progress,
                     outdir: Path) -> dict[str, Path]:
     """Read the kinematics (and accelerations), estimate the root path, write the results."""
-    from estimation import pipeline
+    from bonefit.estimation import pipeline
 
     source = inputs["recording"]
     accelerations = inputs.get("accelerations")

@@ -42,7 +42,7 @@ class LeaseKeeper:
         """Start (or restart) the keeper process."""
         env = {**os.environ, **self.settings.to_env()}
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service.leases", self.worker_id, str(os.getpid())],
+            [sys.executable, "-m", "bonefit.service.leases", self.worker_id, str(os.getpid())],
             stdin=subprocess.PIPE, env=env)
 
     def _send(self, line: str) -> None:
@@ -132,7 +132,8 @@ def _renew(store: JobStore, job_id: str, worker_id: str, lease: float) -> str | 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m service.leases WORKER_ID PARENT_PID`` (started by :class:`LeaseKeeper`)."""
+    """``python -m bonefit.service.leases WORKER_ID PARENT_PID`` (started by
+    :class:`LeaseKeeper`)."""
     worker_id, parent = list(sys.argv[1:] if argv is None else argv)
     # the keeper lives exactly as long as its worker's end of the pipe: a SIGTERM to the
     # process group must not stop the renewals of a job the worker is still finishing

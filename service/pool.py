@@ -31,7 +31,7 @@ class WorkerPool:
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         env = {**os.environ, **self.settings.to_env(), **BLAS_LIMITS}
-        cmd = [sys.executable, "-m", "service.cli", "worker", "--concurrency", "1",
+        cmd = [sys.executable, "-m", "bonefit", "worker", "--concurrency", "1",
                "--parent-pid", str(os.getpid())]
         return subprocess.Popen(cmd, env=env)
 

@@ -14,7 +14,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 from starlette.routing import Match
 
-from estimation.errors import BonefitError, EstimationError
+from bonefit.estimation.errors import BonefitError, EstimationError
 
 from .errors import BackendError
 
@@ -79,7 +79,7 @@ def _location(loc: tuple[int | str, ...], tags: set[str]) -> str:
 def outage_types() -> tuple[type[Exception], ...]:
     """The exceptions that say a back-end (database, queue, storage) failed: 503, not 500.
 
-    The adapters raise :class:`~service.errors.BackendError` for their drivers' outages
+    The adapters raise :class:`~bonefit.service.errors.BackendError` for their drivers' outages
     (SQLAlchemy, redis, huey's SQLite, botocore) and full disks; the routes that write answer
     a full disk with 507 themselves.
     """

@@ -52,8 +52,8 @@ def queue_error(exc: Exception) -> BackendError | None:
 @translate_methods(queue_error)
 class HueyQueue:
     """huey as the transport: one task, ``bonefit.run_job(job_id)``, executed by our workers;
-    its methods raise :class:`~service.errors.StorageFull` and
-    :class:`~service.errors.QueueUnavailable`."""
+    its methods raise :class:`~bonefit.service.errors.StorageFull` and
+    :class:`~bonefit.service.errors.QueueUnavailable`."""
 
     def __init__(self, huey: Any) -> None:
         self.huey = huey

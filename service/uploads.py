@@ -17,8 +17,8 @@ from typing import Any
 import anyio.to_thread
 from python_multipart.multipart import MultipartParser, MultipartState, parse_options_header
 
-from estimation.errors import BonefitError, InputError
-from estimation.io.sniff import RowCounter, sniff_file
+from bonefit.estimation.errors import BonefitError, InputError
+from bonefit.estimation.io.sniff import RowCounter, sniff_file
 
 from .kinds import KINEMATICS_FORMATS, SENSOR_FORMATS
 from .problems import Problem

@@ -26,7 +26,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from estimation.errors import BonefitError
+from bonefit.estimation.errors import BonefitError
 
 from .artifacts import tenant_prefix
 from .failures import InputFault, internal_problem, job_problem, job_url, log_error

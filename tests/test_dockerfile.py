@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 import yaml
 
-from service.settings import Settings
+from bonefit.service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKERFILES = [ROOT / "Dockerfile", ROOT / "scripts" / "container" / "python-base.Dockerfile"]

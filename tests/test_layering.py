@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -14,51 +15,82 @@ ROOT = Path(__file__).resolve().parents[1]
 ALLOWED_THIRD_PARTY = {"numpy", "scipy"}
 
 
-def imported_top_levels(path: Path) -> set[str]:
+def imported_names(path: Path) -> set[str]:
+    """Dotted names of the absolute imports of a file."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     names: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names.update(alias.name.split(".")[0] for alias in node.names)
+            names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names.add(node.module.split(".")[0])
+            names.add(node.module)
     return names
+
+
+def foreign_imports(path: Path) -> set[str]:
+    """What a file of the numerical core imports beyond stdlib, numpy, scipy and itself."""
+    return {
+        name for name in imported_names(path)
+        if name.split(".")[0] not in sys.stdlib_module_names
+        and name.split(".")[0] not in ALLOWED_THIRD_PARTY
+        and name != "bonefit.estimation" and not name.startswith("bonefit.estimation.")
+    }
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "estimation").rglob("*.py")),
                          ids=lambda p: str(p.relative_to(ROOT)))
 def test_estimation_imports_only_stdlib_numpy_scipy(path: Path) -> None:
-    foreign = {
-        name for name in imported_top_levels(path)
-        if name not in sys.stdlib_module_names and name not in ALLOWED_THIRD_PARTY
-        and name != "estimation"
-    }
+    foreign = foreign_imports(path)
     assert not foreign, f"{path.name} imports {sorted(foreign)}"
 
 
 def test_checker_catches_a_forbidden_import(tmp_path: Path) -> None:
     bad = tmp_path / "bad.py"
-    bad.write_text("import fastapi\nfrom service import app\nimport numpy as np\n")
-    assert imported_top_levels(bad) == {"fastapi", "service", "numpy"}
+    bad.write_text("import fastapi\nfrom bonefit.service import app\nimport numpy as np\n"
+                   "from bonefit import cli\nfrom bonefit.estimation.io import sensors\n")
+    assert foreign_imports(bad) == {"fastapi", "bonefit.service", "bonefit"}
 
 
 def run_fresh(code: str) -> None:
     """Run ``code`` in a new interpreter (nothing imported yet); fail with its stderr."""
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", code], cwd=tempfile.gettempdir(),
+                          capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def test_packages_load_under_one_name_only() -> None:
+    # Top-level `estimation` or `service` would be a second copy of every module (two
+    # BonefitError classes): the installed environment has no such packages, and the packages
+    # refuse to load under another name even with the repository root on sys.path.
+    run_fresh("import importlib.util, bonefit.estimation, bonefit.service\n"
+              "assert importlib.util.find_spec('estimation') is None\n"
+              "assert importlib.util.find_spec('service') is None\n")
+    for name in ("estimation", "service", "estimation.errors", "service.app"):
+        done = subprocess.run([sys.executable, "-c", f"import {name}"], cwd=ROOT,
+                              capture_output=True, text=True)
+        assert done.returncode == 1
+        assert f"import bonefit.{name.split('.')[0]}, not" in done.stderr
+
+
+def test_the_command_loads_only_the_chosen_command() -> None:
+    # `bonefit --help` must work with the base install (numpy) and stay fast
+    run_fresh("import sys\nfrom bonefit.cli import build_parser\nbuild_parser(['--help'])\n"
+              "heavy = {'scipy', 'httpx', 'fastapi', 'uvicorn', 'pydantic', 'sqlalchemy'}\n"
+              "loaded = sorted(heavy & {m.split('.')[0] for m in sys.modules})\n"
+              "assert not loaded, loaded\n")
 
 
 def test_public_names_resolve_and_load_lazily() -> None:
     code = (
-        "import sys, estimation, estimation.io\n"
+        "import sys, bonefit.estimation, bonefit.estimation.io\n"
         "assert 'scipy' not in sys.modules, 'importing the package loaded scipy'\n"
-        "for package in (estimation, estimation.io):\n"
+        "for package in (bonefit.estimation, bonefit.estimation.io):\n"
         "    for name in package.__all__:\n"
         "        assert getattr(package, name) is not None, name\n"
         "        assert name in dir(package), name\n"
         "assert 'scipy' in sys.modules\n"
         "try:\n"
-        "    estimation.no_such_name\n"
+        "    bonefit.estimation.no_such_name\n"
         "except AttributeError as exc:\n"
         "    assert 'no_such_name' in str(exc)\n"
         "else:\n"
@@ -68,38 +100,44 @@ def test_public_names_resolve_and_load_lazily() -> None:
 
 def test_api_process_does_not_load_scipy() -> None:
     # uploads are sniffed in the API process: without scipy it needs ~40 MB less memory
-    code = ("import sys, service.app, service.cli, service.routes, service.uploads\n"
+    code = ("import sys, bonefit.cli, bonefit.service.app, bonefit.service.cli, "
+            "bonefit.service.routes, bonefit.service.uploads\n"
             "loaded = sorted(m for m in sys.modules if m.split('.')[0] == 'scipy')\n"
             "assert not loaded, loaded[:5]\n")
     run_fresh(code)
 
 
 def test_worker_preload_loads_what_the_kinds_run() -> None:
-    code = ("import sys\nfrom service.kinds import preload\npreload()\n"
+    code = ("import sys\nfrom bonefit.service.kinds import preload\npreload()\n"
             "assert 'scipy.spatial.transform' in sys.modules\n"
-            "assert 'estimation.skeleton' in sys.modules and 'estimation.translation' in "
-            "sys.modules\n")
+            "assert 'bonefit.estimation.skeleton' in sys.modules\n"
+            "assert 'bonefit.estimation.translation' in sys.modules\n")
     run_fresh(code)
 
 
 # ------------------------------------------------- private names and import cycles (issue 18 §3)
 
 PACKAGES = ("estimation", "service")
+"""Directories of the repository installed as ``bonefit.<name>``."""
 # Private helpers of estimation/io still imported elsewhere: the io engineers make them public
 # (issue 18 §3); each entry is (importing module, name). Do not add to this list.
 KNOWN_PRIVATE_IMPORTS: set[tuple[str, str]] = set()
 
 
 def module_files(root: Path) -> dict[str, Path]:
-    """Dotted module name -> file of every module of ``PACKAGES`` under ``root``."""
+    """Dotted module name (``bonefit.estimation.io``) -> file of every module of ``PACKAGES``
+    and of ``bonefit``'s own modules under ``root``."""
     out = {}
-    for package in PACKAGES:
-        for path in sorted((root / package).rglob("*.py")):
-            parts = list(path.relative_to(root).with_suffix("").parts)
-            if parts[-1] == "__init__":
-                parts.pop()
-            out[".".join(parts)] = path
-    return out
+    own = [p for p in (root / "bonefit").rglob("*.py")
+           if p.relative_to(root / "bonefit").parts[0] not in PACKAGES]
+    for path in own + [p for d in PACKAGES for p in (root / d).rglob("*.py")]:
+        parts = list(path.relative_to(root).with_suffix("").parts)
+        if parts[0] != "bonefit":
+            parts.insert(0, "bonefit")
+        if parts[-1] == "__init__":
+            parts.pop()
+        out[".".join(parts)] = path
+    return dict(sorted(out.items()))
 
 
 def imported_modules(name: str, path: Path, modules: dict[str, Path],
@@ -186,6 +224,15 @@ def test_checkers_catch_a_private_import_and_a_cycle(tmp_path: Path) -> None:
     (package / "a.py").write_text("from . import _rows as rows\nfrom .b import _secret\n")
     (package / "b.py").write_text("from . import a\n_secret = 1\n")
     (package / "c.py").write_text("from . import b\nx = b._secret\n")
-    assert private_imports(tmp_path) == {("estimation.a", "_secret"),
-                                         ("estimation.c", "b._secret")}
-    assert import_cycles(tmp_path) == [["estimation.a", "estimation.b"]]
+    assert private_imports(tmp_path) == {("bonefit.estimation.a", "_secret"),
+                                         ("bonefit.estimation.c", "b._secret")}
+    assert import_cycles(tmp_path) == [["bonefit.estimation.a", "bonefit.estimation.b"]]
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "service").rglob("*.py")),
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_service_never_imports_the_command_module_or_the_client(path: Path) -> None:
+    # layers point one way: bonefit.cli -> bonefit.service -> bonefit.estimation
+    upward = {n for n in imported_names(path)
+              if n == "bonefit" or n.startswith(("bonefit.cli", "bonefit.client"))}
+    assert not upward, f"{path.name} imports {sorted(upward)}"

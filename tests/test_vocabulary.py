@@ -8,10 +8,10 @@ from typing import Any, get_args
 
 import pytest
 
-from estimation import anthropometry, skeleton, translation, vocabulary
-from estimation.cli import build_parser
-from estimation.io import body, kinematics, sensors
-from service import kinds
+from bonefit.cli import build_parser
+from bonefit.estimation import anthropometry, skeleton, translation, vocabulary
+from bonefit.estimation.io import body, kinematics, sensors
+from bonefit.service import kinds
 
 
 def test_tables_are_keyed_by_the_vocabulary() -> None:
@@ -60,7 +60,7 @@ def test_service_params_accept_the_vocabulary(model: Any, name: str,
 
 
 def _subcommand(name: str) -> argparse.ArgumentParser:
-    parser = build_parser()
+    parser = build_parser([name])
     action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     sub: argparse.ArgumentParser = action.choices[name]
     return sub

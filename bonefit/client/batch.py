@@ -291,10 +291,10 @@ def _positive(text: str) -> int:
     return value
 
 
-def register_submit(sub: Any) -> None:
-    """Add ``submit`` to the ``bonefit`` sub-commands (entry point ``bonefit.commands``)."""
+def register_submit(sub: Any, summary: str) -> None:
+    """Add ``submit`` to the ``bonefit`` sub-commands (called by :mod:`bonefit.cli`)."""
     parser: argparse.ArgumentParser = sub.add_parser(
-        "submit", help="upload and run many takes on a bonefit server",
+        "submit", help=summary,
         description="Upload TAKES to a bonefit server, run a job on each (at most --jobs at a "
                     "time) and write each result beside its name in OUTDIR. Takes already "
                     "finished with the same file content, kind and params are not run again. "

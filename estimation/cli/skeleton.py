@@ -56,11 +56,11 @@ exit status: 0 on success, 2 with a one-line reason on bad input.
 """
 
 
-def register(sub: Any) -> None:
+def register(sub: Any, summary: str) -> None:
     """Add the ``skeleton`` command to the sub-parsers."""
     parser: argparse.ArgumentParser = sub.add_parser(
         "skeleton",
-        help="estimate joint centres, bone lengths and orientations from 6-DOF sensors",
+        help=summary,
         description="Estimate joint centres, bone lengths and segment orientations from a\n"
                     "magnetic 6-DOF tracker recording (15 or 11 sensors) and write them as\n"
                     "JSON, BVH or CSV. Without -o, prints a summary.",

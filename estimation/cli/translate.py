@@ -32,11 +32,11 @@ length unit (from the legs' length) are found without flags and printed; --left-
 """
 
 
-def register(sub: Any) -> None:
+def register(sub: Any, summary: str) -> None:
     """Add the ``translate`` command to the sub-parsers."""
     parser: argparse.ArgumentParser = sub.add_parser(
         "translate",
-        help="root path of an inertial-suit recording from its foot accelerometers",
+        help=summary,
         description="Estimate the root path (translation) of an inertial motion-capture "
                     "recording from its kinematics and foot accelerometers.",
         epilog=EXAMPLES,

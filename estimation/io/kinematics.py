@@ -8,10 +8,10 @@ Three inputs give the same :class:`KinematicsRecording` (metres, world frame, Y 
   written back unchanged;
 * **BVH + accelerations CSV** (``time,LeftFoot.ax,...``): positions by forward kinematics with
   the root translation of the BVH ignored;
-* **Xsens MVNX** (see :mod:`estimation.io.mvnx`).
+* **Xsens MVNX** (see :mod:`bonefit.estimation.io.mvnx`).
 
-The writers of a :class:`~estimation.translation.TranslationResult` live in
-:mod:`estimation.io.translation_files` and are importable from here as before. Formats are
+The writers of a :class:`~bonefit.estimation.translation.TranslationResult` live in
+:mod:`bonefit.estimation.io.translation_files` and are importable from here as before. Formats are
 described in ``docs/translation.md``.
 """
 
@@ -186,7 +186,7 @@ def _table_header(first: str) -> list[str]:
 def _read_table(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
     """Header and numeric body of a CSV; a fast parse first, a row-by-row one to name the
     line and column of a bad value. Lines, columns and rows are bounded by
-    ``estimation.io.limits`` before they are read."""
+    ``bonefit.estimation.io.limits`` before they are read."""
     with _open_csv(path) as handle:
         lines = limits.bounded_lines(handle)
         header = _table_header(next(lines, ""))
@@ -295,7 +295,7 @@ def read_kinematics_csv(
     path : path
     left_foot, right_foot : str, optional
         Foot joints (overrides); by default the columns named like a left and a right foot
-        (:func:`estimation.io.body.find_column_feet`). ``<Foot>.Dx/.Dy/.Dz`` and
+        (:func:`bonefit.estimation.io.body.find_column_feet`). ``<Foot>.Dx/.Dy/.Dz`` and
         ``<Foot>.ax/.ay/.az`` must exist.
     acceleration_units : str, optional
         One of :data:`ACCELERATION_UNITS`. By default the columns must look like g with
@@ -304,7 +304,7 @@ def read_kinematics_csv(
     units : str or float, optional
         Length unit of the positions: ``"auto"`` (default: inferred from the hips–feet
         distance, cm for the paper's layout), a name of
-        :data:`~estimation.io.body.LENGTH_UNITS` or metres per unit; a unit giving legs
+        :data:`~bonefit.estimation.io.body.LENGTH_UNITS` or metres per unit; a unit giving legs
         outside a person's range is refused naming the likely one.
 
     Returns
@@ -510,13 +510,13 @@ def read_bvh_kinematics(
         the times differ.
     left_foot, right_foot : str, optional
         Foot joints of the BVH hierarchy (overrides); by default found by name or topology
-        (:func:`estimation.io.body.find_bvh_feet`). The accelerations file names the sensors
+        (:func:`bonefit.estimation.io.body.find_bvh_feet`). The accelerations file names the sensors
         by these joints, or by the only foot-named sensor of each side.
     acceleration_units : str, optional
         As in :func:`read_kinematics_csv`; a unit in the header cells counts as declared.
     units : str or float, optional
         BVH length unit: ``"auto"`` (default: inferred from the legs' bone lengths), a name
-        of :data:`~estimation.io.body.LENGTH_UNITS` (``m``, ``cm``, ``mm``, ``in``, ``ft``,
+        of :data:`~bonefit.estimation.io.body.LENGTH_UNITS` (``m``, ``cm``, ``mm``, ``in``, ``ft``,
         ``cmu``) or metres per unit; a unit giving legs outside a person's range is refused
         naming the likely one.
 

@@ -2,18 +2,18 @@
 
 A file may declare anything (an NPZ member of 50 M entries in 200 KB, a header line of 12 M
 columns); the readers and the service's sniff check what is declared against these limits
-first and refuse beyond them with a :class:`~estimation.errors.LimitError` that names the
+first and refuse beyond them with a :class:`~bonefit.estimation.errors.LimitError` that names the
 limit. The limits are far above any real studio capture (documented in
 ``docs/skeleton-io.md``, "Limits"), so they only ever stop broken or hostile files.
 
 Examples
 --------
->>> from estimation.io import limits
+>>> from bonefit.estimation.io import limits
 >>> limits.check_count("frames", 120, "MAX_FRAMES")
 >>> limits.check_count("columns", 5000, "MAX_COLUMNS", line=1)
 Traceback (most recent call last):
 ...
-estimation.errors.LimitError: the file has 5000 columns; the limit is 4096 (MAX_COLUMNS)
+bonefit.estimation.errors.LimitError: the file has 5000 columns; the limit is 4096 (MAX_COLUMNS)
 """
 
 from __future__ import annotations

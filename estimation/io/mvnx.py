@@ -8,7 +8,7 @@ of one subject (the first unless ``subject`` says): segment ``position`` (m),
 ``sensorFreeAcceleration`` (m/s², world frame, gravity removed) or, in MVNX 3,
 ``sensorAcceleration`` (sensor frame, gravity included) with ``sensorOrientation``, and, when
 present, ``footContacts`` (heel/toe flags of each foot). MVNX is Z up; everything is
-converted to the Y-up frame of :class:`~estimation.io.kinematics.KinematicsRecording`
+converted to the Y-up frame of :class:`~bonefit.estimation.io.kinematics.KinematicsRecording`
 (x, y, z) → (x, z, −y).
 """
 

@@ -114,7 +114,7 @@ def write_sensor_npz(recording: SensorRecording, path: PathLike) -> None:
 
 def sniff_npz(path: PathLike) -> dict[str, Any]:
     """Shapes from the NPY headers, names and scalars from the small members: nothing is
-    decompressed before its declared size is checked (``estimation.io.limits``)."""
+    decompressed before its declared size is checked (``bonefit.estimation.io.limits``)."""
     with limits.open_npz(path) as archive:
         frames = _npz_frames(archive)
         names = set(archive.namelist())

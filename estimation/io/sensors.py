@@ -5,9 +5,9 @@ The formats live in :mod:`.sensor_csv`, :mod:`.tracker` and :mod:`.sensor_npz`, 
 in :mod:`.sensor_common`, format detection and summaries in :mod:`.sniff`; their public names
 are importable from here as before.
 
-Every reader returns a :class:`~estimation.recording.SensorRecording` in metres with unit
+Every reader returns a :class:`~bonefit.estimation.recording.SensorRecording` in metres with unit
 scalar-first quaternions (sensor → source frame) and NaN for dropped samples, and raises
-:class:`~estimation.errors.InputError` naming the line, column, field or sensor at fault.
+:class:`~bonefit.estimation.errors.InputError` naming the line, column, field or sensor at fault.
 The formats are described in ``docs/skeleton-io.md``.
 """
 
@@ -64,10 +64,11 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
         Frame rate, Hz; required for tracker files and CSV files without a ``time`` column.
     stations : mapping or str, optional
         Station → segment mapping of tracker files (see
-        :func:`~estimation.io.tracker.parse_stations`).
+        :func:`~bonefit.estimation.io.tracker.parse_stations`).
     tracker_layout : str, optional
-        Column layout of a tracker file (see :func:`~estimation.io.tracker.parse_tracker_layout`);
-        detected from the file when omitted.
+        Column layout of a tracker file (see
+        :func:`~bonefit.estimation.io.tracker.parse_tracker_layout`); detected from the file when
+        omitted.
 
     Returns
     -------

@@ -339,7 +339,7 @@ def write_skeleton_csv(result: SkeletonResult, path: PathLike | io.TextIOBase, *
     """Write the joint trajectories as CSV: ``time,<joint>.x,<joint>.y,<joint>.z,...``.
 
     One row per frame; ``time`` = frame / fps in seconds, positions in metres, joints in
-    ``estimation.model.JOINTS`` order (others after).
+    ``bonefit.estimation.model.JOINTS`` order (others after).
     """
     names = _ordered(result.joints, JOINTS)
     n = result.n_frames
@@ -439,7 +439,7 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     site) per side. Each node turns with the segment it drives (root: pelvis, waist: spine,
     chest: chest, neck: head, shoulder: upper arm, elbow: forearm, wrist: hand, hip: thigh,
     knee: shank, ankle: foot). A node's frame is its segment's frame turned by a constant rest
-    rotation ``C`` (``estimation.bvh.rest_euler_channels``): identity (the segment frame,
+    rotation ``C`` (``bonefit.estimation.bvh.rest_euler_channels``): identity (the segment frame,
     upright, arms down, at rest) or the one that makes the take's mean pose of the node,
     relative to its parent, the rest pose, whichever plays back better between frames.
     A node's OFFSET is ``C_parentᵀ`` times the frame mean of ``R_seg(t)ᵀ (child(t) −
@@ -452,8 +452,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     Parameters
     ----------
     result : SkeletonResult
-        Needs the 16 joints of ``estimation.model.JOINTS`` and the orientations of the driving
-        segments, including ``spine``.
+        Needs the 16 joints of ``bonefit.estimation.model.JOINTS`` and the orientations of the
+        driving segments, including ``spine``.
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
     euler_order : str, optional
@@ -472,7 +472,7 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     ------
     InputError
         If a joint or orientation the hierarchy needs is missing or not finite, or
-        ``euler_order`` is not one of ``estimation.bvh.EULER_ORDERS``, or ``rest`` is not
+        ``euler_order`` is not one of ``bonefit.estimation.bvh.EULER_ORDERS``, or ``rest`` is not
         one of ``BVH_REST``.
     """
     if rest not in BVH_REST:

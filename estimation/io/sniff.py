@@ -33,7 +33,7 @@ def detect_format(path: PathLike) -> str:
     """Format of a recording file: ``"csv"``, ``"tracker"`` or ``"npz"``.
 
     By content first (a ZIP archive is NPZ; records whose layout
-    :func:`~estimation.io.tracker.detect_tracker_layout` recognises are a tracker export; a
+    :func:`~bonefit.estimation.io.tracker.detect_tracker_layout` recognises are a tracker export; a
     header with ``<segment>.<component>`` columns is CSV), then by
     extension (``.npz``, ``.csv``; ``.txt``/``.dat``/``.asc`` are tracker files).
 
@@ -116,7 +116,7 @@ def sniff_recording(path: PathLike, format: str = "auto", *,
         tracker files the station numbers as strings unless the file names them with a
         ``# stations:`` comment), ``fps`` (float or None when the file does not say),
         ``units`` (str or None); for tracker files also ``layout``, the detected
-        :class:`~estimation.io.tracker.TrackerLayout` spec.
+        :class:`~bonefit.estimation.io.tracker.TrackerLayout` spec.
 
     Raises
     ------

@@ -79,7 +79,7 @@ def translation_to_dict(result: TranslationResult, recording: KinematicsRecordin
 def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
                      scale: float) -> BvhMotion:
     """The corrected positions as a BVH of rotation channels under a moving root (see
-    :func:`estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
+    :func:`bonefit.estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
     return point_joint_bvh(recording.joints, result.positions / scale,
                            recording.index(recording.root), 1.0 / result.fps)
 
@@ -88,7 +88,7 @@ def translated_bvh(result: TranslationResult, recording: KinematicsRecording) ->
     """The BVH of a translation result, written so that every BVH reader agrees.
 
     A BVH input comes back with the estimated root path in the root's position channels and
-    its position channels folded (:func:`estimation.bvh.fold_position_channels`: constant
+    its position channels folded (:func:`bonefit.estimation.bvh.fold_position_channels`: constant
     ones into OFFSETs, moving ones over a zero OFFSET). Other inputs (and a BVH whose root
     has no position channels) become a point-joint BVH in centimetres (the BVH's unit) of
     the corrected positions.

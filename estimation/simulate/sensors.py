@@ -121,7 +121,7 @@ class SimulationTruth:
     Attributes
     ----------
     joints : dict of str to ndarray, shape (F, 3)
-        Every joint of ``estimation.model.JOINTS`` in the world frame, metres. ``root`` and
+        Every joint of ``bonefit.estimation.model.JOINTS`` in the world frame, metres. ``root`` and
         ``chest`` are derived from the true centres as in Miura et al. (2015), eq. 1.
     segment_rotations : dict of str to Rotation
         Segment frame → world rotation of each of the 15 segments, length F.
@@ -220,7 +220,7 @@ def derived_joints(joints: Mapping[str, NDArray[np.float64]]) -> dict[str, NDArr
     Returns
     -------
     dict with ``root`` (centroid of W, LH, RH) and ``chest`` (see
-    ``estimation.skeleton.estimate_chest``).
+    ``bonefit.estimation.skeleton.estimate_chest``).
     """
     return {
         "root": estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"]),

@@ -256,8 +256,8 @@ def wait_ready(client: httpx.Client, timeout: float = 120) -> httpx.Response:
 
 
 def _sensor_csv(n_frames: int, seed: int) -> bytes:
-    from estimation.io.sensors import write_sensor_csv
-    from estimation.simulate.sensors import example_motion, simulate_sensors
+    from bonefit.estimation.io.sensors import write_sensor_csv
+    from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
 
     recording, _ = simulate_sensors(example_motion(n_frames=n_frames, fps=60.0, seed=seed),
                                     units_m=0.01, seed=seed)
@@ -291,8 +291,8 @@ def long_sensor_csv_bytes() -> bytes:
 @pytest.fixture(scope="session")
 def kinematics_csv_bytes() -> bytes:
     """An inertial-suit kinematics CSV (Shadow layout: cm positions, foot accelerations in g)."""
-    from estimation.io.kinematics import write_kinematics_csv
-    from estimation.simulate.inertial import simulate_walker
+    from bonefit.estimation.io.kinematics import write_kinematics_csv
+    from bonefit.estimation.simulate.inertial import simulate_walker
 
     rec, _, _ = simulate_walker(fps=60.0, seed=0)
     text = io.StringIO()
@@ -303,9 +303,9 @@ def kinematics_csv_bytes() -> bytes:
 @pytest.fixture(scope="session")
 def bvh_and_accelerations() -> tuple[bytes, bytes, tuple[str, str]]:
     """A BVH clip, its foot accelerations CSV (g, sensor frame) and the two foot joints."""
-    from estimation.bvh import write_bvh
-    from estimation.simulate.inertial import simulate_inertial
-    from estimation.simulate.sensors import example_motion
+    from bonefit.estimation.bvh import write_bvh
+    from bonefit.estimation.simulate.inertial import simulate_inertial
+    from bonefit.estimation.simulate.sensors import example_motion
 
     motion = example_motion(n_frames=300, fps=60.0, seed=0)
     rec, _ = simulate_inertial(motion)

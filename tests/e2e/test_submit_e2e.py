@@ -28,8 +28,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
 def make_takes(folder: Path) -> list[Path]:
     """19 tiny synthetic sensor recordings (90 frames) and a copy of one with a bad value
     (the upload passes its sniff; the job fails naming the line)."""
-    from estimation.io.sensors import write_sensor_csv
-    from estimation.simulate.sensors import example_motion, simulate_sensors
+    from bonefit.estimation.io.sensors import write_sensor_csv
+    from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
 
     folder.mkdir()
     takes = []

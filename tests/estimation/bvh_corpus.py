@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from estimation.bvh import BvhMotion
-from estimation.io.kinematics import GRAVITY
-from estimation.simulate.inertial import simulate_inertial
+from bonefit.estimation.bvh import BvhMotion
+from bonefit.estimation.io.kinematics import GRAVITY
+from bonefit.estimation.simulate.inertial import simulate_inertial
 
 ROT = ("Zrotation", "Xrotation", "Yrotation")
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", *ROT)

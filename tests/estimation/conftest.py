@@ -20,9 +20,9 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.bvh import BvhMotion
-from estimation.recording import SensorRecording
-from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
+from bonefit.estimation.bvh import BvhMotion
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.bvh import (
+from bonefit.estimation.bvh import (
     EULER_ORDERS,
     JUMP_DEG,
     BvhMotion,
@@ -31,16 +31,20 @@ from estimation.bvh import (
     read_bvh,
     write_bvh,
 )
-from estimation.errors import InputError
-from estimation.io.kinematics import read_kinematics, write_kinematics_csv, write_translation
-from estimation.io.skeleton import BVH_NODES, skeleton_to_bvh, write_skeleton_bvh
-from estimation.model import JOINTS, SEGMENTS
-from estimation.recording import SensorRecording
-from estimation.results import SkeletonResult
-from estimation.simulate.inertial import simulate_walker
-from estimation.simulate.sensors import SimulationTruth, example_motion
-from estimation.skeleton import estimate_skeleton
-from estimation.translation import estimate_translation
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.kinematics import (
+    read_kinematics,
+    write_kinematics_csv,
+    write_translation,
+)
+from bonefit.estimation.io.skeleton import BVH_NODES, skeleton_to_bvh, write_skeleton_bvh
+from bonefit.estimation.model import JOINTS, SEGMENTS
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.results import SkeletonResult
+from bonefit.estimation.simulate.inertial import simulate_walker
+from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion
+from bonefit.estimation.skeleton import estimate_skeleton
+from bonefit.estimation.translation import estimate_translation
 from tests.estimation.bvh_readers import bvhio_positions, install_three, threejs_positions
 from tests.estimation.test_io_skeleton import REST, rigid_result
 from tests.estimation.test_mvnx import write_mvnx

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from estimation.bvh import BvhMotion
-from estimation.cli import main
-from estimation.errors import InputError
-from estimation.io.body import LENGTH_UNITS, classify, find_bvh_feet
-from estimation.io.kinematics import read_kinematics, sniff_kinematics, translation_to_dict
-from estimation.translation import estimate_translation
+from bonefit.cli import main
+from bonefit.estimation.bvh import BvhMotion
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.body import LENGTH_UNITS, classify, find_bvh_feet
+from bonefit.estimation.io.kinematics import read_kinematics, sniff_kinematics, translation_to_dict
+from bonefit.estimation.translation import estimate_translation
 from tests.estimation.bvh_corpus import (
     CONVENTIONS,
     accelerations_csv,

@@ -11,9 +11,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from estimation.bvh import MAX_NODES, read_bvh
-from estimation.errors import BonefitError, InputError
-from estimation.io.body import find_bvh_feet
+from bonefit.estimation.bvh import MAX_NODES, read_bvh
+from bonefit.estimation.errors import BonefitError, InputError
+from bonefit.estimation.io.body import find_bvh_feet
 from tests.estimation.bvh_corpus import CONVENTIONS, body_motion, bvh_text
 
 SMALL = """HIERARCHY

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from estimation import skeleton as skeleton_module
-from estimation.bvh import forward_kinematics, read_bvh
-from estimation.cli import main
-from estimation.io.sensors import example_path, read_recording, write_sensor_csv
-from estimation.io.skeleton import BVH_NODES
-from estimation.model import JOINTS, SEGMENTS
-from estimation.recording import SensorRecording
-from estimation.results import SkeletonResult
+from bonefit.cli import main
+from bonefit.estimation import skeleton as skeleton_module
+from bonefit.estimation.bvh import forward_kinematics, read_bvh
+from bonefit.estimation.io.sensors import example_path, read_recording, write_sensor_csv
+from bonefit.estimation.io.skeleton import BVH_NODES
+from bonefit.estimation.model import JOINTS, SEGMENTS
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.results import SkeletonResult
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimation.cli import main
-from estimation.io.kinematics import read_kinematics, write_kinematics_csv
-from estimation.simulate.inertial import simulate_walker
+from bonefit.cli import main
+from bonefit.estimation.io.kinematics import read_kinematics, write_kinematics_csv
+from bonefit.estimation.simulate.inertial import simulate_walker
 
 
 @pytest.fixture(scope="module")

@@ -20,20 +20,20 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from estimation.errors import BonefitError
-from estimation.io.kinematics import (
+from bonefit.estimation.errors import BonefitError
+from bonefit.estimation.io.kinematics import (
     read_acceleration_csv,
     read_kinematics_csv,
     sniff_kinematics,
 )
-from estimation.io.sensors import (
+from bonefit.estimation.io.sensors import (
     example_path,
     read_sensor_csv,
     read_sensor_npz,
     sniff_recording,
     write_sensor_npz,
 )
-from estimation.io.skeleton import read_skeleton_json, read_skeleton_offsets
+from bonefit.estimation.io.skeleton import read_skeleton_json, read_skeleton_offsets
 
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -45,7 +45,7 @@ def sensor_csv() -> bytes:
 
 
 def sensor_npz() -> bytes:
-    from estimation.io.sensors import read_sensor_csv as read
+    from bonefit.estimation.io.sensors import read_sensor_csv as read
 
     with tempfile.TemporaryDirectory() as tmp:
         src = Path(tmp) / "walk.csv"

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimation.bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
-from estimation.errors import InputError
-from estimation.io.kinematics import (
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh, write_bvh
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.kinematics import (
     GRAVITY,
     KinematicsRecording,
     read_kinematics,
@@ -20,8 +20,8 @@ from estimation.io.kinematics import (
     write_kinematics_csv,
     write_translation,
 )
-from estimation.simulate.inertial import simulate_walker
-from estimation.translation import estimate_translation
+from bonefit.estimation.simulate.inertial import simulate_walker
+from bonefit.estimation.translation import estimate_translation
 from tests.estimation.conftest import two_feet_motion
 
 

@@ -13,14 +13,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from estimation.errors import InputError, LimitError
-from estimation.io import limits
-from estimation.io.kinematics import (
+from bonefit.estimation.errors import InputError, LimitError
+from bonefit.estimation.io import limits
+from bonefit.estimation.io.kinematics import (
     read_acceleration_csv,
     read_kinematics_csv,
     sniff_kinematics,
 )
-from estimation.io.sensors import (
+from bonefit.estimation.io.sensors import (
     example_path,
     read_recording,
     read_sensor_csv,

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.errors import InputError
-from estimation.io.sensors import (
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.sensors import (
     RowCounter,
     detect_format,
     example_path,
@@ -25,9 +25,9 @@ from estimation.io.sensors import (
     write_sensor_csv,
     write_sensor_npz,
 )
-from estimation.io.tracker import parse_stations, read_tracker_ascii
-from estimation.model import JOINT_SEGMENTS, SEGMENTS
-from estimation.recording import SensorRecording
+from bonefit.estimation.io.tracker import parse_stations, read_tracker_ascii
+from bonefit.estimation.model import JOINT_SEGMENTS, SEGMENTS
+from bonefit.estimation.recording import SensorRecording
 
 HEADER3 = ",".join(["time"] + [f"{s}.{c}" for s in ("pelvis", "chest", "head")
                                for c in ("x", "y", "z", "qw", "qx", "qy", "qz")])

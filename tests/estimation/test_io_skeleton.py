@@ -14,9 +14,9 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.bvh import BvhMotion, forward_kinematics, read_bvh
-from estimation.errors import InputError
-from estimation.io.skeleton import (
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.skeleton import (
     BVH_NODES,
     read_skeleton_json,
     skeleton_to_bvh,
@@ -26,8 +26,8 @@ from estimation.io.skeleton import (
     write_skeleton_files,
     write_skeleton_json,
 )
-from estimation.model import JOINTS, SEGMENTS
-from estimation.results import JointOffset, SkeletonResult
+from bonefit.estimation.model import JOINTS, SEGMENTS
+from bonefit.estimation.results import JointOffset, SkeletonResult
 
 # Joint position relative to its parent joint, in the parent node's segment frame (metres).
 REST = {

@@ -1,4 +1,5 @@
-"""``estimation.io.sniff.sniff_file``: every format bonefit reads, told apart in the library."""
+"""``bonefit.estimation.io.sniff.sniff_file``: every format bonefit reads, told apart in the
+library."""
 
 from __future__ import annotations
 
@@ -6,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from estimation.errors import InputError
-from estimation.io.sensors import example_path
-from estimation.io.sniff import sniff_file
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.sensors import example_path
+from bonefit.estimation.io.sniff import sniff_file
 
 
 def test_a_sensor_csv_is_found_without_a_name() -> None:

@@ -21,18 +21,23 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.cli import main
-from estimation.errors import BonefitError, InputError
-from estimation.io.sensors import detect_format, read_recording, sniff_recording, write_sensor_csv
-from estimation.io.tracker import (
+from bonefit.cli import main
+from bonefit.estimation.errors import BonefitError, InputError
+from bonefit.estimation.io.sensors import (
+    detect_format,
+    read_recording,
+    sniff_recording,
+    write_sensor_csv,
+)
+from bonefit.estimation.io.tracker import (
     MAX_STATIONS,
     detect_tracker_layout,
     parse_tracker_layout,
     read_tracker_ascii,
 )
-from estimation.recording import SensorRecording
-from estimation.simulate.sensors import example_motion, simulate_sensors
-from estimation.skeleton import estimate_skeleton
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
+from bonefit.estimation.skeleton import estimate_skeleton
 
 FPS = 60.0
 N_FRAMES = 150

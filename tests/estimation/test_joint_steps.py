@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from estimation.errors import EstimationError
-from estimation.joints import (
+from bonefit.estimation.errors import EstimationError
+from bonefit.estimation.joints import (
     HingeRule,
     JointModel,
     Priors,

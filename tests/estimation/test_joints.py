@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimation.errors import EstimationError, InputError
-from estimation.gaps import (
+from bonefit.estimation.errors import EstimationError, InputError
+from bonefit.estimation.gaps import (
     component_major,
     fill_gaps,
     fill_sensor_major,
     sensor_major,
 )
-from estimation.joints import effective_samples, estimate_joint, percentile, range_of_motion
+from bonefit.estimation.joints import effective_samples, estimate_joint, percentile, range_of_motion
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
 

@@ -1,4 +1,4 @@
-"""Limb joints without forearm/shank sensors (estimation.limbs) against synthetic truth."""
+"""Limb joints without forearm/shank sensors (bonefit.estimation.limbs) against synthetic truth."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from estimation import limbs
-from estimation.errors import InputError
-from estimation.least_squares import levenberg_marquardt, normal_from_residuals
-from estimation.limbs import estimate_limb, paper_cost, standard_lengths, torso_length
+from bonefit.estimation import limbs
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.least_squares import levenberg_marquardt, normal_from_residuals
+from bonefit.estimation.limbs import estimate_limb, paper_cost, standard_lengths, torso_length
 
 THIGH, SHANK = 0.42, 0.40
 

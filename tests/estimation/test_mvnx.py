@@ -14,22 +14,22 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.errors import BonefitError, InputError
-from estimation.io.kinematics import (
+from bonefit.estimation.errors import BonefitError, InputError
+from bonefit.estimation.io.kinematics import (
     GRAVITY,
     read_kinematics,
     sniff_kinematics,
     write_translation,
 )
-from estimation.io.mvnx import (
+from bonefit.estimation.io.mvnx import (
     MAX_FRAME_ELEMENTS,
     MAX_HEADER_ELEMENTS,
     MIN_BYTES_PER_TAG,
     y_up_to_z_up,
     z_up_to_y_up,
 )
-from estimation.simulate.inertial import InertialTruth, simulate_walker
-from estimation.translation import estimate_translation
+from bonefit.estimation.simulate.inertial import InertialTruth, simulate_walker
+from bonefit.estimation.translation import estimate_translation
 
 NS = "http://www.xsens.com/mvn/mvnx"
 MvnxFixture = tuple[Path, InertialTruth, NDArray[np.str_]]

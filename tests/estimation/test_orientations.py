@@ -1,4 +1,5 @@
-"""Segment orientations (estimation.orientations) against bodies with known segment frames."""
+"""Segment orientations (bonefit.estimation.orientations) against bodies with known segment
+frames."""
 
 from __future__ import annotations
 
@@ -7,10 +8,10 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.errors import InputError
-from estimation.model import SEGMENTS
-from estimation.orientations import estimate_orientations, quat_from_xy
-from estimation.simulate.sensors import example_motion, simulate_sensors
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.model import SEGMENTS
+from bonefit.estimation.orientations import estimate_orientations, quat_from_xy
+from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
 
 # Upright rest pose, facing +z, left = +x, metres.
 REST = {

@@ -1,4 +1,4 @@
-"""Quaternion-array helpers (estimation.quaternions) against scipy's Rotation."""
+"""Quaternion-array helpers (bonefit.estimation.quaternions) against scipy's Rotation."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation import _rows as rows
-from estimation import quaternions as quat
+from bonefit.estimation import _rows as rows
+from bonefit.estimation import quaternions as quat
 
 
 def _same_rotation(p: NDArray[np.float64], q: NDArray[np.float64], atol: float = 1e-12) -> None:

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimation.bvh import BvhMotion, read_bvh
-from estimation.errors import InputError
-from estimation.model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
-from estimation.recording import SensorRecording
-from estimation.simulate.sensors import (
+from bonefit.estimation.bvh import BvhMotion, read_bvh
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.model import JOINT_SEGMENTS, JOINTS, REDUCED_SEGMENTS, SEGMENTS
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.simulate.sensors import (
     SimulationTruth,
     detect_skeleton,
     example_motion,

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimation import skeleton
-from estimation.bvh import BvhMotion
-from estimation.errors import EstimationError, InputError
-from estimation.gaps import component_major, fill_sensor_major, sensor_major
-from estimation.joints import JointFit
-from estimation.model import JOINTS
-from estimation.recording import SensorRecording
-from estimation.results import JointOffset
-from estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
-from estimation.skeleton import (
+from bonefit.estimation import skeleton
+from bonefit.estimation.bvh import BvhMotion
+from bonefit.estimation.errors import EstimationError, InputError
+from bonefit.estimation.gaps import component_major, fill_sensor_major, sensor_major
+from bonefit.estimation.joints import JointFit
+from bonefit.estimation.model import JOINTS
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.results import JointOffset
+from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
+from bonefit.estimation.skeleton import (
     Anchor,
     estimate_chest,
     estimate_root,
@@ -27,7 +27,7 @@ from estimation.skeleton import (
     shared_fit,
     unit_rotations,
 )
-from estimation.slip import SlipFit
+from bonefit.estimation.slip import SlipFit
 
 Sim = tuple[SensorRecording, SimulationTruth]
 TORSO = ("root", "waist", "chest", "neck", "l_shoulder", "r_shoulder", "l_hip", "r_hip")

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from estimation.errors import EstimationError, InputError
-from estimation.io.skeleton import skeleton_from_dict, skeleton_to_dict
-from estimation.model import (
+from bonefit.estimation.errors import EstimationError, InputError
+from bonefit.estimation.io.skeleton import skeleton_from_dict, skeleton_to_dict
+from bonefit.estimation.model import (
     BODY,
     BONES,
     BVH_TREE,
@@ -20,10 +20,10 @@ from estimation.model import (
     REDUCED_SEGMENTS,
     SEGMENTS,
 )
-from estimation.recording import SensorRecording
-from estimation.results import JointQuality
-from estimation.simulate.sensors import SimulationTruth
-from estimation.skeleton import (
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.results import JointQuality
+from bonefit.estimation.simulate.sensors import SimulationTruth
+from bonefit.estimation.skeleton import (
     JointPlan,
     LocatedJoints,
     estimate_skeleton,
@@ -35,7 +35,7 @@ from estimation.skeleton import (
     skeleton_options,
     torso_plan,
 )
-from estimation.slip import EIV_SIGNAL_SHARE
+from bonefit.estimation.slip import EIV_SIGNAL_SHARE
 
 Sim = tuple[SensorRecording, SimulationTruth]
 

@@ -1,4 +1,4 @@
-"""Soft-tissue slip of every sensor from all joint equations at once (estimation.slip)."""
+"""Soft-tissue slip of every sensor from all joint equations at once (bonefit.estimation.slip)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from estimation.joints import estimate_joint, slip_basis
-from estimation.simulate.sensors import example_motion, simulate_sensors
-from estimation.skeleton import estimate_skeleton
-from estimation.slip import (
+from bonefit.estimation.joints import estimate_joint, slip_basis
+from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
+from bonefit.estimation.skeleton import estimate_skeleton
+from bonefit.estimation.slip import (
     EIV_SIGNAL_SHARE,
     SlipLayout,
     estimate_slip,

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from estimation.errors import EstimationError, InputError
-from estimation.io.kinematics import KinematicsRecording, read_kinematics
-from estimation.simulate.inertial import simulate_walker
-from estimation.translation import (
+from bonefit.estimation.errors import EstimationError, InputError
+from bonefit.estimation.io.kinematics import KinematicsRecording, read_kinematics
+from bonefit.estimation.simulate.inertial import simulate_walker
+from bonefit.estimation.translation import (
     HACHAJ_EPS_M,
     METHOD_OPTIONS,
     ContactOptions,

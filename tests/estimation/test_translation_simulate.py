@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimation.bvh import BvhMotion, forward_kinematics
-from estimation.io.kinematics import GRAVITY
-from estimation.simulate.inertial import simulate_inertial, simulate_walker
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics
+from bonefit.estimation.io.kinematics import GRAVITY
+from bonefit.estimation.simulate.inertial import simulate_inertial, simulate_walker
 from tests.estimation.conftest import two_feet_motion
 
 

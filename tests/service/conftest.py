@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from service.app import create_app
-from service.runtime import Runtime
-from service.settings import Settings
-from service.worker import Worker
+from bonefit.service.app import create_app
+from bonefit.service.runtime import Runtime
+from bonefit.service.settings import Settings
+from bonefit.service.worker import Worker
 from tests.service.helpers import AUTH_A, FAKE_KINDS, KEYS, TestClient, local_runtime
 
 

@@ -10,15 +10,15 @@ from typing import Any
 
 from huey import MemoryHuey
 
-from estimation.errors import InputError
-from estimation.progress import Progress
-from service.artifacts import LocalArtifactStore
-from service.jobs import SqlJobStore
-from service.kinds import Input, Kind, SkeletonParams, TranslationParams
-from service.queue import HueyQueue
-from service.runtime import Runtime
-from service.settings import Settings
-from service.worker import Worker
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.progress import Progress
+from bonefit.service.artifacts import LocalArtifactStore
+from bonefit.service.jobs import SqlJobStore
+from bonefit.service.kinds import Input, Kind, SkeletonParams, TranslationParams
+from bonefit.service.queue import HueyQueue
+from bonefit.service.runtime import Runtime
+from bonefit.service.settings import Settings
+from bonefit.service.worker import Worker
 
 with warnings.catch_warnings():
     # Starlette 1.x asks for httpx2 in its TestClient; httpx works the same for these tests.

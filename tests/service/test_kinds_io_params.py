@@ -9,10 +9,16 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from estimation.errors import InputError
-from estimation.io.mvnx import y_up_to_z_up
-from estimation.simulate.inertial import simulate_walker
-from service.kinds import Input, SkeletonParams, TranslationParams, run_skeleton, run_translation
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.mvnx import y_up_to_z_up
+from bonefit.estimation.simulate.inertial import simulate_walker
+from bonefit.service.kinds import (
+    Input,
+    SkeletonParams,
+    TranslationParams,
+    run_skeleton,
+    run_translation,
+)
 
 NS = "http://www.xsens.com/mvn/mvnx"
 SEGMENTS = ("Pelvis", "LeftFoot", "RightFoot")

@@ -10,11 +10,11 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service.app import create_app
-from service.queue import open_queue
-from service.runtime import Runtime
-from service.settings import Settings
-from service.worker import Worker
+from bonefit.service.app import create_app
+from bonefit.service.queue import open_queue
+from bonefit.service.runtime import Runtime
+from bonefit.service.settings import Settings
+from bonefit.service.worker import Worker
 from tests.service.helpers import (
     AUTH_A,
     AUTH_B,
@@ -534,7 +534,7 @@ def test_large_json_bodies_are_refused_early(client: TestClient) -> None:
 def test_abandoned_upload_spools_are_cleaned(tmp_path: Path) -> None:
     import os
 
-    from service.uploads import clean_spool
+    from bonefit.service.uploads import clean_spool
 
     old, fresh = tmp_path / "old", tmp_path / "fresh"
     for d in (old, fresh):

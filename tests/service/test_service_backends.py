@@ -15,11 +15,11 @@ from typing import Any
 import pytest
 import sqlalchemy as sa
 
-from service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
-from service.errors import QueueUnavailable, StorageFull, StoreUnavailable
-from service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
-from service.queue import HueyQueue, JobQueue, open_queue
-from service.settings import Settings
+from bonefit.service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
+from bonefit.service.errors import QueueUnavailable, StorageFull, StoreUnavailable
+from bonefit.service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
+from bonefit.service.queue import HueyQueue, JobQueue, open_queue
+from bonefit.service.settings import Settings
 from tests.service.helpers import local_queue, require_services
 
 POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]
@@ -364,9 +364,9 @@ def _expired_jobs(store: JobStore, n: int, finished_at: float) -> None:
 
 def test_retention_purges_any_number_of_rows_in_batches(store: JobStore,
                                                         tmp_path: Path) -> None:
-    from service.jobs import PURGE_BATCH
-    from service.retention import purge
-    from service.runtime import Runtime
+    from bonefit.service.jobs import PURGE_BATCH
+    from bonefit.service.retention import purge
+    from bonefit.service.runtime import Runtime
 
     postgres = isinstance(store, SqlJobStore) and store.engine.dialect.name == "postgresql"
     n = 70_000 if postgres else 2 * PURGE_BATCH + 5  # over PostgreSQL's 65,535 parameters

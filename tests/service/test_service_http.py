@@ -18,13 +18,13 @@ import sqlalchemy.exc
 import uvicorn
 from fastapi import FastAPI
 
-from service import uploads
-from service.app import create_app
-from service.artifacts import LocalArtifactStore
-from service.jobs import SqlJobStore, sql_error
-from service.queue import queue_error
-from service.runtime import Runtime
-from service.settings import Settings
+from bonefit.service import uploads
+from bonefit.service.app import create_app
+from bonefit.service.artifacts import LocalArtifactStore
+from bonefit.service.jobs import SqlJobStore, sql_error
+from bonefit.service.queue import queue_error
+from bonefit.service.runtime import Runtime
+from bonefit.service.settings import Settings
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,
@@ -350,7 +350,8 @@ async def test_an_upload_holds_no_thread_until_its_first_block(tmp_path: Path) -
 
 def test_serve_passes_the_connection_limits_to_uvicorn(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from service import cli
+    from bonefit.cli import main
+    from bonefit.service import cli
 
     configs: list[uvicorn.Config] = []
 
@@ -365,7 +366,7 @@ def test_serve_passes_the_connection_limits_to_uvicorn(
     monkeypatch.setattr(cli.signal, "signal", lambda *args: None)
     monkeypatch.setenv("BONEFIT_MAX_CONNECTIONS", "7")
     monkeypatch.setenv("BONEFIT_KEEP_ALIVE_SECONDS", "3")
-    assert cli.main(["serve", "--no-worker", "--data-dir", str(tmp_path)]) == 0
+    assert main(["serve", "--no-worker", "--data-dir", str(tmp_path)]) == 0
     assert configs[0].limit_concurrency == 7
     assert configs[0].timeout_keep_alive == 3
 

@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from estimation.errors import InputError
-from estimation.params import CONTACT_OPTION_RANGES
-from estimation.progress import Progress
-from estimation.recording import SensorRecording
-from estimation.translation import ContactOptions
-from service.kinds import (
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.params import CONTACT_OPTION_RANGES
+from bonefit.estimation.progress import Progress
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.translation import ContactOptions
+from bonefit.service.kinds import (
     ContactOptionsIn,
     Hachaj2018OptionsIn,
     Input,
@@ -28,8 +28,8 @@ from service.kinds import (
     TranslationParams,
     default_kinds,
 )
-from service.runtime import Runtime
-from service.worker import Worker
+from bonefit.service.runtime import Runtime
+from bonefit.service.worker import Worker
 from tests.service.helpers import TestClient, drain, submit, upload
 
 PROBLEM = "application/problem+json"
@@ -146,13 +146,13 @@ def kind_running(body: Callable[[], None]) -> dict[str, Kind]:
 
 def test_a_reader_error_fails_the_real_skeleton_job_once_naming_line_and_column(
         client: TestClient, runtime: Runtime, monkeypatch: pytest.MonkeyPatch) -> None:
-    import estimation.io.sensors
+    import bonefit.estimation.io.sensors
 
     def bad(*args: object, **kwargs: object) -> SensorRecording:
         raise InputError("pelvis.x is 1e308: not a position", line=7, column=3,
                          field="pelvis.x")
 
-    monkeypatch.setattr(estimation.io.sensors, "read_recording", bad)
+    monkeypatch.setattr(bonefit.estimation.io.sensors, "read_recording", bad)
     job = submit(client, upload(client)["id"])
     assert drain(runtime, Worker(runtime, default_kinds())) == 1
     failed = client.get(f"/v1/jobs/{job['id']}").json()
@@ -167,14 +167,14 @@ def test_a_1e308_cell_fails_the_real_skeleton_job_once_as_the_inputs_fault(
         caplog: pytest.LogCaptureFixture) -> None:
     """Were the reader to let a huge value through, scipy's cho_factor raises ValueError
     ("array must not contain infs"): the input's fault, not an internal error retried."""
-    import estimation.io.sensors
-    from estimation.simulate.sensors import example_motion, simulate_sensors
+    import bonefit.estimation.io.sensors
+    from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
 
     rec, _ = simulate_sensors(example_motion(), units_m=0.01, seed=0)
     positions = rec.positions.copy()
     positions[5, 0, 0] = 1e308
     huge = dataclasses.replace(rec, positions=positions)
-    monkeypatch.setattr(estimation.io.sensors, "read_recording",
+    monkeypatch.setattr(bonefit.estimation.io.sensors, "read_recording",
                         lambda *args, **kwargs: huge)
     job = submit(client, upload(client)["id"])
     with caplog.at_level(logging.ERROR, logger="bonefit.worker"):
@@ -275,10 +275,10 @@ def csv_bytes(write: Callable[[Any, Path], None], recording: Any, tmp_path: Path
 
 def test_service_results_carry_the_three_timings(client: TestClient, runtime: Runtime,
                                                  tmp_path: Path) -> None:
-    from estimation.io.kinematics import write_kinematics_csv
-    from estimation.io.sensors import write_sensor_csv
-    from estimation.simulate.inertial import simulate_walker
-    from estimation.simulate.sensors import example_motion, simulate_sensors
+    from bonefit.estimation.io.kinematics import write_kinematics_csv
+    from bonefit.estimation.io.sensors import write_sensor_csv
+    from bonefit.estimation.simulate.inertial import simulate_walker
+    from bonefit.estimation.simulate.sensors import example_motion, simulate_sensors
 
     sensors, _ = simulate_sensors(example_motion(), units_m=0.01, seed=0)
     walker, _, _ = simulate_walker(fps=30)

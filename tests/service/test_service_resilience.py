@@ -18,18 +18,18 @@ import pytest
 import sqlalchemy.exc
 from huey import MemoryHuey
 
-from estimation.progress import Progress
-from service.app import API_STEPS, create_app
-from service.errors import BackendError, StorageFull
-from service.housekeeping import housekeeping
-from service.jobs import Job, Recording, new_id, sql_error
-from service.kinds import Input, Kind, SkeletonParams
-from service.leases import LeaseKeeper
-from service.queue import HueyQueue
-from service.reaper import reap
-from service.runtime import Runtime, open_runtime
-from service.settings import Settings
-from service.worker import Worker, run_worker
+from bonefit.estimation.progress import Progress
+from bonefit.service.app import API_STEPS, create_app
+from bonefit.service.errors import BackendError, StorageFull
+from bonefit.service.housekeeping import housekeeping
+from bonefit.service.jobs import Job, Recording, new_id, sql_error
+from bonefit.service.kinds import Input, Kind, SkeletonParams
+from bonefit.service.leases import LeaseKeeper
+from bonefit.service.queue import HueyQueue
+from bonefit.service.reaper import reap
+from bonefit.service.runtime import Runtime, open_runtime
+from bonefit.service.settings import Settings
+from bonefit.service.worker import Worker, run_worker
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,
@@ -93,7 +93,7 @@ def sqlite_settings(tmp_path: Path, **extra: Any) -> Settings:
 
 def test_sigterm_hands_back_a_job_that_never_reports_progress(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import service.worker as worker_module
+    import bonefit.service.worker as worker_module
 
     settings = sqlite_settings(tmp_path, shutdown_grace_seconds=0.5, lease_seconds=30)
     runtime = open_runtime(settings)
@@ -175,9 +175,9 @@ def test_rolling_restarts_never_use_up_a_long_jobs_attempts(tmp_path: Path) -> N
 BUSY_LOOP = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
 REAPER = """
 import sys, time
-from service.runtime import open_runtime
-from service.settings import Settings
-from service.reaper import reap
+from bonefit.service.runtime import open_runtime
+from bonefit.service.settings import Settings
+from bonefit.service.reaper import reap
 runtime = open_runtime(Settings())
 end = time.time() + float(sys.argv[1])
 reap(runtime)
@@ -528,7 +528,7 @@ def test_readyz_needs_a_live_worker(client: TestClient, runtime: Runtime) -> Non
 
 def test_a_worker_counts_as_alive_once_loaded_and_until_it_stops(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import service.worker as worker_module
+    import bonefit.service.worker as worker_module
 
     settings = sqlite_settings(tmp_path, lease_seconds=3)
     runtime = open_runtime(settings)
@@ -561,11 +561,11 @@ def test_readyz_reports_low_disk_space(client: TestClient, runtime: Runtime,
                                        monkeypatch: pytest.MonkeyPatch) -> None:
     import shutil
 
-    import service.storage
+    import bonefit.service.storage
 
     Worker(runtime, FAKE_KINDS).beat()
     real = shutil.disk_usage
-    monkeypatch.setattr(service.storage.shutil, "disk_usage",
+    monkeypatch.setattr(bonefit.service.storage.shutil, "disk_usage",
                         lambda path: real(path)._replace(free=10 * 1024 * 1024))
     body = client.get("/readyz").json()
     assert body["failed"] == ["disk"]

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from service.cli import main
-from service.settings import Settings
+from bonefit.cli import main
+from bonefit.service.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[2]
 

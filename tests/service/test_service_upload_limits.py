@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimation.errors import InputError, LimitError
-from service.jobs import Recording
-from service.kinds import Input, SkeletonParams, run_skeleton
-from service.problems import from_bonefit_error
-from service.runtime import Runtime
-from service.uploads import SUMMARY_BYTES, SUMMARY_ITEMS, cap_summary
+from bonefit.estimation.errors import InputError, LimitError
+from bonefit.service.jobs import Recording
+from bonefit.service.kinds import Input, SkeletonParams, run_skeleton
+from bonefit.service.problems import from_bonefit_error
+from bonefit.service.runtime import Runtime
+from bonefit.service.uploads import SUMMARY_BYTES, SUMMARY_ITEMS, cap_summary
 from tests.service.helpers import TestClient, sensor_csv, upload
 from tests.service.test_service_api import assert_problem
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import anyio
 import pytest
 
-from service import uploads
-from service.problems import Problem
-from service.uploads import BLOCK_BYTES, UploadSink
+from bonefit.service import uploads
+from bonefit.service.problems import Problem
+from bonefit.service.uploads import BLOCK_BYTES, UploadSink
 
 
 def body(size: int) -> bytes:

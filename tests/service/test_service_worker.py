@@ -15,15 +15,15 @@ from typing import Any
 
 import pytest
 
-from estimation.progress import Progress
-from service.errors import StoreUnavailable
-from service.kinds import Input, Kind, SkeletonParams
-from service.reaper import reap
-from service.retention import purge
-from service.runtime import Runtime
-from service.settings import Settings
-from service.tempdirs import private_tmp
-from service.worker import Worker
+from bonefit.estimation.progress import Progress
+from bonefit.service.errors import StoreUnavailable
+from bonefit.service.kinds import Input, Kind, SkeletonParams
+from bonefit.service.reaper import reap
+from bonefit.service.retention import purge
+from bonefit.service.runtime import Runtime
+from bonefit.service.settings import Settings
+from bonefit.service.tempdirs import private_tmp
+from bonefit.service.worker import Worker
 from tests.service.helpers import TestClient, drain, sensor_csv, submit, upload
 
 
@@ -314,7 +314,7 @@ def test_private_tmp_removes_what_dead_processes_of_this_host_left(tmp_path: Pat
 def test_a_worker_stopped_while_loading_never_says_it_is_ready(
         settings: Settings, monkeypatch: pytest.MonkeyPatch,
         caplog: pytest.LogCaptureFixture) -> None:
-    import service.worker as worker_module
+    import bonefit.service.worker as worker_module
 
     # SIGTERM arrives while the estimation code is still being imported
     monkeypatch.setattr(worker_module, "preload", lambda: os.kill(os.getpid(), signal.SIGTERM))

@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from estimation.errors import InputError
-from estimation.io.body import LENGTH_UNITS
-from estimation.progress import no_progress
-from service.kinds import Input, TranslationParams, run_translation
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.body import LENGTH_UNITS
+from bonefit.estimation.progress import no_progress
+from bonefit.service.kinds import Input, TranslationParams, run_translation
 from tests.estimation.bvh_corpus import CONVENTIONS, accelerations_csv, body_motion, bvh_text
 
 

@@ -1,0 +1,142 @@
+"""The ``bonefit`` command (also ``python -m bonefit``): one parser for every sub-command.
+
+Each sub-command lives in its layer (``skeleton`` and ``translate`` in
+:mod:`bonefit.estimation.cli`, ``serve`` and ``worker`` in :mod:`bonefit.service.cli`,
+``submit`` in :mod:`bonefit.client.batch`) as a ``register(subparsers)`` function. Only the
+chosen command's module is imported, so ``bonefit --help`` and ``bonefit --version`` are fast
+and work with the base install (numpy only); a command whose extra is not installed says which
+one to install. Layers point one way: this module -> service -> estimation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+EXIT_BAD_INPUT = 2
+EXIT_MISSING_EXTRA = 3
+
+
+@dataclass(frozen=True)
+class Command:
+    """Where a sub-command is registered and which extra it needs."""
+
+    module: str
+    register: str
+    extra: str
+    summary: str
+
+
+COMMANDS = {
+    "skeleton": Command("bonefit.estimation.cli.skeleton", "register", "estimation",
+                        "estimate joint centres, bone lengths and orientations from 6-DOF "
+                        "sensors"),
+    "translate": Command("bonefit.estimation.cli.translate", "register", "estimation",
+                         "root path of an inertial-suit recording from its foot accelerometers"),
+    "serve": Command("bonefit.service.cli", "register_serve", "service",
+                     "run the REST API (with embedded workers unless --no-worker)"),
+    "worker": Command("bonefit.service.cli", "register_worker", "service",
+                      "run job workers against the configured queue"),
+    "submit": Command("bonefit.client.batch", "register_submit", "client",
+                      "upload and run many takes on a bonefit server"),
+}
+"""Sub-command name -> its registration; the one list of the CLI's commands."""
+
+EXTRA_OF_MODULE = {"scipy": "estimation", "httpx": "client", "fastapi": "service",
+                   "uvicorn": "service", "pydantic": "service", "pydantic_settings": "service",
+                   "huey": "service", "sqlalchemy": "service", "redis": "service",
+                   "boto3": "service", "botocore": "service", "prometheus_client": "service",
+                   "multipart": "service", "psycopg": "service", "fastapi_offline": "service"}
+"""Top-level module of a third-party dependency -> the extra that installs it."""
+
+
+def package_version() -> str:
+    """The installed distribution's version (``importlib.metadata``)."""
+    try:
+        return version("bonefit")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        from . import __version__
+
+        return __version__
+
+
+def missing_extra(exc: ModuleNotFoundError) -> str | None:
+    """The extra that installs the module ``exc`` could not find, if it is one of ours."""
+    return EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
+
+
+def report_missing(name: str, extra: str) -> int:
+    """Say which extra the command ``name`` needs; the exit code."""
+    print(f"bonefit: error: `bonefit {name}` needs the {extra!r} extra: "
+          f"pip install 'bonefit[{extra}]'", file=sys.stderr)
+    return EXIT_MISSING_EXTRA
+
+
+def registration(command: Command) -> Callable[[Any, str], None]:
+    """The ``register(subparsers, summary)`` function of ``command`` (imports its module)."""
+    register: Callable[[Any, str], None] = getattr(importlib.import_module(command.module),
+                                                   command.register)
+    return register
+
+
+def chosen_command(argv: Sequence[str]) -> str | None:
+    """The sub-command named on the command line (the first argument not an option)."""
+    first = next((arg for arg in argv if not arg.startswith("-")), None)
+    return first if first in COMMANDS else None
+
+
+def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The top-level parser: the command ``argv`` names is loaded with all its options, the
+    others are listed by name and summary only (their modules are not imported)."""
+    parser = argparse.ArgumentParser(
+        prog="bonefit",
+        description="Skeletons and root paths from body-worn motion-capture sensors.")
+    parser.add_argument("--version", action="version", version=f"bonefit {package_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    chosen = chosen_command(argv)
+    for name, command in COMMANDS.items():
+        if name == chosen:
+            registration(command)(sub, command.summary)
+        else:
+            sub.add_parser(name, help=command.summary)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the parsed command; bad input exits 2 with a one-line reason."""
+    from .estimation.errors import BonefitError
+
+    try:
+        code: int = args.run(args)
+    except BonefitError as exc:
+        print(f"bonefit: error: {exc.detail}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except FileNotFoundError as exc:
+        print(f"bonefit: error: no such file: {exc.filename}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ModuleNotFoundError as exc:
+        extra = missing_extra(exc)
+        if extra is None:
+            raise
+        return report_missing(args.command, extra)
+    except KeyboardInterrupt:
+        return 130
+    return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``bonefit`` and ``python -m bonefit``; returns the exit code."""
+    arguments = sys.argv[1:] if argv is None else list(argv)
+    try:
+        parser = build_parser(arguments)
+    except ModuleNotFoundError as exc:  # the chosen command's extra is not installed
+        extra = missing_extra(exc)
+        if extra is None:
+            raise
+        return report_missing(chosen_command(arguments) or "", extra)
+    return run(parser.parse_args(arguments))

@@ -1,0 +1,61 @@
+"""The one ``bonefit`` command module: version, lazy sub-commands, a missing extra named."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from importlib.metadata import version
+from types import ModuleType
+
+import pytest
+
+import bonefit.cli
+from bonefit.cli import COMMANDS, main
+
+
+def test_python_m_bonefit_prints_the_installed_version() -> None:
+    done = subprocess.run([sys.executable, "-m", "bonefit", "--version"],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == f"bonefit {version('bonefit')}"
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    for name, command in COMMANDS.items():
+        assert name in out
+        assert command.summary.split()[0] in out
+
+
+def _missing(name: str) -> ModuleType:
+    raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+
+@pytest.mark.parametrize(("command", "missing", "extra"), [
+    ("skeleton", "scipy", "estimation"),
+    ("serve", "uvicorn", "service"),
+    ("submit", "httpx", "client"),
+])
+def test_a_missing_extra_is_named(monkeypatch: pytest.MonkeyPatch,
+                                  capsys: pytest.CaptureFixture[str],
+                                  command: str, missing: str, extra: str) -> None:
+    monkeypatch.setattr(bonefit.cli.importlib, "import_module", lambda _: _missing(missing))
+    assert main([command, "--some-flag"]) == bonefit.cli.EXIT_MISSING_EXTRA
+    assert f"pip install 'bonefit[{extra}]'" in capsys.readouterr().err
+
+
+def test_a_missing_extra_at_run_time_is_named(capsys: pytest.CaptureFixture[str]) -> None:
+    # a command can import its extra only when it runs (translate: scipy)
+    args = bonefit.cli.build_parser(["worker"]).parse_args(["worker"])
+    args.run = lambda _: _missing("scipy.spatial")
+    assert bonefit.cli.run(args) == bonefit.cli.EXIT_MISSING_EXTRA
+    assert "pip install 'bonefit[estimation]'" in capsys.readouterr().err
+
+
+def test_a_missing_module_that_no_extra_installs_is_a_bug(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(bonefit.cli.importlib, "import_module", lambda _: _missing("no_such"))
+    with pytest.raises(ModuleNotFoundError):
+        main(["skeleton"])
