@@ -664,8 +664,8 @@ half frames (9.2° against 4.0°); it now decides between orders that play back 
 
 @dataclass(frozen=True, eq=False)
 class _Steps:
-    """Steps between frames a choice is made on: rotations before and after (S, 4), scalar
-    last), the turn (S,), degrees), which steps are motion (not jumps) and the halfway
+    """Steps between frames a choice is made on: the rotations before and after (S, 4,
+    scalar last), the turn (S, degrees), which steps are motion (not jumps) and the halfway
     rotations (S, 4)."""
 
     before: NDArray[np.float64]
