@@ -732,14 +732,6 @@ def _orders(order: str | None) -> tuple[str, ...]:
     return EULER_ORDERS if order is None else (order,)
 
 
-def _central_rotation(rotation: Rotation) -> Rotation:
-    """The mean of a take's rotations, frames more than 90° from the plain mean left out (a
-    T-pose frame before the take would pull it)."""
-    mean = rotation.mean()
-    near = (mean.inv() * rotation).magnitude() <= np.pi / 2
-    return rotation[near].mean() if near.any() else mean
-
-
 def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: bool
                    ) -> tuple[NDArray[np.float64], str]:
     """The rest rotation (identity, or the inverse of the mean of ``seen`` (F, 4), scalar
@@ -749,7 +741,7 @@ def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: b
 
     rests = [np.array([0.0, 0.0, 0.0, 1.0])]
     if centre and len(seen) > 1:
-        rests.append(_central_rotation(Rotation.from_quat(seen)).inv().as_quat())
+        rests.append(Rotation.from_quat(seen).mean().inv().as_quat())
     first = _choice_steps(len(seen))
     costs, options = [], []
     for rest in rests:
@@ -769,8 +761,7 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Ro
 
     Node n's channels hold ``L(t) = C_pᵀ · given(t) · C_n`` (``C_p`` its parent's rest
     rotation, identity for the root). ``C_n`` is identity (the given frame) or, with
-    ``centre``, the inverse of the mean of ``C_pᵀ · given(t)`` over the take (frames more
-    than 90° from it left out), which centres
+    ``centre``, the inverse of the mean of ``C_pᵀ · given(t)`` over the take, which centres
     the channels on zero: the middle angle then stays within the node's swing about its mean
     pose from ±90°, gimbal lock. Of the two rest rotations and the six orders of
     :data:`EULER_ORDERS` (or ``order``), each node, parents first, takes the one with the
