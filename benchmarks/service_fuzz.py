@@ -80,7 +80,7 @@ def seed_ids(client: httpx.Client, deletable: int = 4) -> Ids:
 def worker_elsewhere(data_dir: Path) -> None:
     """A worker heartbeat in the server's job store, fresh for a day: /readyz answers 200
     without workers here running the fuzzer's jobs (`bonefit serve --no-worker`)."""
-    from bonefit.service.jobs import SqlJobStore
+    from bonefit.service.sql_store import SqlJobStore
 
     store = SqlJobStore.from_url(f"sqlite:///{data_dir / 'jobs.db'}")
     try:
@@ -117,7 +117,7 @@ parameters = {{ "path.recording_id" = {{ dictionary = "deletable", probability =
     return path
 
 
-def run_schemathesis(base_url: str, workdir: Path, ids: Ids, *, key: str | None,
+def run_schemathesis(base_url: str, workdir: Path, ids: Ids, *, key: str | None,  # noqa: PLR0913
                      max_examples: int, seed: int = 1, timeout: float = 3600.0,
                      workers: int = 1, phases: str | None = None) -> FuzzRun:
     """Run the schemathesis CLI against ``base_url`` (with ``key`` as bearer token, if any)."""

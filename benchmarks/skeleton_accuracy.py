@@ -186,7 +186,7 @@ class Evaluation(NamedTuple):
     data_sd: dict[str, list[tuple[float, float]]]
 
 
-def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,
+def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: int,  # noqa: C901
              max_frames: int, only: str, verbose: bool,
              noise: dict[str, float] = PROTOCOL_NOISE) -> Evaluation:
     """Simulate every clip with ``seed`` (and ``noise``) and run every method on it."""
@@ -260,7 +260,7 @@ def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: l
                   f"{over:15d}{s['limb_clip_joint_median']:24.1f}{s['p95']:12.1f}", flush=True)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0912
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)

@@ -167,7 +167,7 @@ def count_distribution(p: NDArray[np.float64]) -> NDArray[np.float64]:
     return dist
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: C901, PLR0915
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     parser.add_argument("--max-frames", type=int, default=600)

@@ -162,7 +162,7 @@ class _SlipTerms(NamedTuple):
                    np.einsum("tji,tj->ti", ra, d), np.einsum("tji,tj->ti", rb, d))
 
 
-def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],
+def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],  # noqa: PLR0917
                  w: NDArray[np.float64], terms: _SlipTerms, ridge: float
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The LLSF normal equations with the slip coefficients marginalised out (Schur
@@ -325,7 +325,7 @@ def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float6
     return max(total / tau, 1.0)
 
 
-def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float64],
+def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float64],  # noqa: PLR0917
           pb: NDArray[np.float64], w: NDArray[np.float64], bias_compensation: bool,
           point_m: float) -> NDArray[np.float64]:
     """Centre in frame a by the generalised Delogne–Kåsa estimator; c_b follows from c_a."""
@@ -817,7 +817,7 @@ def _motion_range(rotations_a: Rotation, rotations_b: Rotation, both: NDArray[np
     return rom, []
 
 
-def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,
+def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,  # noqa: PLR0913
                    decision: HingeDecision | None, *, estimator: str, loss: str, rom: float,
                    hinge_ratio: float, prior: Priors, bias_compensation: bool,
                    centre: NDArray[np.float64]) -> dict[str, Any]:
@@ -854,7 +854,7 @@ def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,
     return quality
 
 
-def _hinge(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: HingeRule,
+def _hinge(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: HingeRule,  # noqa: PLR0917
            priors: Priors, hinge: bool) -> HingeDecision | None:
     """The hinge decision: None for no hinge; with a prior (which replaces the rule) no rule
     and the prior's blend; else ``hinge_decision``."""
@@ -866,7 +866,7 @@ def _hinge(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: H
     return hinge_decision(model, fit, c, rule_in)
 
 
-def estimate_joint(
+def estimate_joint(  # noqa: PLR0913
     positions_a: NDArray[np.float64],
     rotations_a: Rotation,
     positions_b: NDArray[np.float64],

@@ -88,8 +88,8 @@ def levenberg_marquardt(cost: Callable[[Float], float], normal: Callable[[Float]
     n_eval = 1
     damp = _Damping(damping, 2.0)
     for _ in range(max_iter):
-        x, used, damp, verdict = _lm_iteration(cost, x, (e, g, h, curv), damp, rtol,
-                                               newton_stop)
+        x, used, damp, verdict = _lm_iteration(cost, x, (e, g, h, curv), damp, rtol=rtol,
+                                               newton_stop=newton_stop)
         n_eval += used
         if verdict is not None:
             return x, n_eval, verdict
@@ -106,7 +106,7 @@ class _Damping(NamedTuple):
 
 
 def _lm_iteration(cost: Callable[[Float], float], x: Float,
-                  at_x: tuple[float, Float, Float, Float | None], damp: _Damping,
+                  at_x: tuple[float, Float, Float, Float | None], damp: _Damping, *,
                   rtol: float, newton_stop: float
                   ) -> tuple[Float, int, _Damping, bool | None]:
     """One Levenberg–Marquardt iteration from ``x`` (``at_x``: E, g, H, K there): damped

@@ -500,7 +500,7 @@ class _PaperTerms:
         return np.asarray(second)
 
 
-def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,
+def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,  # noqa: PLR0913, PLR0917
                upper_rotations: Rotation, distal_positions: ArrayLike,
                distal_rotations: Rotation, *, standard_lengths: tuple[float, float],
                w_s: float = 0.01, w_l: float = 0.01) -> float:
@@ -583,7 +583,7 @@ def _coarse(limb: LimbInUpperFrame) -> LimbInUpperFrame | None:
     return LimbInUpperFrame(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
 
 
-def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,
+def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,  # noqa: PLR0917
                   w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
     """Least squares on E: on a subsample first, then on every frame (``objective``)."""
     n_eval = 0
@@ -612,7 +612,7 @@ runs it ends at most 1e-10 (relative) above the least-squares E, which itself li
 1e-13) cost 1.7× the evaluations for agreement the comparison cannot use."""
 
 
-def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,
+def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,  # noqa: PLR0917
                   w_l: float, progress: Progress) -> tuple[Float, int, bool]:
     l_up, l_low = lengths
 
@@ -672,7 +672,7 @@ def _hinge_axis(limb: LimbInUpperFrame, a: Float) -> tuple[Float, float]:
     return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
 
 
-def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
+def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,  # noqa: PLR0913, PLR0917
                      w_hinge: float, w_line: float, w_length: float, w_distal: float,
                      robust_scale: float | None, w_plane: float,
                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
@@ -947,7 +947,7 @@ def _flexion_range_deg(limb: LimbInUpperFrame, x: Float, axis: Float) -> float:
     return float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
 
 
-def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
+def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,  # noqa: PLR0913
                   distal_positions: ArrayLike, distal_rotations: Rotation, *,
                   standard_lengths: tuple[float, float], method: str = "improved",
                   optimizer: str = "least-squares", w_s: float = 0.01, w_l: float = 0.01,
@@ -1026,7 +1026,7 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     return fit
 
 
-def _limb_fit(world: _World, objective: PaperObjective, theta: Float, n_eval: int, ok: bool,
+def _limb_fit(world: _World, objective: PaperObjective, theta: Float, n_eval: int, ok: bool,  # noqa: PLR0917
               quality: dict[str, Any]) -> LimbFit:
     """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames

@@ -219,7 +219,7 @@ def from_matrix(m: ArrayLike) -> Float:
     mm = np.asarray(m, dtype=float)
     if mm.shape[-2:] != (3, 3):
         raise ValueError(f"matrices must have shape (..., 3, 3), got {mm.shape}")
-    return _shepperd(*mm.reshape(-1, 9).T).reshape(*mm.shape[:-2], 4)
+    return _shepperd(tuple(mm.reshape(-1, 9).T)).reshape(*mm.shape[:-2], 4)
 
 
 def from_axes(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Float:
@@ -240,7 +240,8 @@ def from_axes(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Float:
     m00, m10, m20 = (xx[..., k].reshape(-1) for k in range(3))
     m01, m11, m21 = (yy[..., k].reshape(-1) for k in range(3))
     m02, m12, m22 = (zz[..., k].reshape(-1) for k in range(3))
-    return _shepperd(m00, m01, m02, m10, m11, m12, m20, m21, m22).reshape(*xx.shape[:-1], 4)
+    entries = (m00, m01, m02, m10, m11, m12, m20, m21, m22)
+    return _shepperd(entries).reshape(*xx.shape[:-1], 4)
 
 
 def from_axis_rows(x: ArrayLike, y: ArrayLike, z: ArrayLike, *,
@@ -263,12 +264,13 @@ def from_axis_rows(x: ArrayLike, y: ArrayLike, z: ArrayLike, *,
     xx, yy, zz = (np.asarray(v, dtype=float) for v in (x, y, z))
     if not xx.shape == yy.shape == zz.shape or xx.ndim != 2 or xx.shape[0] != 3:
         raise ValueError(f"axes must be (3, N) rows, got {xx.shape}, {yy.shape}, {zz.shape}")
-    return _shepperd(xx[0], yy[0], zz[0], xx[1], yy[1], zz[1], xx[2], yy[2], zz[2], out=out)
+    return _shepperd((xx[0], yy[0], zz[0], xx[1], yy[1], zz[1], xx[2], yy[2], zz[2]), out=out)
 
 
-def _shepperd(m00: Float, m01: Float, m02: Float, m10: Float, m11: Float, m12: Float,
-              m20: Float, m21: Float, m22: Float, out: Float | None = None) -> Float:
-    """(N, 4) quaternions from the nine (N,) matrix entries (into ``out`` if given)."""
+def _shepperd(entries: tuple[Float, ...], out: Float | None = None) -> Float:
+    """(N, 4) quaternions from the nine (N,) matrix entries, row by row (into ``out`` if
+    given)."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = entries
     # 4·(w², x², y², z²) on the diagonal of 4 q qᵀ; each of its rows is a multiple of q,
     # and the row of the largest diagonal entry is the accurate one. Steps run in place
     # (a new array per step costs about as much as the arithmetic)

@@ -247,7 +247,7 @@ class Anchor:
     plane: float = 0.0
 
 
-def shared_fit(fit: JointFit, shared: SlipFit, j: int,
+def shared_fit(fit: JointFit, shared: SlipFit, j: int,  # noqa: PLR0913, PLR0917
                 pa_true: NDArray[np.float64], ra_rot: Rotation, pb_true: NDArray[np.float64],
                 rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_], *,
                 symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
@@ -444,7 +444,7 @@ class SkeletonOptions:
         return round(self.highpass_s * fps) if self.method == "auto" else 0
 
 
-def skeleton_options(recording: SensorRecording, *, method: str = "auto",
+def skeleton_options(recording: SensorRecording, *, method: str = "auto",  # noqa: PLR0913
                      optimizer: str = "least-squares", torso: str = "llsf",
                      up: ArrayLike = (0.0, 1.0, 0.0), i0: int = 0,
                      anthropometry: str | Mapping[str, float] = "aist", w_s: float = 0.01,
@@ -841,7 +841,7 @@ def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str,
         stage(1.0, "limbs")
 
 
-def estimate_skeleton(
+def estimate_skeleton(  # noqa: PLR0913
     recording: SensorRecording,
     *,
     method: str = "auto",
@@ -1104,7 +1104,7 @@ def _checked_offsets(recording: SensorRecording, offsets: Mapping[str, JointOffs
     return local
 
 
-def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,
+def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,  # noqa: PLR0913
                fps: float, smooth: bool, up: NDArray[np.float64], i0: int, warnings: list[str],
                report: Progress,
                ) -> tuple[dict[str, NDArray[np.float64]], dict[str, float],

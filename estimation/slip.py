@@ -337,7 +337,7 @@ class JointBlock(NamedTuple):
     share: float
 
 
-def joint_block(layout: SlipLayout, j: int, pair: tuple[str, str],
+def joint_block(layout: SlipLayout, j: int, pair: tuple[str, str],  # noqa: PLR0917
                 rotations: tuple[NDArray[np.float64], NDArray[np.float64]],
                 d: NDArray[np.float64], w: NDArray[np.float64], v_eiv: float) -> JointBlock:
     """The weighted rows of joint ``j`` between sensors ``pair`` in the slip model.
@@ -406,7 +406,7 @@ def _plain_noise(plain: NDArray[np.float64], prhs: NDArray[np.float64],
 _CA, _CB = slice(0, 3), slice(3, 6)
 
 
-def _slip_rows(basis: NDArray[np.float64], w: NDArray[np.float64], m9: NDArray[np.float64],
+def _slip_rows(basis: NDArray[np.float64], w: NDArray[np.float64], m9: NDArray[np.float64],  # noqa: PLR0917
                rotated_d: tuple[NDArray[np.float64], NDArray[np.float64]],
                plain: NDArray[np.float64], prhs: NDArray[np.float64]
                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -483,7 +483,7 @@ def _assemble(layout: SlipLayout, blocks: Sequence[JointBlock]
     return normal, rhs_all
 
 
-def _errors_in_variables(normal: NDArray[np.float64], rhs_all: NDArray[np.float64], n_s: int,
+def _errors_in_variables(normal: NDArray[np.float64], rhs_all: NDArray[np.float64], n_s: int,  # noqa: PLR0917
                          blocks: Sequence[JointBlock], centres: NDArray[np.float64],
                          covariances: NDArray[np.float64]
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[bool, ...]]:

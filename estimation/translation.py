@@ -249,7 +249,7 @@ def _swing_floor(level: NDArray[np.float64], floor: NDArray[np.float64]
     return np.where(np.isnan(out), floor, out)
 
 
-def translation_quality(positions: NDArray[np.float64], fps: float, root: int,
+def translation_quality(positions: NDArray[np.float64], fps: float, root: int,  # noqa: PLR0917
                         feet: tuple[_Feet, _Feet], contacts: NDArray[np.str_],
                         floor: NDArray[np.float64],
                         levels: NDArray[np.float64] | None = None) -> dict[str, Any]:
@@ -300,7 +300,7 @@ def translation_quality(positions: NDArray[np.float64], fps: float, root: int,
 # --------------------------------------------------------------------------- hachaj2018
 
 
-def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, right_foot: str,
+def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, right_foot: str,  # noqa: PLR0913, PLR0917
             progress: Progress, window: int = HACHAJ_WINDOW, eps: float = HACHAJ_EPS_M
             ) -> tuple[NDArray[np.float64], NDArray[np.str_], float]:
     p0 = recording.positions
@@ -549,7 +549,7 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     return states, info
 
 
-def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],
+def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],  # noqa: PLR0913, PLR0917
                         feet: tuple[_Feet, _Feet], points: list[NDArray[np.float64]],
                         root: int,
                         readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
@@ -681,7 +681,7 @@ def _support_weights(states: NDArray[np.int64]) -> NDArray[np.float64]:
     return w
 
 
-def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],  # noqa: PLR0917
                          states: NDArray[np.int64], root: int, opt: ContactOptions,
                          progress: Progress
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64],
@@ -706,7 +706,7 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
     return translation, floor, settled, n_levels
 
 
-def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
+def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],  # noqa: PLR0917
                      states: NDArray[np.int64], w_left: NDArray[np.float64], root: int,
                      dt: float) -> NDArray[np.float64]:
     """Translation (F, 3) that keeps the supporting contact points still, with ballistic
@@ -783,7 +783,7 @@ def _contact_levels(support: _Support, ramp: int, opt: ContactOptions
     return level, settled, len(known)
 
 
-def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,
+def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,  # noqa: PLR0917
                          last_level: float | None, opt: ContactOptions) -> float:
     """Floor level of foot ``k``'s contact starting at ``start`` that keeps the body's height
     continuous: from the other foot's level, after a flight from the ballistic take-off,
@@ -1033,7 +1033,7 @@ def _hachaj_path(recording: KinematicsRecording, names: tuple[str, str], opt: Ha
     return _Path(translation, corrected, contacts, floor, None, feet, extra)
 
 
-def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,
+def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,  # noqa: PLR0917
                   opt: ContactOptions, report: Progress, started: float) -> _Path:
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""

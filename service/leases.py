@@ -23,8 +23,9 @@ import sys
 import time
 from collections.abc import Sequence
 
-from .jobs import JobStore, open_store
+from .jobs import JobStore
 from .settings import Settings
+from .sql_store import open_store
 
 log = logging.getLogger("bonefit.leases")
 

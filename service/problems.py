@@ -151,70 +151,93 @@ def allowed_methods(request: Request) -> list[str]:
                    for route in routes)]
 
 
+async def on_problem(request: Request, exc: Exception) -> JSONResponse:
+    """A :class:`Problem` raised by a route, as it is."""
+    assert isinstance(exc, Problem)
+    return response(exc, request)
+
+
+async def on_bonefit(request: Request, exc: Exception) -> JSONResponse:
+    """An estimation input error: 422 naming field, sensor, line and column."""
+    assert isinstance(exc, BonefitError)
+    return response(from_bonefit_error(exc), request)
+
+
+def http_problem(request: Request, exc: StarletteHTTPException) -> Problem:
+    """The problem for Starlette's own HTTP errors: an unknown route (404), a method the path
+    does not answer (405, with ``Allow``), others with their status."""
+    titles = {404: "Not found", 405: "Method not allowed"}
+    title = titles.get(exc.status_code, "HTTP error")
+    detail = exc.detail if isinstance(exc.detail, str) else title
+    headers = dict(exc.headers or {})
+    if exc.status_code == 404 and detail == "Not Found":
+        detail = f"no route {request.url.path!r}"
+    elif exc.status_code == 405:
+        allowed = allowed_methods(request)
+        headers["Allow"] = ", ".join(allowed)
+        detail = (f"{request.method} is not allowed on {request.url.path!r}; allowed: "
+                  f"{', '.join(allowed)}")
+    return Problem(exc.status_code, title, detail, headers=headers)
+
+
+async def on_http(request: Request, exc: Exception) -> JSONResponse:
+    """Starlette's HTTP errors (unknown route, method not allowed, ...)."""
+    assert isinstance(exc, StarletteHTTPException)
+    return response(http_problem(request, exc), request)
+
+
+async def on_body_timeout(request: Request, exc: Exception) -> JSONResponse:
+    """A request body that stopped or trickled: 408, and the connection closed."""
+    assert isinstance(exc, BodyTimeout)
+    log.info("request body too slow on %s %s: %s; answered 408", request.method,
+             request.url.path, exc.detail)
+    problem = Problem(408, "Request body timeout", str(exc.detail), slug="body-timeout",
+                      headers={"Connection": "close"}, timeout_seconds=exc.seconds)
+    return response(problem, request)
+
+
+async def on_outage(request: Request, exc: Exception) -> JSONResponse:
+    """A back-end outage: 503 (registered per type so it answers from
+    ExceptionMiddleware: ServerErrorMiddleware, the Exception handler, re-raises, and the
+    server then drops the connection)."""
+    return response(error_problem(exc, request.method, request.url.path), request)
+
+
+def validation_problem(request: Request, exc: RequestValidationError) -> Problem:
+    """422 naming the first invalid field as the client wrote it; ``errors`` lists all."""
+    tags = set(getattr(request.app.state, "kinds", ()))
+    errors = []
+    for e in exc.errors():
+        loc = tuple(e.get("loc", ()))
+        if e.get("type") in ("union_tag_invalid", "union_tag_not_found"):
+            loc += (str(e.get("ctx", {}).get("discriminator", "kind")).strip("'"),)
+        errors.append({"field": _location(loc, tags), "message": e.get("msg", "")})
+    first = errors[0] if errors else {"field": "", "message": "invalid request"}
+    detail = f"{first['field']}: {first['message']}" if first["field"] else first["message"]
+    return Problem(422, "Invalid request", detail, slug="invalid-request",
+                   field=first["field"], errors=errors)
+
+
+async def on_validation(request: Request, exc: Exception) -> JSONResponse:
+    """A request that does not match its schema."""
+    assert isinstance(exc, RequestValidationError)
+    return response(validation_problem(request, exc), request)
+
+
+async def on_disconnect(request: Request, exc: Exception) -> JSONResponse:
+    """The client hung up while sending its body."""
+    log.info("client hung up during %s %s", request.method, request.url.path)
+    return response(Problem(400, "Client disconnected", "the request body ended early",
+                            slug="client-disconnected"), request)
+
+
+async def on_error(request: Request, exc: Exception) -> JSONResponse:
+    """Last resort (ServerErrorMiddleware): errors raised outside the ErrorBoundary."""
+    return response(error_problem(exc, request.method, request.url.path), request)
+
+
 def install(app: FastAPI) -> None:
     """Register the handlers that turn every exception into a problem document."""
-
-    async def on_problem(request: Request, exc: Exception) -> JSONResponse:
-        assert isinstance(exc, Problem)
-        return response(exc, request)
-
-    async def on_bonefit(request: Request, exc: Exception) -> JSONResponse:
-        assert isinstance(exc, BonefitError)
-        return response(from_bonefit_error(exc), request)
-
-    async def on_http(request: Request, exc: Exception) -> JSONResponse:
-        assert isinstance(exc, StarletteHTTPException)
-        titles = {404: "Not found", 405: "Method not allowed"}
-        title = titles.get(exc.status_code, "HTTP error")
-        detail = exc.detail if isinstance(exc.detail, str) else title
-        headers = dict(exc.headers or {})
-        if exc.status_code == 404 and detail == "Not Found":
-            detail = f"no route {request.url.path!r}"
-        elif exc.status_code == 405:
-            allowed = allowed_methods(request)
-            headers["Allow"] = ", ".join(allowed)
-            detail = (f"{request.method} is not allowed on {request.url.path!r}; allowed: "
-                      f"{', '.join(allowed)}")
-        problem = Problem(exc.status_code, title, detail, headers=headers)
-        return response(problem, request)
-
-    async def on_body_timeout(request: Request, exc: Exception) -> JSONResponse:
-        assert isinstance(exc, BodyTimeout)
-        log.info("request body too slow on %s %s: %s; answered 408", request.method,
-                 request.url.path, exc.detail)
-        problem = Problem(408, "Request body timeout", str(exc.detail), slug="body-timeout",
-                          headers={"Connection": "close"}, timeout_seconds=exc.seconds)
-        return response(problem, request)
-
-    async def on_outage(request: Request, exc: Exception) -> JSONResponse:
-        # registered per type so it answers from ExceptionMiddleware: ServerErrorMiddleware
-        # (the Exception handler) re-raises, and the server then drops the connection
-        return response(error_problem(exc, request.method, request.url.path), request)
-
-    async def on_validation(request: Request, exc: Exception) -> JSONResponse:
-        assert isinstance(exc, RequestValidationError)
-        tags = set(getattr(request.app.state, "kinds", ()))
-        errors = []
-        for e in exc.errors():
-            loc = tuple(e.get("loc", ()))
-            if e.get("type") in ("union_tag_invalid", "union_tag_not_found"):
-                loc += (str(e.get("ctx", {}).get("discriminator", "kind")).strip("'"),)
-            errors.append({"field": _location(loc, tags), "message": e.get("msg", "")})
-        first = errors[0] if errors else {"field": "", "message": "invalid request"}
-        detail = f"{first['field']}: {first['message']}" if first["field"] else first["message"]
-        problem = Problem(422, "Invalid request", detail, slug="invalid-request",
-                          field=first["field"], errors=errors)
-        return response(problem, request)
-
-    async def on_disconnect(request: Request, exc: Exception) -> JSONResponse:
-        log.info("client hung up during %s %s", request.method, request.url.path)
-        return response(Problem(400, "Client disconnected", "the request body ended early",
-                                slug="client-disconnected"), request)
-
-    async def on_error(request: Request, exc: Exception) -> JSONResponse:
-        # last resort (ServerErrorMiddleware): errors raised outside the ErrorBoundary
-        return response(error_problem(exc, request.method, request.url.path), request)
-
     app.add_exception_handler(Problem, on_problem)
     app.add_exception_handler(BonefitError, on_bonefit)
     app.add_exception_handler(StarletteHTTPException, on_http)

@@ -8,9 +8,10 @@ from dataclasses import dataclass
 
 from .artifacts import ArtifactStore, open_artifacts
 from .errors import BackendError
-from .jobs import JobStore, open_store
+from .jobs import JobStore
 from .queue import JobQueue, open_queue
 from .settings import Settings
+from .sql_store import open_store
 
 log = logging.getLogger("bonefit.service")
 

@@ -225,70 +225,99 @@ async def receive_raw(chunks: AsyncIterator[bytes], sink: UploadSink) -> None:
         await sink.drain()
 
 
-async def receive_multipart(chunks: AsyncIterator[bytes], content_type: str,
-                            sink: UploadSink) -> tuple[str | None, str | None]:
-    """Stream the ``file`` field of a multipart form into ``sink``; its filename and type."""
+def bad_multipart(detail: str, field: str | None = None) -> Problem:
+    """400 for a multipart body that cannot be parsed."""
+    return Problem(400, "Bad multipart body", detail, slug="bad-multipart",
+                   location=None if field is None else {"field": field})
+
+
+class FilePart:
+    """The multipart parser's callbacks: collect each part's headers, feed the first part
+    named ``file`` to ``sink``, and keep its filename and media type."""
+
+    def __init__(self, sink: UploadSink) -> None:
+        self.sink = sink
+        self.headers: dict[str, bytes] = {}
+        self.field = b""
+        self.value = b""
+        self.in_file = False
+        self.found = False
+        self.filename: str | None = None
+        self.type: str | None = None
+
+    def callbacks(self) -> Any:
+        """The callbacks by the parser's names."""
+        return {"on_part_begin": self.on_part_begin, "on_header_field": self.on_header_field,
+                "on_header_value": self.on_header_value, "on_header_end": self.on_header_end,
+                "on_headers_finished": self.on_headers_finished,
+                "on_part_data": self.on_part_data}
+
+    def on_part_begin(self) -> None:
+        """A new part: forget the last one's headers."""
+        self.headers = {}
+        self.in_file = False
+
+    def on_header_field(self, data: bytes, start: int, end: int) -> None:
+        """A piece of a header's name."""
+        self.field += data[start:end]  # bounded by the parser (max_header_size)
+
+    def on_header_value(self, data: bytes, start: int, end: int) -> None:
+        """A piece of a header's value."""
+        self.value += data[start:end]
+
+    def on_header_end(self) -> None:
+        """A complete header."""
+        self.headers[self.field.decode("latin-1").lower()] = self.value
+        self.field, self.value = b"", b""
+
+    def on_headers_finished(self) -> None:
+        """The part's headers are complete: is it the ``file`` field?"""
+        _, disp = parse_options_header(self.headers.get("content-disposition", b""))
+        if disp.get(b"name") == b"file" and not self.found:
+            self.in_file = self.found = True
+            name = disp.get(b"filename")
+            self.filename = name.decode("utf-8", "replace") if name else None
+            ctype = self.headers.get("content-type")
+            self.type = ctype.decode("latin-1") if ctype else None
+
+    def on_part_data(self, data: bytes, start: int, end: int) -> None:
+        """A piece of a part's body: the file's go to the sink."""
+        if self.in_file:
+            self.sink.feed(data[start:end])
+
+
+def multipart_parser(content_type: str, part: FilePart) -> MultipartParser:
+    """A parser for the form's boundary calling ``part``; 400 without a usable boundary."""
     _, options = parse_options_header(content_type)
     boundary = options.get(b"boundary")
     if not boundary:
-        raise Problem(400, "Bad multipart body", "the Content-Type has no boundary",
-                      slug="bad-multipart", field="Content-Type")
-    state: dict[str, Any] = {"headers": {}, "field": b"", "value": b"", "in_file": False,
-                             "found": False, "filename": None, "type": None}
-
-    def on_part_begin() -> None:
-        state["headers"] = {}
-        state["in_file"] = False
-
-    def on_header_field(data: bytes, start: int, end: int) -> None:
-        state["field"] += data[start:end]  # bounded by the parser (max_header_size)
-
-    def on_header_value(data: bytes, start: int, end: int) -> None:
-        state["value"] += data[start:end]
-
-    def on_header_end() -> None:
-        state["headers"][state["field"].decode("latin-1").lower()] = state["value"]
-        state["field"], state["value"] = b"", b""
-
-    def on_headers_finished() -> None:
-        _, disp = parse_options_header(state["headers"].get("content-disposition", b""))
-        if disp.get(b"name") == b"file" and not state["found"]:
-            state["in_file"] = state["found"] = True
-            name = disp.get(b"filename")
-            state["filename"] = name.decode("utf-8", "replace") if name else None
-            ctype = state["headers"].get("content-type")
-            state["type"] = ctype.decode("latin-1") if ctype else None
-
-    def on_part_data(data: bytes, start: int, end: int) -> None:
-        if state["in_file"]:
-            sink.feed(data[start:end])
-
-    callbacks: Any = {
-        "on_part_begin": on_part_begin, "on_header_field": on_header_field,
-        "on_header_value": on_header_value, "on_header_end": on_header_end,
-        "on_headers_finished": on_headers_finished, "on_part_data": on_part_data}
+        raise bad_multipart("the Content-Type has no boundary", field="Content-Type")
     try:
-        parser = MultipartParser(boundary, callbacks)
+        return MultipartParser(boundary, part.callbacks())
     except Exception as exc:
-        raise Problem(400, "Bad multipart body", f"bad boundary: {exc}", slug="bad-multipart",
-                      field="Content-Type") from None
+        raise bad_multipart(f"bad boundary: {exc}", field="Content-Type") from None
+
+
+async def receive_multipart(chunks: AsyncIterator[bytes], content_type: str,
+                            sink: UploadSink) -> tuple[str | None, str | None]:
+    """Stream the ``file`` field of a multipart form into ``sink``; its filename and type."""
+    part = FilePart(sink)
+    parser = multipart_parser(content_type, part)
     async for chunk in chunks:
         try:
             parser.write(chunk)
         except Problem:
             raise
         except Exception as exc:
-            raise Problem(400, "Bad multipart body", f"cannot parse the form: {exc}",
-                          slug="bad-multipart") from None
+            raise bad_multipart(f"cannot parse the form: {exc}") from None
         await sink.drain()
     parser.finalize()
     if parser.state != MultipartState.END:
-        raise Problem(400, "Bad multipart body", "the form ends before its closing boundary",
-                      slug="bad-multipart")
-    if not state["found"]:
+        raise bad_multipart("the form ends before its closing boundary")
+    if not part.found:
         raise Problem(422, "Missing file", "the multipart form has no 'file' field",
                       slug="invalid-request", field="file")
-    return state["filename"], state["type"]
+    return part.filename, part.type
 
 
 def clean_spool(spool: Path, max_age: float = 3600.0) -> int:

@@ -105,7 +105,7 @@ def _acceleration_unit_key(units: str | None) -> str | None:
     return key
 
 
-def _resolve_acceleration_units(
+def _resolve_acceleration_units(  # noqa: C901
     raw: Mapping[str, NDArray[np.float64]],
     positions: Mapping[str, NDArray[np.float64]],
     declared: str | None,
@@ -373,7 +373,7 @@ def _csv_foot_accelerations(header: list[str], table: NDArray[np.float64],
     return raw
 
 
-def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
+def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],  # noqa: PLR0917
                            joints: tuple[str, ...], positions: NDArray[np.float64],
                            feet: tuple[str, str], notes: list[str]
                            ) -> tuple[dict[str, str], dict[str, NDArray[np.bool_]]]:
@@ -603,7 +603,7 @@ def _kinematics_format(path: PathLike, format: str) -> str:
     return format
 
 
-def read_kinematics(
+def read_kinematics(  # noqa: PLR0913
     path: PathLike,
     *,
     format: str = "auto",

@@ -229,6 +229,13 @@ class _Scanner:
         return {what: _numbers(text, what, k) for what, text in texts.items()}
 
     def end(self, elem: ET.Element, parent: ET.Element | None) -> None:
+        if self.in_frame is not None:
+            self._end_in_frame(elem, parent)
+        elif self.current is not None:
+            self._end_in_subject(elem, self.current)
+
+    def _end_in_frame(self, elem: ET.Element, parent: ET.Element | None) -> None:
+        """A frame ends (its fields read as numbers), or one of its fields does."""
         tag = _tag(elem)
         subject = self.current
         if elem is self.in_frame:
@@ -236,13 +243,14 @@ class _Scanner:
                 subject.frames.append(self._numbers(self.frame, len(subject.frames)))
             self.in_frame = None
             self.frame = None
-        elif self.in_frame is not None:
-            if self.frame is not None and parent is not None and _tag(parent) == "frame" \
-                    and tag in _FRAME_FIELDS:
-                self.frame[tag] = elem.text or ""
-        elif subject is None:
-            return
-        elif tag == "segment" and self.section == "segments":
+        elif self.frame is not None and parent is not None and _tag(parent) == "frame" \
+                and tag in _FRAME_FIELDS:
+            self.frame[tag] = elem.text or ""
+
+    def _end_in_subject(self, elem: ET.Element, subject: _Subject) -> None:
+        """An element of the chosen subject's header ends."""
+        tag = _tag(elem)
+        if tag == "segment" and self.section == "segments":
             subject.segments.append(elem.get("label", f"segment{len(subject.segments) + 1}"))
         elif tag == "sensor" and self.section == "sensors":
             subject.sensors.append(elem.get("label", ""))
@@ -339,6 +347,43 @@ def _check_gravity_removed(acc: NDArray[np.float64], sensors: list[str],
                 "first", sensor=foot, field="sensorFreeAcceleration")
 
 
+def _check_feet(feet: tuple[str, str], joints: tuple[str, ...], sensors: list[str]) -> None:
+    """Both feet are segments and carry a sensor."""
+    for foot in feet:
+        if foot not in joints:
+            raise InputError(f"foot segment {foot!r} not found in the MVNX; segments: "
+                             f"{', '.join(joints)}", field=foot)
+        if foot not in sensors:
+            raise InputError(f"no sensor on {foot!r}; sensors: {', '.join(sensors)}",
+                             sensor=foot)
+
+
+def _positions(chosen: _Subject) -> NDArray[np.float64]:
+    """(F, segments, 3) segment positions, converted to Y up."""
+    n = len(chosen.frames)
+    for k, frame in enumerate(chosen.frames):
+        if "position" not in frame:
+            raise InputError(f"frame {k} has no position", field="position")
+    size = 3 * len(chosen.segments)
+    values = [_floats(f["position"], size, "position", k) for k, f in enumerate(chosen.frames)]
+    return z_up_to_y_up(np.array(values).reshape(n, -1, 3))
+
+
+def _rate_and_time(chosen: _Subject) -> tuple[float, NDArray[np.float64]]:
+    """The frame rate (``frameRate``, else from the frame times) and the frames' times (the
+    file's, else from the rate), s."""
+    n = len(chosen.frames)
+    time = np.array(chosen.times)
+    fps = chosen.fps
+    if fps is None or not fps > 0:
+        if np.isnan(time).any() or n < 2:
+            raise InputError("MVNX has neither frameRate nor frame times", field="frameRate")
+        fps = 1.0 / float(np.median(np.diff(time)))
+    if np.isnan(time).any():
+        time = np.arange(n) / fps
+    return fps, time
+
+
 def read_mvnx(path: PathLike, *, left_foot: str = "LeftFoot",
               right_foot: str = "RightFoot", subject: str | None = None) -> KinematicsRecording:
     """Read an MVNX file (MVNX 4, or MVNX 3 with sensorAcceleration and sensorOrientation).
@@ -376,31 +421,13 @@ def read_mvnx(path: PathLike, *, left_foot: str = "LeftFoot",
     if not chosen.frames:
         raise InputError("MVNX has no normal frames", field="frames")
     joints = tuple(segments)
-    for foot in (left_foot, right_foot):
-        if foot not in joints:
-            raise InputError(f"foot segment {foot!r} not found in the MVNX; segments: "
-                             f"{', '.join(joints)}", field=foot)
-        if foot not in sensors:
-            raise InputError(f"no sensor on {foot!r}; sensors: {', '.join(sensors)}",
-                             sensor=foot)
-    n = len(chosen.frames)
-    for k, frame in enumerate(chosen.frames):
-        if "position" not in frame:
-            raise InputError(f"frame {k} has no position", field="position")
-    pos = z_up_to_y_up(np.array([_floats(f["position"], 3 * len(segments), "position", k)
-                                 for k, f in enumerate(chosen.frames)]).reshape(n, -1, 3))
     feet = (left_foot, right_foot)
+    _check_feet(feet, joints, sensors)
+    pos = _positions(chosen)
     world = _world_accelerations(chosen, notes)
     _check_gravity_removed(world, sensors, feet)
     acc = z_up_to_y_up(world)
-    time = np.array(chosen.times)
-    fps = chosen.fps
-    if fps is None or not fps > 0:
-        if np.isnan(time).any() or n < 2:
-            raise InputError("MVNX has neither frameRate nor frame times", field="frameRate")
-        fps = 1.0 / float(np.median(np.diff(time)))
-    if np.isnan(time).any():
-        time = np.arange(n) / fps
+    fps, time = _rate_and_time(chosen)
     flags = _contacts(chosen, feet, notes)
     toes = {}
     for foot in feet:

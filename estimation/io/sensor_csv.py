@@ -120,7 +120,7 @@ def _cell(text: str) -> float:
     return float(text)
 
 
-def read_sensor_csv(path: PathLike, *, units: str | None = None,
+def read_sensor_csv(path: PathLike, *, units: str | None = None,  # noqa: C901, PLR0912, PLR0915
                     fps: float | None = None) -> SensorRecording:
     """Read a bonefit sensor CSV.
 

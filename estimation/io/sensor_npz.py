@@ -64,6 +64,22 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
         time = _npz_floats(archive, "time") if "time.npy" in names else None
         if units is None and "units.npy" in names:
             units = _npz_units(_npz_small(archive, "units", "US"))
+    _check_npz_shapes(sensors, positions, quats)
+    units = units or "m"
+    rate = parse_fps(fps)
+    _check_npz_values(sensors, positions, quats, time)
+    values = np.concatenate([positions * unit_scale(units), quats], axis=-1)
+    values[~np.isfinite(values).all(axis=-1)] = np.nan
+    quats_n = normalise_quaternions(values[..., 3:], sensors, None)
+    if time is None:
+        time = time_from_fps(positions.shape[0], rate)
+    rec = SensorRecording(sensors, values[..., :3], quats_n, rate, time)
+    return check_recording(rec, units)
+
+
+def _check_npz_shapes(sensors: tuple[str, ...], positions: NDArray[np.float64],
+                      quats: NDArray[np.float64]) -> None:
+    """Known sensor names, positions (F, S, 3) and quaternions (F, S, 4)."""
     for name in sensors:
         if name not in SEGMENTS:
             raise InputError(f"unknown sensor {name!r}; segments are {', '.join(SEGMENTS)}",
@@ -74,8 +90,12 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
     if quats.shape != (*positions.shape[:2], 4):
         raise InputError(f"quaternions must have shape {(*positions.shape[:2], 4)}, "
                          f"got {quats.shape}", field="quaternions")
-    units = units or "m"
-    rate = parse_fps(fps)
+
+
+def _check_npz_values(sensors: tuple[str, ...], positions: NDArray[np.float64],
+                      quats: NDArray[np.float64], time: NDArray[np.float64] | None) -> None:
+    """Values within the limits (``bonefit.estimation.io.limits``; NaN is a gap) and, when
+    given, a time (F,) without NaN."""
     for key, array in (("positions", positions), ("quaternions", quats)):
         bad = limits.first_bad_value(array)
         if bad is not None:
@@ -88,13 +108,6 @@ def read_sensor_npz(path: PathLike, *, units: str | None = None,
         bad = limits.first_bad_value(time, nan_ok=False)
         if bad is not None:
             limits.check_value(float(time[bad]), field="time", nan_ok=False)
-    values = np.concatenate([positions * unit_scale(units), quats], axis=-1)
-    values[~np.isfinite(values).all(axis=-1)] = np.nan
-    quats_n = normalise_quaternions(values[..., 3:], sensors, None)
-    if time is None:
-        time = time_from_fps(positions.shape[0], rate)
-    rec = SensorRecording(sensors, values[..., :3], quats_n, rate, time)
-    return check_recording(rec, units)
 
 
 def _npz_floats(archive: zipfile.ZipFile, key: str) -> NDArray[np.float64]:

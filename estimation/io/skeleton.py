@@ -50,7 +50,7 @@ ROOT_POSITION_CHANNELS: Final[tuple[str, ...]] = ("Xposition", "Yposition", "Zpo
 # --------------------------------------------------------------------------- JSON
 
 
-def _json_safe(value: Any) -> Any:
+def _json_safe(value: Any) -> Any:  # noqa: PLR0911
     """Plain JSON types: numpy scalars and arrays converted, NaN/inf → None."""
     if isinstance(value, Mapping):
         return {str(k): _json_safe(v) for k, v in value.items()}
@@ -205,7 +205,7 @@ def _array(value: Any, shape_tail: tuple[int, ...], field: str) -> NDArray[np.fl
     return arr
 
 
-def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:
+def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:  # noqa: C901
     """Rebuild a SkeletonResult from the JSON document of :func:`skeleton_to_dict`.
 
     Raises

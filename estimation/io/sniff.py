@@ -43,13 +43,23 @@ def detect_format(path: PathLike) -> str:
         When neither says what the file is.
     """
     p = Path(path)
+    return _format_of_content(_head(p)) or _format_of_extension(p)
+
+
+def _head(p: Path) -> bytes:
+    """The first 64 KiB of the file."""
     try:
         with open(p, "rb") as handle:
-            head = handle.read(65536)
+            return handle.read(65536)
     except IsADirectoryError:
         raise InputError(f"{p} is a directory, not a recording", field="input") from None
     except PermissionError:
         raise InputError(f"cannot read {p}: permission denied", field="input") from None
+
+
+def _format_of_content(head: bytes) -> str | None:
+    """The format the file's first bytes show (a ZIP archive, a tracker export, a CSV
+    header), or None."""
     if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
         return "npz"
     text = head.decode("utf-8", errors="replace")
@@ -57,6 +67,12 @@ def detect_format(path: PathLike) -> str:
 
     if looks_like_tracker(text):
         return "tracker"
+    return _format_of_first_row(text)
+
+
+def _format_of_first_row(text: str) -> str | None:
+    """"csv" for a ``<segment>.<component>`` header, "tracker" for a row of 7 or 8 blank
+    separated numbers, else None; comments and blank lines are skipped."""
     for raw in text.splitlines():
         line = raw.strip().lstrip("\ufeff")
         if not line or line.startswith("#"):
@@ -67,19 +83,26 @@ def detect_format(path: PathLike) -> str:
         try:
             [float(t) for t in tokens]
         except ValueError:
-            break
+            return None
         if "," not in line and len(tokens) in (7, 8):
             return "tracker"
-        break
-    ext = p.suffix.lower()
-    if ext == ".npz":
-        return "npz"
-    if ext == ".csv":
-        return "csv"
-    if ext in (".txt", ".dat", ".asc", ".liberty", ".patriot"):
-        return "tracker"
-    raise InputError(f"cannot tell the format of {p.name}; give format= csv, tracker or npz",
-                     field="format")
+        return None
+    return None
+
+
+FORMAT_OF_EXTENSION: Final[dict[str, str]] = {
+    ".npz": "npz", ".csv": "csv", ".txt": "tracker", ".dat": "tracker", ".asc": "tracker",
+    ".liberty": "tracker", ".patriot": "tracker"}
+"""The format a recording's file extension suggests, when its content does not tell."""
+
+
+def _format_of_extension(p: Path) -> str:
+    """The format of the file's extension; InputError for another one."""
+    fmt = FORMAT_OF_EXTENSION.get(p.suffix.lower())
+    if fmt is None:
+        raise InputError(f"cannot tell the format of {p.name}; give format= csv, tracker or "
+                         "npz", field="format")
+    return fmt
 
 
 def resolve_sensor_format(path: PathLike, format: str) -> str:

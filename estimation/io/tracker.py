@@ -292,36 +292,7 @@ def parse_stations(spec: str | Mapping[Any, Any] | PathLike) -> dict[int, str]:
     InputError
         On a malformed entry, an unknown segment or a segment given twice.
     """
-    import json
-
-    items: list[tuple[Any, Any]]
-    if isinstance(spec, Mapping):
-        items = list(spec.items())
-    else:
-        text = os.fspath(spec).strip()
-        path = Path(text)
-        if text.endswith(".json") or ("=" not in text and path.is_file()):
-            try:
-                loaded = json.loads(path.read_text(encoding="utf-8"))
-            except FileNotFoundError:
-                raise InputError(f"stations file {text} not found", field="stations") from None
-            except (OSError, ValueError) as exc:
-                raise InputError(f"cannot read stations file {text}: {exc}",
-                                 field="stations") from None
-            if not isinstance(loaded, dict):
-                raise InputError("stations JSON must be an object {\"1\": \"pelvis\", ...}",
-                                 field="stations")
-            items = list(loaded.items())
-        else:
-            items = []
-            for part in text.split(","):
-                if not part.strip():
-                    continue
-                key, sep, value = part.partition("=")
-                if not sep:
-                    raise InputError(f"stations entry {part.strip()!r} is not NUMBER=SEGMENT",
-                                     field="stations")
-                items.append((key.strip(), value.strip()))
+    items = list(spec.items()) if isinstance(spec, Mapping) else _station_items(spec)
     mapping: dict[int, str] = {}
     for key, value in items:
         try:
@@ -337,6 +308,41 @@ def parse_stations(spec: str | Mapping[Any, Any] | PathLike) -> dict[int, str]:
     if not mapping:
         raise InputError("stations mapping is empty", field="stations")
     return mapping
+
+
+def _station_items(spec: str | PathLike) -> list[tuple[Any, Any]]:
+    """The (station, segment) pairs of a stations JSON file or ``"1=pelvis,..."`` text."""
+    text = os.fspath(spec).strip()
+    path = Path(text)
+    if text.endswith(".json") or ("=" not in text and path.is_file()):
+        return _station_file_items(path, text)
+    items = []
+    for part in text.split(","):
+        if not part.strip():
+            continue
+        key, sep, value = part.partition("=")
+        if not sep:
+            raise InputError(f"stations entry {part.strip()!r} is not NUMBER=SEGMENT",
+                             field="stations")
+        items.append((key.strip(), value.strip()))
+    return items
+
+
+def _station_file_items(path: Path, text: str) -> list[tuple[Any, Any]]:
+    """The (station, segment) pairs of the stations JSON file ``path`` (given as ``text``)."""
+    import json
+
+    try:
+        loaded = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"stations file {text} not found", field="stations") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read stations file {text}: {exc}",
+                         field="stations") from None
+    if not isinstance(loaded, dict):
+        raise InputError("stations JSON must be an object {\"1\": \"pelvis\", ...}",
+                         field="stations")
+    return list(loaded.items())
 
 
 def format_stations(mapping: Mapping[int, str]) -> str:
@@ -746,9 +752,7 @@ def _read_records(handle: Any, layout: TrackerLayout, meta: dict[str, str],
             key = len(out.frames)
             new = cycle.starts_frame(number, line)
         if new or current is None:
-            if frame_col is not None and current_key is not None and key < current_key:
-                raise InputError(f"frame counter goes back from {current_key} to {key} at "
-                                 f"line {line}", line=line, column=frame_col + 1, field="frame")
+            _check_counter(current_key, key, line, frame_col)
             current = {}
             current_key = key
             out.frames.append(current)
@@ -760,6 +764,13 @@ def _read_records(handle: Any, layout: TrackerLayout, meta: dict[str, str],
                 out.times.append(float(stamp - t0) * TIME_UNITS[layout.time_unit])
         current[number] = values
     return out
+
+
+def _check_counter(last: int | None, key: int, line: int, frame_col: int | None) -> None:
+    """Refuse a frame counter (in column ``frame_col``) that goes back from ``last``."""
+    if frame_col is not None and last is not None and key < last:
+        raise InputError(f"frame counter goes back from {last} to {key} at "
+                         f"line {line}", line=line, column=frame_col + 1, field="frame")
 
 
 def _frame_index(records: _Records, fps: float | None, has_time: bool,
@@ -914,6 +925,32 @@ def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | No
         units.
     """
     plan = parse_tracker_layout(layout) if layout is not None else detect_tracker_layout(path)
+    records, mapping, meta = _read_stations_and_records(path, plan, stations)
+    order, warnings = _check_stations(records, mapping)
+    if records.errors:
+        warnings.append(f"{records.errors} FASTRAK record(s) carry an error code; their "
+                        "values are used as given")
+    index, rate = _tracker_frames(records, plan, fps, meta)
+    sensors = tuple(mapping[n] for n in order)
+    table = _tracker_table(records, index, order, 3 + len(plan.rotation_columns))
+    n_frames = table.shape[0]
+    if n_frames > index.size:
+        warnings.append(f"{n_frames - index.size} dropped frame(s) (frame counter or time "
+                        "stamps skip them) left as gaps")
+    units = units if units is not None else meta.get("units", plan.units)
+    lines = np.zeros(n_frames, dtype=np.int64)
+    lines[index] = records.lines
+    quats = _quaternions(table, plan, sensors, lines)
+    rec = SensorRecording(sensors, table[..., :3] * unit_scale(units), quats, rate,
+                          time_from_fps(n_frames, rate), warnings=tuple(warnings))
+    return check_recording(rec, units)
+
+
+def _read_stations_and_records(path: PathLike, plan: TrackerLayout,
+                               stations: Mapping[Any, Any] | str | None
+                               ) -> tuple[_Records, dict[int, str], dict[str, str]]:
+    """The records of a tracker export, its stations mapping (``stations``, else the file's
+    ``# stations:`` comment) and its comments' settings."""
     meta: dict[str, str] = {}
     with open_text(path) as handle:
         # the mapping may sit in a comment: read it before the records when there are no ids
@@ -928,10 +965,13 @@ def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | No
     if not records.frames:
         raise InputError(f"{os.fspath(path)} holds no tracker records", field="frames")
     mapping = mapping if mapping is not None else _resolve_stations(stations, meta)
-    order, warnings = _check_stations(records, mapping)
-    if records.errors:
-        warnings.append(f"{records.errors} FASTRAK record(s) carry an error code; their "
-                        "values are used as given")
+    return records, mapping, meta
+
+
+def _tracker_frames(records: _Records, plan: TrackerLayout, fps: float | None,
+                    meta: dict[str, str]) -> tuple[NDArray[np.int64], float]:
+    """Frame number of each group of records and the frame rate (``fps``, the file's
+    ``# fps:`` comment, or measured from the time stamps)."""
     if fps is None and "fps" in meta:
         fps = parse_fps(meta["fps"])
     index, rate = _frame_index(records, parse_fps(fps) if fps is not None else None,
@@ -939,24 +979,39 @@ def read_tracker_ascii(path: PathLike, *, stations: Mapping[Any, Any] | str | No
     if rate is None:
         raise InputError("this tracker file carries no time: give fps (LIBERTY 240, "
                          "PATRIOT 60, trakSTAR 80 Hz by default)", field="fps")
-    sensors = tuple(mapping[n] for n in order)
-    n_frames = int(index[-1]) + 1
-    table = np.full((n_frames, len(order), 3 + len(plan.rotation_columns)), np.nan)
+    return index, rate
+
+
+def _tracker_table(records: _Records, index: NDArray[np.int64], order: list[int],
+                   width: int) -> NDArray[np.float64]:
+    """(F, S, width) values of the stations in ``order`` per frame; NaN rows where a station
+    has no record, a frame was dropped, or a value is not finite."""
+    table = np.full((int(index[-1]) + 1, len(order), width), np.nan)
     for i, frame in zip(index.tolist(), records.frames, strict=True):
         for s, number in enumerate(order):
             if number in frame:
                 table[i, s] = frame[number]
     table[~np.isfinite(table).all(axis=-1)] = np.nan
-    if n_frames > index.size:
-        warnings.append(f"{n_frames - index.size} dropped frame(s) (frame counter or time "
-                        "stamps skip them) left as gaps")
-    units = units if units is not None else meta.get("units", plan.units)
-    lines = np.zeros(n_frames, dtype=np.int64)
-    lines[index] = records.lines
-    quats = _quaternions(table, plan, sensors, lines)
-    rec = SensorRecording(sensors, table[..., :3] * unit_scale(units), quats, rate,
-                          time_from_fps(n_frames, rate), warnings=tuple(warnings))
-    return check_recording(rec, units)
+    return table
+
+
+def _sniffed_sensors(order: list[int], has_station: bool, frames: int,
+                     meta: dict[str, str]) -> tuple[list[str], int]:
+    """The sensors a sniff reports (the stations' numbers, or their segments when the file
+    has a valid ``# stations:`` comment) and its frame count (without a station column,
+    records per frame are the mapping's stations)."""
+    sensors = [str(n) for n in order] if has_station else []
+    if "stations" in meta:
+        try:
+            mapping = parse_stations(meta["stations"])
+        except InputError:
+            pass
+        else:
+            sensors = ([mapping.get(n, str(n)) for n in order] if has_station
+                       else [mapping[n] for n in sorted(mapping)])
+            if not has_station and mapping:
+                frames = math.ceil(frames / len(mapping))
+    return sensors, frames
 
 
 def sniff_tracker(path: PathLike) -> dict[str, Any]:
@@ -1005,18 +1060,8 @@ def sniff_tracker(path: PathLike) -> dict[str, Any]:
                 new = tokens[frame_col] != last_key
                 last_key = tokens[frame_col]
             frames += new
-    order = sorted(cycle.order)
-    sensors = [str(n) for n in order] if station_col is not None else []
-    if "stations" in meta:
-        try:
-            mapping = parse_stations(meta["stations"])
-        except InputError:
-            pass
-        else:
-            sensors = ([mapping.get(n, str(n)) for n in order] if station_col is not None
-                       else [mapping[n] for n in sorted(mapping)])
-            if station_col is None and mapping:
-                frames = math.ceil(frames / len(mapping))
+    sensors, frames = _sniffed_sensors(sorted(cycle.order), station_col is not None, frames,
+                                       meta)
     fps = parse_fps(meta["fps"]) if "fps" in meta else None
     return {"format": "tracker", "frames": frames, "sensors": sensors, "fps": fps,
             "units": meta.get("units", plan.units), "layout": plan.spec()}

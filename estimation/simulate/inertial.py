@@ -74,7 +74,7 @@ def foot_names(motion: BvhMotion) -> tuple[str, str]:
                      f"(joints: {', '.join(motion.names)})", field="left_foot")
 
 
-def simulate_inertial(
+def simulate_inertial(  # noqa: PLR0913
     motion: BvhMotion,
     *,
     fps: float | None = None,
@@ -155,7 +155,7 @@ def simulate_inertial(
     return recording, truth
 
 
-def _mounted_accelerometers(motion: BvhMotion, world: NDArray[np.float64],
+def _mounted_accelerometers(motion: BvhMotion, world: NDArray[np.float64],  # noqa: PLR0917
                             rotations: list[Rotation], feet: tuple[str, str], rate: float,
                             rng: np.random.Generator) -> dict[str, NDArray[np.float64]]:
     """Noise-free accelerometer readings (F, 3) of each foot at the clip's rate, m/s²:

@@ -258,7 +258,7 @@ def _drop_mask(rng: np.random.Generator, n_frames: int, n: int,
     return mask
 
 
-def simulate_sensors(
+def simulate_sensors(  # noqa: PLR0913
     motion: BvhMotion,
     *,
     units_m: float,
@@ -344,7 +344,7 @@ _TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
 """Segments whose length ``SimulationTruth.bone_lengths`` gives."""
 
 
-def _sensor_poses(segments: Sequence[str],
+def _sensor_poses(segments: Sequence[str],  # noqa: PLR0917
                   body: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
                   placement: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
                   slip: NDArray[np.float64], rng: np.random.Generator,

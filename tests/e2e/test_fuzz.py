@@ -27,8 +27,9 @@ from hypothesis import strategies as st
 
 from benchmarks.service_fuzz import Ids, run_schemathesis
 from bonefit.service.app import create_app
-from bonefit.service.jobs import JobStore, SqlJobStore
+from bonefit.service.jobs import JobStore
 from bonefit.service.settings import Settings
+from bonefit.service.sql_store import SqlJobStore
 from tests.e2e.conftest import Launcher, ServerProcess
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "estimation" / "examples" / "walk.csv"

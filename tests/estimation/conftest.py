@@ -39,7 +39,7 @@ class Rig:
     axis_a: NDArray[np.float64]    # hinge axis in frame a (ball: zeros)
 
 
-def make_rig(kind: str = "ball", n_frames: int = 400, rom_deg: float = 60.0,
+def make_rig(kind: str = "ball", *, n_frames: int = 400, rom_deg: float = 60.0,
              noise_m: float = 0.0, noise_deg: float = 0.0, seed: int = 0) -> Rig:
     """A rig whose body a wanders and turns while b rotates about the joint."""
     rng = np.random.default_rng(seed)

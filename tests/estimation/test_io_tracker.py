@@ -114,7 +114,7 @@ def euler_fields(m: Motion, f: int, s: int, sep: str = " ") -> str:
     return sep.join(f2(v) for v in (*m.inches[f, s], *m.angles[f, s]))
 
 
-def quat_fields(m: Motion, f: int, s: int, order: str = "wxyz", sep: str = " ",
+def quat_fields(m: Motion, f: int, s: int, order: str = "wxyz", sep: str = " ", *,
                 metres: bool = False) -> str:
     q = dict(zip("wxyz", m.quats[f, s], strict=True))
     pos = [f"{v * 0.0254:.9f}" if metres else f2(v) for v in m.inches[f, s]]

@@ -13,11 +13,11 @@ from huey import MemoryHuey
 from bonefit.estimation.errors import InputError
 from bonefit.estimation.progress import Progress
 from bonefit.service.artifacts import LocalArtifactStore
-from bonefit.service.jobs import SqlJobStore
 from bonefit.service.kinds import Input, Kind, SkeletonParams, TranslationParams
 from bonefit.service.queue import HueyQueue
 from bonefit.service.runtime import Runtime
 from bonefit.service.settings import Settings
+from bonefit.service.sql_store import SqlJobStore
 from bonefit.service.worker import Worker
 
 with warnings.catch_warnings():

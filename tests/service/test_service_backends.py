@@ -17,9 +17,10 @@ import sqlalchemy as sa
 
 from bonefit.service.artifacts import ArtifactStore, LocalArtifactStore, open_artifacts
 from bonefit.service.errors import QueueUnavailable, StorageFull, StoreUnavailable
-from bonefit.service.jobs import Job, JobStore, Recording, SqlJobStore, Status, new_id, open_store
+from bonefit.service.jobs import Job, JobStore, Recording, Status, new_id
 from bonefit.service.queue import HueyQueue, JobQueue, open_queue
 from bonefit.service.settings import Settings
+from bonefit.service.sql_store import SqlJobStore, open_store
 from tests.service.helpers import local_queue, require_services
 
 POSTGRES_ADMINS = ([os.environ["BONEFIT_TEST_POSTGRES_URL"]]

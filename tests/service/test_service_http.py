@@ -21,10 +21,10 @@ from fastapi import FastAPI
 from bonefit.service import uploads
 from bonefit.service.app import create_app
 from bonefit.service.artifacts import LocalArtifactStore
-from bonefit.service.jobs import SqlJobStore, sql_error
 from bonefit.service.queue import queue_error
 from bonefit.service.runtime import Runtime
 from bonefit.service.settings import Settings
+from bonefit.service.sql_store import SqlJobStore, sql_error
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,

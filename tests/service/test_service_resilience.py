@@ -22,13 +22,14 @@ from bonefit.estimation.progress import Progress
 from bonefit.service.app import API_STEPS, create_app
 from bonefit.service.errors import BackendError, StorageFull
 from bonefit.service.housekeeping import housekeeping
-from bonefit.service.jobs import Job, Recording, new_id, sql_error
+from bonefit.service.jobs import Job, Recording, new_id
 from bonefit.service.kinds import Input, Kind, SkeletonParams
 from bonefit.service.leases import LeaseKeeper
 from bonefit.service.queue import HueyQueue
 from bonefit.service.reaper import reap
 from bonefit.service.runtime import Runtime, open_runtime
 from bonefit.service.settings import Settings
+from bonefit.service.sql_store import sql_error
 from bonefit.service.worker import Worker, run_worker
 from tests.service.helpers import (
     AUTH_A,

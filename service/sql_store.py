@@ -1,0 +1,403 @@
+"""The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core: tables, the database's
+errors as the service's, and the transitions as compare-and-set updates."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, fields
+from typing import Any, Final
+
+import sqlalchemy as sa
+from sqlalchemy.engine import Engine
+
+from .errors import BackendError, StorageFull, StoreUnavailable, says_disk_full, translate_methods
+from .jobs import PURGE_BATCH, Expect, Histogram, Job, JobStore, Recording, Status
+
+_metadata = sa.MetaData()
+
+recordings_table = sa.Table(
+    "bonefit_recordings", _metadata,
+    sa.Column("id", sa.String(32), primary_key=True),
+    sa.Column("tenant", sa.String(200), nullable=False, index=True),
+    sa.Column("key", sa.String(500), nullable=False),
+    sa.Column("filename", sa.String(500)),
+    sa.Column("content_type", sa.String(200)),
+    sa.Column("format", sa.String(40), nullable=False),
+    sa.Column("size", sa.BigInteger, nullable=False),
+    sa.Column("sha256", sa.String(64), nullable=False),
+    sa.Column("created_at", sa.Float, nullable=False, index=True),
+    sa.Column("summary", sa.JSON, nullable=False),
+)
+
+jobs_table = sa.Table(
+    "bonefit_jobs", _metadata,
+    sa.Column("id", sa.String(32), primary_key=True),
+    sa.Column("tenant", sa.String(200), nullable=False, index=True),
+    sa.Column("kind", sa.String(40), nullable=False),
+    sa.Column("recording_id", sa.String(32), nullable=False),
+    sa.Column("params", sa.JSON, nullable=False),
+    sa.Column("inputs", sa.JSON, nullable=False),
+    sa.Column("created_at", sa.Float, nullable=False),
+    sa.Column("updated_at", sa.Float, nullable=False),
+    sa.Column("status", sa.String(16), nullable=False, index=True),
+    sa.Column("started_at", sa.Float),
+    sa.Column("finished_at", sa.Float, index=True),
+    sa.Column("attempts", sa.Integer, nullable=False),
+    sa.Column("fraction", sa.Float, nullable=False),
+    sa.Column("stage", sa.String(100), nullable=False),
+    sa.Column("message", sa.Text),
+    sa.Column("error", sa.JSON),
+    sa.Column("results", sa.JSON, nullable=False),
+    sa.Column("worker", sa.String(200)),
+    sa.Column("lease_until", sa.Float, index=True),
+    sa.Column("cancel_requested", sa.Boolean, nullable=False),
+    sa.Column("idempotency_key", sa.String(300)),
+    sa.Column("request_hash", sa.String(64)),
+    sa.Column("version", sa.Integer, nullable=False),
+    sa.UniqueConstraint("tenant", "idempotency_key", name="bonefit_jobs_idempotency"),
+)
+
+workers_table = sa.Table(
+    "bonefit_workers", _metadata,
+    sa.Column("id", sa.String(200), primary_key=True),
+    sa.Column("seen_at", sa.Float, nullable=False, index=True),
+)
+
+_RECORDING_FIELDS = [f.name for f in fields(Recording)]
+_JOB_FIELDS = [f.name for f in fields(Job)]
+
+
+def _recording(row: sa.Row[Any]) -> Recording:
+    return Recording(**{name: getattr(row, name) for name in _RECORDING_FIELDS})
+
+
+def _job(row: sa.Row[Any]) -> Job:
+    job = Job(**{name: getattr(row, name) for name in _JOB_FIELDS})
+    job.status = Status(job.status)
+    return job
+
+
+def _conditions(table: sa.Table, expect: Expect) -> list[sa.ColumnElement[bool]]:
+    return [table.c[name].in_(value) if isinstance(value, tuple) else table.c[name] == value
+            for name, value in expect.items()]
+
+
+def _held(worker: str | None, lease_until: float | None = None) -> dict[str, Any]:
+    """The condition that the job is running on ``worker`` (under that lease, when given)."""
+    expect: dict[str, Any] = {"status": Status.RUNNING, "worker": worker}
+    if lease_until is not None:
+        expect["lease_until"] = lease_until
+    return expect
+
+
+_QUEUED_AGAIN: Final = {"status": Status.QUEUED, "stage": "queued", "worker": None,
+                        "lease_until": None}
+"""The changes putting a running job back in the queue."""
+
+
+def sql_error(exc: Exception) -> BackendError | None:
+    """The service's error for a database error (a full disk, an outage); None for others."""
+    if says_disk_full(exc):
+        return StorageFull(f"the job database is full ({type(exc).__name__})",
+                           storage=StoreUnavailable.storage)
+    outages = (sa.exc.OperationalError, sa.exc.InterfaceError, sa.exc.TimeoutError,
+               ConnectionError, TimeoutError)
+    if isinstance(exc, outages):
+        return StoreUnavailable(f"the job database is unreachable ({type(exc).__name__})")
+    return None
+
+
+def create_engine(url: str) -> Engine:
+    """An engine for ``url``; SQLite gets WAL mode and a long busy timeout for many processes."""
+    if url.startswith("postgresql://"):
+        url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
+    if not url.startswith("sqlite"):
+        return sa.create_engine(url, pool_pre_ping=True)
+    if url in ("sqlite://", "sqlite:///:memory:"):
+        return sa.create_engine(url, poolclass=sa.pool.StaticPool,
+                                connect_args={"check_same_thread": False})
+    engine = sa.create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+
+    @sa.event.listens_for(engine, "connect")
+    def _pragmas(dbapi_connection: Any, _record: Any) -> None:
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.execute("PRAGMA synchronous=NORMAL")
+        cursor.close()
+
+    return engine
+
+
+@translate_methods(sql_error)
+class SqlJobStore:
+    """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core; its methods raise
+    :class:`~bonefit.service.errors.StorageFull` and
+    :class:`~bonefit.service.errors.StoreUnavailable`."""
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+
+    @classmethod
+    def from_url(cls, url: str) -> SqlJobStore:
+        """A store on the database at ``url``."""
+        return cls(create_engine(url))
+
+    def init(self) -> None:
+        """Create the tables if missing (concurrent creators tolerated)."""
+        try:
+            _metadata.create_all(self.engine)
+        except (sa.exc.IntegrityError, sa.exc.ProgrammingError, sa.exc.OperationalError):
+            _metadata.create_all(self.engine)  # another process created them at the same time
+
+    def ping(self) -> None:
+        """Run a trivial query."""
+        with self.engine.connect() as conn:
+            conn.execute(sa.text("SELECT 1"))
+
+    def add_recording(self, recording: Recording) -> None:
+        """Insert a recording."""
+        with self.engine.begin() as conn:
+            conn.execute(recordings_table.insert().values(**asdict(recording)))
+
+    def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """The tenant's recording, or None."""
+        t = recordings_table
+        with self.engine.connect() as conn:
+            row = conn.execute(sa.select(t).where(t.c.id == recording_id,
+                                                  t.c.tenant == tenant)).first()
+        return _recording(row) if row else None
+
+    def list_recordings(self, tenant: str, *, before: str | None, limit: int) -> list[Recording]:
+        """The tenant's recordings, newest first."""
+        t = recordings_table
+        query = sa.select(t).where(t.c.tenant == tenant).order_by(t.c.id.desc()).limit(limit)
+        if before is not None:
+            query = query.where(t.c.id < before)
+        with self.engine.connect() as conn:
+            return [_recording(row) for row in conn.execute(query)]
+
+    def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
+        """Delete and return the tenant's recording."""
+        t = recordings_table
+        with self.engine.begin() as conn:
+            row = conn.execute(sa.select(t).where(t.c.id == recording_id,
+                                                  t.c.tenant == tenant)).first()
+            if row is None:
+                return None
+            conn.execute(t.delete().where(t.c.id == recording_id))
+        return _recording(row)
+
+    def add_job(self, job: Job) -> Job:
+        """Insert a job, or return the one already holding its idempotency key."""
+        t = jobs_table
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(t.insert().values(**asdict(job)))
+            return job
+        except sa.exc.IntegrityError:
+            with self.engine.connect() as conn:
+                row = conn.execute(sa.select(t).where(
+                    t.c.tenant == job.tenant, t.c.idempotency_key == job.idempotency_key)).first()
+            if row is None:
+                raise
+            return _job(row)
+
+    def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
+        """The job, or None."""
+        t = jobs_table
+        query = sa.select(t).where(t.c.id == job_id)
+        if tenant is not None:
+            query = query.where(t.c.tenant == tenant)
+        with self.engine.connect() as conn:
+            row = conn.execute(query).first()
+        return _job(row) if row else None
+
+    def list_jobs(self, tenant: str, *, status: Status | str | None, kind: str | None,
+                  before: str | None, limit: int) -> list[Job]:
+        """The tenant's jobs, newest first."""
+        t = jobs_table
+        query = sa.select(t).where(t.c.tenant == tenant).order_by(t.c.id.desc()).limit(limit)
+        if status is not None:
+            query = query.where(t.c.status == Status(status).value)
+        if kind is not None:
+            query = query.where(t.c.kind == kind)
+        if before is not None:
+            query = query.where(t.c.id < before)
+        with self.engine.connect() as conn:
+            return [_job(row) for row in conn.execute(query)]
+
+    def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
+        """Compare and set in one transaction."""
+        t = jobs_table
+        values = {**changes, "version": t.c.version + 1, "updated_at": time.time()}
+        with self.engine.begin() as conn:
+            done = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
+                                .values(**values))
+            if done.rowcount != 1:
+                return None
+            row = conn.execute(sa.select(t).where(t.c.id == job_id)).first()
+        return _job(row) if row else None
+
+    def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:
+        """Queued, with the attempts read → running on ``worker``, one more attempt."""
+        return self.update_job(job.id, {
+            "status": Status.RUNNING, "worker": worker, "attempts": job.attempts + 1,
+            "started_at": now, "lease_until": now + lease_seconds, "stage": "starting",
+            "message": None, "fraction": 0.0,
+        }, expect={"status": Status.QUEUED, "attempts": job.attempts})
+
+    def renew(self, job_id: str, worker: str, lease_until: float, *,
+              fraction: float | None = None, stage: str | None = None) -> Job | None:
+        """Running on ``worker`` → a new lease end (and progress)."""
+        changes: dict[str, Any] = {"lease_until": lease_until}
+        if fraction is not None:
+            changes["fraction"] = fraction
+        if stage is not None:
+            changes["stage"] = stage
+        return self.update_job(job_id, changes, expect=_held(worker))
+
+    def requeue(self, job_id: str, worker: str | None, message: str, *,
+                lease_until: float | None = None) -> Job | None:
+        """Running on ``worker`` (with that lease) → queued, the attempt counted."""
+        return self.update_job(job_id, {**_QUEUED_AGAIN, "message": message},
+                               expect=_held(worker, lease_until))
+
+    def hand_back(self, job: Job, worker: str, message: str) -> Job | None:
+        """Running on ``worker`` → queued, the attempt not counted."""
+        return self.update_job(job.id, {**_QUEUED_AGAIN, "message": message,
+                                        "attempts": job.attempts - 1}, expect=_held(worker))
+
+    def succeed(self, job_id: str, worker: str, results: Mapping[str, str],
+                now: float) -> Job | None:
+        """Running on ``worker`` → succeeded with ``results``."""
+        return self._end(job_id, Status.SUCCEEDED, now, _held(worker), stage="done",
+                         fraction=1.0, results=dict(results))
+
+    def fail(self, job_id: str, worker: str | None, error: Mapping[str, Any], now: float, *,
+             lease_until: float | None = None) -> Job | None:
+        """Running on ``worker`` (with that lease) → failed with ``error``."""
+        return self._end(job_id, Status.FAILED, now, _held(worker, lease_until),
+                         error=dict(error))
+
+    def cancel(self, job_id: str, worker: str | None, now: float, *,
+               lease_until: float | None = None) -> Job | None:
+        """Running on ``worker`` (with that lease) → cancelled."""
+        return self._end(job_id, Status.CANCELLED, now, _held(worker, lease_until))
+
+    def cancel_queued(self, job_id: str, now: float) -> Job | None:
+        """Queued → cancelled."""
+        return self._end(job_id, Status.CANCELLED, now, {"status": Status.QUEUED})
+
+    def request_cancel(self, job_id: str) -> Job | None:
+        """Running → cancel requested."""
+        return self.update_job(job_id, {"cancel_requested": True, "message": "cancelling"},
+                               expect={"status": Status.RUNNING})
+
+    def withdraw(self, job_id: str, error: Mapping[str, Any], now: float) -> Job | None:
+        """Queued → failed with ``error``, its idempotency key freed for the client's retry."""
+        return self._end(job_id, Status.FAILED, now, {"status": Status.QUEUED},
+                         error=dict(error), idempotency_key=None)
+
+    def mark_resent(self, job: Job) -> Job | None:
+        """Queued and unchanged since read → a new ``updated_at`` (and version)."""
+        return self.update_job(job.id, {}, expect={"status": Status.QUEUED,
+                                                   "version": job.version})
+
+    def _end(self, job_id: str, status: Status, now: float, expect: Expect,
+             **changes: Any) -> Job | None:
+        return self.update_job(job_id, {"status": status, "stage": status.value,
+                                        "finished_at": now, "worker": None,
+                                        "lease_until": None, **changes}, expect=expect)
+
+    def expired_leases(self, now: float) -> list[Job]:
+        """Running jobs whose lease ended."""
+        t = jobs_table
+        return self._jobs_where(t.c.status == Status.RUNNING.value, t.c.lease_until < now)
+
+    def stale_queued(self, before: float) -> list[Job]:
+        """Queued jobs not updated since ``before``."""
+        t = jobs_table
+        return self._jobs_where(t.c.status == Status.QUEUED.value, t.c.updated_at < before)
+
+    def _jobs_where(self, *conditions: sa.ColumnElement[bool]) -> list[Job]:
+        with self.engine.connect() as conn:
+            return [_job(row) for row in conn.execute(sa.select(jobs_table).where(*conditions))]
+
+    def counts(self) -> dict[tuple[str, str], int]:
+        """Jobs per (kind, status)."""
+        t = jobs_table
+        with self.engine.connect() as conn:
+            rows = conn.execute(sa.select(t.c.kind, t.c.status, sa.func.count())
+                                .group_by(t.c.kind, t.c.status))
+            return {(kind, status): int(n) for kind, status, n in rows}
+
+    def durations(self, buckets: tuple[float, ...]) -> dict[str, Histogram]:
+        """Run time of succeeded jobs, counted in the database."""
+        t = jobs_table
+        seconds = t.c.finished_at - t.c.started_at
+        columns = [sa.func.sum(sa.case((seconds <= b, 1), else_=0)) for b in buckets]
+        query = (sa.select(t.c.kind, sa.func.count(), sa.func.sum(seconds), *columns)
+                 .where(t.c.status == Status.SUCCEEDED.value, t.c.started_at.is_not(None),
+                        t.c.finished_at.is_not(None)).group_by(t.c.kind))
+        with self.engine.connect() as conn:
+            return {row[0]: Histogram([int(c or 0) for c in row[3:]], int(row[1]),
+                                      float(row[2] or 0.0)) for row in conn.execute(query)}
+
+    def recording_totals(self) -> tuple[int, int]:
+        """Count and bytes of recordings."""
+        t = recordings_table
+        with self.engine.connect() as conn:
+            n, total = conn.execute(sa.select(sa.func.count(), sa.func.sum(t.c.size))).one()
+        return int(n), int(total or 0)
+
+    def purge(self, before: float, limit: int = PURGE_BATCH) -> tuple[list[Recording], list[Job]]:
+        """Delete at most ``limit`` of each older than ``before`` in one short transaction."""
+        r, j = recordings_table, jobs_table
+        with self.engine.begin() as conn:
+            recs = [_recording(row) for row in conn.execute(
+                sa.select(r).where(r.c.created_at < before).limit(limit))]
+            jobs = [_job(row) for row in conn.execute(
+                sa.select(j).where(j.c.finished_at < before).limit(limit))]
+            if recs:
+                conn.execute(r.delete().where(r.c.id.in_([x.id for x in recs])))
+            if jobs:
+                conn.execute(j.delete().where(j.c.id.in_([x.id for x in jobs])))
+        return recs, jobs
+
+    def beat_worker(self, worker_id: str, now: float) -> None:
+        """Update the worker's row, inserting it the first time."""
+        w = workers_table
+        with self.engine.begin() as conn:
+            done = conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
+            if done.rowcount == 1:
+                return
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(w.insert().values(id=worker_id, seen_at=now))
+        except sa.exc.IntegrityError:  # inserted meanwhile by a duplicate id: just update
+            with self.engine.begin() as conn:
+                conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
+
+    def drop_worker(self, worker_id: str) -> None:
+        """Delete the worker's row."""
+        w = workers_table
+        with self.engine.begin() as conn:
+            conn.execute(w.delete().where(w.c.id == worker_id))
+
+    def live_workers(self, since: float) -> list[str]:
+        """Workers whose row was updated since ``since``."""
+        w = workers_table
+        with self.engine.connect() as conn:
+            return [row[0] for row in conn.execute(
+                sa.select(w.c.id).where(w.c.seen_at >= since).order_by(w.c.id))]
+
+
+def open_store(url: str) -> JobStore:
+    """The store for ``url``, any SQLAlchemy URL (SQLite or PostgreSQL)."""
+    if url.startswith("memory:"):
+        # each worker process would have a store of its own, and never see the API's jobs
+        raise ValueError(f"unsupported database URL {url!r}: the job store is shared by "
+                         "processes; use sqlite:///path or postgresql://")
+    return SqlJobStore.from_url(url)
+
