@@ -20,8 +20,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("estimation/joints.py", "estimate_joint"): "h20-skel",
     ("estimation/skeleton.py", "estimate_skeleton"): "h20-skel",
     ("estimation/io/sensor_csv.py", "read_sensor_csv"): "h19-io",
-    ("estimation/bvh.py", "point_joint_bvh"): "h17-sub",
-    ("estimation/io/skeleton.py", "skeleton_to_bvh"): "h17-sub",
 }
 
 
