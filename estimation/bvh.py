@@ -494,6 +494,59 @@ def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,
 EULER_ORDERS: tuple[str, ...] = ("ZXY", "ZYX", "YXZ", "YZX", "XYZ", "XZY")
 """Intrinsic Euler orders a writer may give a node, in order of preference on ties."""
 
+JUMP_DEG: Final[float] = 60.0
+"""Turn between two frames (degrees) above which the step is a jump in the data, not a
+motion: no interpolation of rotations can follow it (a take that starts with a T-pose frame
+turns segments by 76–180° between its first two frames; the fastest turns of the benchmark
+clips' dancers, boxers and runners are 28–45° per frame). Such steps do not count in the
+choice of channels, and :func:`jump_steps` reports them."""
+
+MAX_CHOICE_STEPS: Final[int] = 20_000
+"""Steps between frames, sampled evenly over a take, on which a node's Euler order and rest
+orientation are chosen (every step of takes up to this length)."""
+
+
+def _wrap(degrees: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angles moved by whole turns into [-180, 180]."""
+    out: NDArray[np.float64] = degrees - 360.0 * np.round(degrees / 360.0)
+    return out
+
+
+def euler_degrees(rotation: Rotation, order: str) -> NDArray[np.float64]:
+    """``rotation.as_euler(order, degrees=True)`` without scipy's warning at gimbal lock
+    (there every split between the outer angles is the same rotation; scipy puts it all on
+    the first)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected", category=UserWarning)
+        angles: NDArray[np.float64] = rotation.as_euler(order, degrees=True)
+    return angles
+
+
+def _twin_states(angles: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Per frame (F, ...), 0 for the given Tait–Bryan triple, 1 for its twin, choosing at each
+    frame the one nearest (sum of wrapped differences) to the previous frame's choice.
+
+    The choice at frame i depends on frame i−1's only: a map of {0, 1} onto itself per frame,
+    composed over the take by a prefix scan in log₂ F vectorised steps."""
+    twin = _twin(angles)
+    cand = np.stack([angles, twin], axis=-2)  # (F, ..., 2, 3)
+    dist = np.abs(_wrap(cand[1:, ..., None, :, :] - cand[:-1, ..., :, None, :])).sum(axis=-1)
+    maps = (dist[..., 1] < dist[..., 0]).astype(np.intp)  # (F-1, ..., previous state)
+    span = 1
+    while span < len(maps):
+        maps[span:] = np.take_along_axis(maps[span:], maps[:-span], axis=-1)
+        span *= 2
+    states = np.zeros(angles.shape[:-1], dtype=np.intp)
+    states[1:] = maps[..., 0]
+    return states
+
+
+def _twin(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The other Tait–Bryan triple of each rotation: (a + 180, 180 − b, c + 180)."""
+    twin: NDArray[np.float64] = angles + np.array([180.0, 0.0, 180.0])
+    twin[..., 1] = 180.0 - angles[..., 1]
+    return twin
+
 
 def continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
     """Euler angles (F, ..., 3), degrees, without jumps between frames.
@@ -501,7 +554,8 @@ def continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
     Every intrinsic Tait–Bryan triple (a, b, c) of three distinct axes has a twin
     (a + 180, 180 − b, c + 180) describing the same rotation, and each angle is defined modulo
     360; per frame take the candidate nearest the previous frame, so that players
-    interpolating channel values do not spin through wraps.
+    interpolating channel values do not spin through wraps. Vectorised over frames (a prefix
+    scan of the twin choice, then a cumulative sum of whole turns).
 
     Parameters
     ----------
@@ -513,16 +567,14 @@ def continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
     ndarray, shape (F, ..., 3)
         The same rotations, each angle within 180 degrees of the previous frame's.
     """
-    other = angles + np.array([180.0, 0.0, 180.0])
-    other[..., 1] = 180.0 - angles[..., 1]
-    out = np.empty_like(angles)
-    out[0] = angles[0]
-    for i in range(1, len(angles)):
-        prev = out[i - 1]
-        a = angles[i] - 360.0 * np.round((angles[i] - prev) / 360.0)
-        b = other[i] - 360.0 * np.round((other[i] - prev) / 360.0)
-        take_b = np.abs(b - prev).sum(axis=-1) < np.abs(a - prev).sum(axis=-1)
-        out[i] = np.where(take_b[..., None], b, a)
+    angles = np.asarray(angles, dtype=float)
+    if len(angles) < 2:
+        return angles.copy()
+    states = _twin_states(angles)
+    chosen = np.where(states[..., None] == 1, _twin(angles), angles)
+    turns = np.round(np.diff(chosen, axis=0) / 360.0)
+    out = chosen.copy()
+    out[1:] -= 360.0 * np.cumsum(turns, axis=0)
     return out
 
 
@@ -548,28 +600,238 @@ def half_frame_error(rotation: Rotation, angles: NDArray[np.float64], order: str
     ndarray, shape (F - 1,)
         Angle between the interpolated and the halfway rotation, degrees.
     """
-    from scipy.spatial.transform import Rotation
-
     if len(angles) < 2:
         return np.zeros(0)
-    step = (rotation[:-1].inv() * rotation[1:]).as_rotvec()
-    halfway = rotation[:-1] * Rotation.from_rotvec(step / 2)
-    interpolated = Rotation.from_euler(order, (angles[:-1] + angles[1:]) / 2, degrees=True)
-    return np.asarray(np.degrees((interpolated.inv() * halfway).magnitude()))
+    quats = rotation.as_quat()
+    return _quat_angle(_euler_quaternions(order, (angles[:-1] + angles[1:]) / 2),
+                       _halfway(quats[:-1], quats[1:]))
+
+
+_UNIT_AXES: Final[dict[str, int]] = {"X": 0, "Y": 1, "Z": 2}
+
+
+def _euler_quaternions(order: str, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Scalar-last quaternions (S, 4) of intrinsic Euler angles (S, 3), degrees
+    (``Rotation.from_euler(order, angles, degrees=True)``, without its overhead)."""
+    half = np.radians(angles) / 2
+    out = np.tile([0.0, 0.0, 0.0, 1.0], (len(angles), 1))
+    for k, axis in enumerate(order):
+        turn = np.zeros_like(out)
+        turn[:, _UNIT_AXES[axis]] = np.sin(half[:, k])
+        turn[:, 3] = np.cos(half[:, k])
+        out = _quat_multiply(out, turn)
+    return out
+
+
+def _conjugate(q: NDArray[np.float64]) -> NDArray[np.float64]:
+    out: NDArray[np.float64] = q * np.array([-1.0, -1.0, -1.0, 1.0])
+    return out
+
+
+def _quat_angle(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Degrees (S,) of the rotation from unit quaternions p to q (S, 4), scalar last."""
+    rel = _quat_multiply(_conjugate(p), q)
+    return np.asarray(np.degrees(2.0 * np.arctan2(np.linalg.norm(rel[:, :3], axis=1),
+                                                  np.abs(rel[:, 3]))))
+
+
+def _halfway(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Quaternions (S, 4) halfway along the shortest path from p to q (S, 4)."""
+    sign = np.where(np.einsum("ij,ij->i", p, q) < 0, -1.0, 1.0)
+    mid = p + sign[:, None] * q
+    out: NDArray[np.float64] = mid / np.maximum(np.linalg.norm(mid, axis=1), 1e-12)[:, None]
+    return out
+
+
+def jump_steps(rotations: list[Rotation], max_turn_deg: float = JUMP_DEG
+               ) -> NDArray[np.bool_]:
+    """Steps between frames where any of several rotations turns by more than
+    ``max_turn_deg``: jumps in the data (a T-pose frame before the take), not motion.
+
+    Parameters
+    ----------
+    rotations : list of Rotation
+        Rotations of length F each (segment orientations, world frame).
+    max_turn_deg : float
+        Largest turn between two frames that counts as motion, degrees (:data:`JUMP_DEG`).
+
+    Returns
+    -------
+    ndarray of bool, shape (F - 1,)
+        True where step t → t + 1 is a jump.
+    """
+    if not rotations or len(rotations[0]) < 2:
+        return np.zeros(0, dtype=bool)
+    turns = np.stack([(r[:-1].inv() * r[1:]).magnitude() for r in rotations])
+    return np.asarray(np.degrees(turns).max(axis=0) > max_turn_deg)
+
+
+SWING_WEIGHT = 0.01
+"""Weight of the squared channel swing against the squared half-frame error in the choice
+of an Euler order: the swing (tens of degrees near gimbal lock) outweighed the half-frame
+error 50:1 at equal weight and chose, for a dancer's shoulder, an order 2.3x further off at
+half frames (9.2° against 4.0°); it now decides between orders that play back alike."""
+
+
+@dataclass(frozen=True, eq=False)
+class _Steps:
+    """Steps between frames a choice is made on: the rotations before and after (S, 4,
+    scalar last), the turn (S, degrees), which steps are motion (not jumps) and the halfway
+    rotations (S, 4)."""
+
+    before: NDArray[np.float64]
+    after: NDArray[np.float64]
+    turn: NDArray[np.float64]
+    keep: NDArray[np.bool_]
+    halfway: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, before: NDArray[np.float64], after: NDArray[np.float64]) -> _Steps:
+        turn = _quat_angle(before, after)
+        return cls(before, after, turn, turn <= JUMP_DEG, _halfway(before, after))
+
+
+def _step_cost(steps: _Steps, order: str) -> float:
+    """Sum over the steps of the squared half-frame error and, weighted by ``SWING_WEIGHT``,
+    the squared channel swing beyond the node's own turn (degrees²): both grow near gimbal
+    lock. Steps turning more than :data:`JUMP_DEG` (jumps in the data) are left out."""
+    from scipy.spatial.transform import Rotation
+
+    if len(steps.turn) == 0:
+        return 0.0
+    angles = continuous_euler(np.stack([euler_degrees(Rotation.from_quat(steps.before), order),
+                                        euler_degrees(Rotation.from_quat(steps.after), order)]))
+    swing = np.maximum(np.abs(angles[1] - angles[0]).max(axis=1) - steps.turn, 0.0)
+    half = _quat_angle(_euler_quaternions(order, (angles[0] + angles[1]) / 2), steps.halfway)
+    keep = steps.keep
+    return float(np.sum(half[keep] ** 2) + SWING_WEIGHT * np.sum(swing[keep] ** 2))
+
+
+def _choice_steps(n_frames: int, max_steps: int = MAX_CHOICE_STEPS) -> NDArray[np.intp]:
+    """First frames of the steps a choice is made on: every step, or ``max_steps`` evenly
+    spread over the take."""
+    if n_frames - 1 <= max_steps:
+        return np.arange(max(n_frames - 1, 0))
+    return np.unique(np.linspace(0, n_frames - 2, max_steps).astype(np.intp))
+
+
+@dataclass(frozen=True, eq=False)
+class NodeChannels:
+    """Rotation channels of BVH nodes and the rest orientation each is written against.
+
+    Attributes
+    ----------
+    channels : tuple of tuple of str
+        Per node, e.g. ``("Xrotation", "Zrotation", "Yrotation")``.
+    values : ndarray, shape (F, N, 3)
+        Degrees in channel order, continuous over frames (:func:`continuous_euler`).
+    rest : ndarray, shape (N, 4)
+        Per node, the constant rotation ``C`` from the node's BVH frame to the frame its
+        given rotation is of (scalar-last quaternion): the node's world orientation in the
+        file is ``given(t) · C``; identity where the given frame is kept.
+    """
+
+    channels: tuple[tuple[str, ...], ...]
+    values: NDArray[np.float64]
+    rest: NDArray[np.float64]
+
+
+def _orders(order: str | None) -> tuple[str, ...]:
+    if order is not None and order not in EULER_ORDERS:
+        raise InputError(f"Euler order must be one of {', '.join(EULER_ORDERS)}, got "
+                         f"{order!r}", field="euler_order")
+    return EULER_ORDERS if order is None else (order,)
+
+
+def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: bool
+                   ) -> tuple[NDArray[np.float64], str]:
+    """The rest rotation (identity, or the inverse of the mean of ``seen`` (F, 4), scalar
+    last) and the Euler order whose channels of ``seen · rest`` cost least
+    (:func:`_step_cost`, ties to the first)."""
+    from scipy.spatial.transform import Rotation
+
+    rests = [np.array([0.0, 0.0, 0.0, 1.0])]
+    if centre and len(seen) > 1:
+        rests.append(Rotation.from_quat(seen).mean().inv().as_quat())
+    first = _choice_steps(len(seen))
+    costs, options = [], []
+    for rest in rests:
+        steps = _Steps.of(_quat_multiply(seen[first], rest[None]),
+                          _quat_multiply(seen[first + 1], rest[None]))
+        for order in orders:
+            costs.append(_step_cost(steps, order))
+            options.append((rest, order))
+    cost = np.array(costs)
+    return options[int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0])]
+
+
+def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Rotation],
+                        order: str | None = None, *, centre: bool = True) -> NodeChannels:
+    """BVH rotation channels of a tree of nodes, with an Euler order and a constant rest
+    rotation per node chosen so that players interpolating the channels follow the motion.
+
+    Node n's channels hold ``L(t) = C_pᵀ · given(t) · C_n`` (``C_p`` its parent's rest
+    rotation, identity for the root). ``C_n`` is identity (the given frame) or, with
+    ``centre``, the inverse of the mean of ``C_pᵀ · given(t)`` over the take, which centres
+    the channels on zero: the middle angle then stays within the node's swing about its mean
+    pose from ±90°, gimbal lock. Of the two rest rotations and the six orders of
+    :data:`EULER_ORDERS` (or ``order``), each node, parents first, takes the one with the
+    least sum of the squared :func:`half_frame_error` plus ``SWING_WEIGHT`` times the squared
+    channel swing beyond the node's turn, over the steps of the take that are not jumps
+    (:data:`JUMP_DEG`; at most :data:`MAX_CHOICE_STEPS` steps, evenly sampled); ties within
+    0.1 % go to the given frame and the first order listed.
+
+    Parameters
+    ----------
+    parents : sequence of int
+        Parent of each node (an earlier index), -1 for a root.
+    rotations : list of Rotation
+        Per node, its rotation (length F) relative to its parent's given frame.
+    order : str, optional
+        One intrinsic order for every node instead of the choice per node.
+    centre : bool
+        Whether rest rotations other than identity may be chosen.
+
+    Returns
+    -------
+    NodeChannels
+
+    Notes
+    -----
+    A player keys each channel and interpolates it linearly; the midpoint of two keys turns
+    away from the shortest-path halfway rotation by an amount that grows with the Euler
+    chart's curvature, unbounded at gimbal lock (Shoemake, "Animating rotation with
+    quaternion curves", SIGGRAPH 1985). A constant change of each node's frame (a rest
+    pose) moves the take into the well-conditioned part of the chart.
+    """
+    from scipy.spatial.transform import Rotation
+
+    orders = _orders(order)
+    rests: list[NDArray[np.float64]] = []
+    chosen: list[tuple[NDArray[np.float64], str]] = []
+    for n, rotation in enumerate(rotations):
+        above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
+        seen = _quat_multiply(_conjugate(above)[None], rotation.as_quat())
+        rest, best = _best_channels(seen, orders, centre)
+        rests.append(rest)
+        chosen.append((_quat_multiply(seen, rest[None]), best))
+    values = [continuous_euler(euler_degrees(Rotation.from_quat(local), o))
+              for local, o in chosen]
+    return NodeChannels(
+        channels=tuple(tuple(f"{axis}rotation" for axis in o) for _, o in chosen),
+        values=np.stack(values, axis=1) if values else np.zeros((0, 0, 3)),
+        rest=np.array(rests).reshape(-1, 4))
 
 
 def euler_channels(rotations: list[Rotation], order: str | None = None
                    ) -> tuple[list[tuple[str, ...]], NDArray[np.float64]]:
     """BVH rotation channels of several nodes' local rotations, an Euler order per node.
 
-    Each node gets the order of :data:`EULER_ORDERS` whose channels follow the motion best:
-    the least sum over frames of the squared :func:`half_frame_error` (channels
-    interpolated linearly, as players do, against the true halfway rotation) plus, weighted
-    by ``SWING_WEIGHT`` (0.01), the squared swing of a channel beyond the node's own turn
-    between the frames (the first listed wins ties within 0.1 %). That puts a knee's or
-    elbow's flexion on an outer axis, never on the middle one, whose ±90° is gimbal lock:
-    there the outer channels swing by up to 180° while the joint turns a few degrees, and
-    players interpolating them go astray.
+    Each node gets the order of :data:`EULER_ORDERS` whose channels follow the motion best
+    (:func:`rest_euler_channels` without rest rotations): that puts a knee's or elbow's
+    flexion on an outer axis, never on the middle one, whose ±90° is gimbal lock: there the
+    outer channels swing by up to 180° while the joint turns a few degrees, and players
+    interpolating them go astray.
 
     Parameters
     ----------
@@ -585,39 +847,8 @@ def euler_channels(rotations: list[Rotation], order: str | None = None
     values : ndarray, shape (F, N, 3)
         Degrees in channel order, continuous over frames (:func:`continuous_euler`).
     """
-    if order is not None and order not in EULER_ORDERS:
-        raise InputError(f"Euler order must be one of {', '.join(EULER_ORDERS)}, got "
-                         f"{order!r}", field="euler_order")
-    orders = EULER_ORDERS if order is None else (order,)
-    raw = np.stack([np.stack([rot.as_euler(o, degrees=True) for o in orders], axis=1)
-                    for rot in rotations], axis=1)  # (F, N, orders, 3)
-    angles = continuous_euler(raw)
-    chosen = []
-    for n, rot in enumerate(rotations):
-        cost = np.array([_order_cost(rot, angles[:, n, k], o) for k, o in enumerate(orders)])
-        chosen.append(int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0]))
-    channels = [tuple(f"{axis}rotation" for axis in orders[k]) for k in chosen]
-    values = np.stack([angles[:, n, k] for n, k in enumerate(chosen)], axis=1)
-    return channels, values
-
-
-SWING_WEIGHT = 0.01
-"""Weight of the squared channel swing against the squared half-frame error in the choice
-of an Euler order: the swing (tens of degrees near gimbal lock) outweighed the half-frame
-error 50:1 at equal weight and chose, for a dancer's shoulder, an order 2.3x further off at
-half frames (9.2° against 4.0°); it now decides between orders that play back alike."""
-
-
-def _order_cost(rotation: Rotation, angles: NDArray[np.float64], order: str) -> float:
-    """Sum over frames of the squared half-frame error and, weighted by ``SWING_WEIGHT``,
-    the squared channel swing beyond the node's own turn (degrees²): both grow near gimbal
-    lock."""
-    if len(angles) < 2:
-        return 0.0
-    turn = np.degrees((rotation[:-1].inv() * rotation[1:]).magnitude())
-    swing = np.abs(np.diff(angles, axis=0)).max(axis=1) - turn
-    half = half_frame_error(rotation, angles, order)
-    return float(np.sum(half ** 2) + SWING_WEIGHT * np.sum(np.maximum(swing, 0.0) ** 2))
+    out = rest_euler_channels([-1] * len(rotations), rotations, order, centre=False)
+    return list(out.channels), out.values
 
 
 def euler_order_for(rotation: Rotation) -> str:
@@ -693,20 +924,31 @@ def aiming_rotations(vectors: NDArray[np.float64]) -> tuple[NDArray[np.float64],
     length = np.linalg.norm(vectors, axis=-1)
     valid = length > 1e-9 * max(float(length.max(initial=0.0)), 1.0)
     unit = np.where(valid[..., None], vectors / np.where(valid, length, 1.0)[..., None], 0.0)
-    first = np.argmax(valid, axis=0)
-    bones = np.arange(vectors.shape[1])
-    direction = np.where(valid.any(axis=0)[:, None], unit[first, bones], [0.0, 1.0, 0.0])
-    out = np.empty((*vectors.shape[:2], 4))
-    current = np.tile([0.0, 0.0, 0.0, 1.0], (vectors.shape[1], 1))
-    prev = direction.copy()
-    for t in range(len(vectors)):
-        step = _shortest_arc(prev, unit[t])
-        step[~valid[t]] = [0.0, 0.0, 0.0, 1.0]
-        current = _quat_multiply(step, current)
-        current /= np.linalg.norm(current, axis=-1, keepdims=True)
-        prev = np.where(valid[t][:, None], unit[t], prev)
-        out[t] = current
-    return out, direction * length.mean(axis=0)[:, None]
+    n_frames, n_bones = vectors.shape[:2]
+    bones = np.arange(n_bones)
+    direction = np.where(valid.any(axis=0)[:, None], unit[np.argmax(valid, axis=0), bones],
+                         [0.0, 1.0, 0.0])
+    # the direction each frame turns from: the last valid one before it (forward filled)
+    last = np.maximum.accumulate(np.where(valid, np.arange(n_frames)[:, None], -1), axis=0)
+    before = np.concatenate([np.full((1, n_bones), -1), last[:-1]])
+    prev = np.where((before >= 0)[..., None], unit[np.maximum(before, 0), bones], direction)
+    steps = _shortest_arc(prev.reshape(-1, 3), unit.reshape(-1, 3)).reshape(-1, n_bones, 4)
+    steps[~valid] = [0.0, 0.0, 0.0, 1.0]
+    return _cumulative_product(steps), direction * length.mean(axis=0)[:, None]
+
+
+def _cumulative_product(steps: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Quaternions (F, B, 4), scalar last: ``out[t] = steps[t] · … · steps[0]``, by a prefix
+    scan in log₂ F vectorised products (renormalised after each)."""
+    out = steps.copy()
+    span = 1
+    while span < len(out):
+        later, earlier = out[span:].reshape(-1, 4), out[:-span].reshape(-1, 4)
+        product = _quat_multiply(later, earlier)
+        product /= np.linalg.norm(product, axis=-1, keepdims=True)
+        out[span:] = product.reshape(out[span:].shape)
+        span *= 2
+    return out
 
 
 def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -723,12 +965,12 @@ def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
 
 
 def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton products p·q of scalar-last quaternions (N, 4)."""
+    """Hamilton products p·q of scalar-last quaternions (N, 4) (either may be (1, 4))."""
     pv, pw = p[:, :3], p[:, 3:]
     qv, qw = q[:, :3], q[:, 3:]
-    out: NDArray[np.float64] = np.concatenate(
-        [pw * qv + qw * pv + np.cross(pv, qv),
-         pw * qw - np.einsum("ij,ij->i", pv, qv)[:, None]], axis=1)
+    vector = pw * qv + qw * pv + np.cross(pv, qv)
+    scalar = pw * qw - np.einsum("...j,...j->...", pv, qv)[:, None]
+    out: NDArray[np.float64] = np.concatenate([vector, scalar], axis=1)
     return out
 
 
@@ -764,6 +1006,88 @@ def bone_waypoints(start: NDArray[np.float64], end: NDArray[np.float64], *,
     normal /= np.maximum(np.linalg.norm(normal, axis=-1), 1e-12)[:, None]
     height = np.sqrt(np.maximum(link ** 2 - (length / 2) ** 2, 0.0))
     return [start, start + bone / 2 + height[:, None] * normal, end]
+
+
+@dataclass
+class _PointNodes:
+    """The nodes of a point-joint BVH as they are added: names, parents, OFFSETs, world and
+    local rotations (length F each) and which nodes are end sites."""
+
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[NDArray[np.float64]] = field(default_factory=list)
+    world: list[Rotation] = field(default_factory=list)
+    local: list[Rotation] = field(default_factory=list)
+    end_sites: set[int] = field(default_factory=set)
+
+    def add(self, name: str, parent: int, offset: NDArray[np.float64], rot: Rotation) -> int:
+        """Append a node turning to world rotation ``rot``; returns its index."""
+        self.names.append(name)
+        self.parents.append(parent)
+        self.offsets.append(offset)
+        self.local.append(rot if parent < 0 else self.world[parent].inv() * rot)
+        self.world.append(rot)
+        return len(self.names) - 1
+
+    def turn(self, node: int, rot: Rotation) -> None:
+        """Make node ``node`` (no children yet) turn to world rotation ``rot``."""
+        parent = self.parents[node]
+        self.world[node] = rot
+        self.local[node] = rot if parent < 0 else self.world[parent].inv() * rot
+
+
+@dataclass(frozen=True, eq=False)
+class _Bones:
+    """The bones of a point-joint tree: children per joint, the waypoints of each bone
+    (:func:`bone_waypoints`) and the aiming rotation and rest vector of each leg between
+    waypoints (:func:`aiming_rotations`), keyed by ((joint, child), leg)."""
+
+    kids: dict[int, list[int]]
+    points: dict[tuple[int, int], list[NDArray[np.float64]]]
+    aims: dict[tuple[tuple[int, int], int], tuple[Rotation, NDArray[np.float64]]]
+
+
+def _point_bones(positions: NDArray[np.float64], tree: list[int]) -> _Bones:
+    """Waypoints and aiming rotations of the bones of ``tree`` (parent per joint)."""
+    from scipy.spatial.transform import Rotation
+
+    kids: dict[int, list[int]] = {j: [] for j in range(len(tree))}
+    for j, p in enumerate(tree):
+        if p >= 0:
+            kids[p].append(j)
+    edges = [(j, k) for j in range(len(tree)) for k in kids[j]]
+    points = {edge: bone_waypoints(positions[:, edge[0]], positions[:, edge[1]])
+              for edge in edges}
+    legs = [(edge, i) for edge in edges for i in range(len(points[edge]) - 1)]
+    if not legs:
+        return _Bones(kids, points, {})
+    quats, rests = aiming_rotations(np.stack([points[e][i + 1] - points[e][i]
+                                              for e, i in legs], axis=1))
+    aims = {leg: (Rotation.from_quat(quats[:, n]), rests[n]) for n, leg in enumerate(legs)}
+    return _Bones(kids, points, aims)
+
+
+def _grow_point_nodes(nodes: _PointNodes, bones: _Bones, names: tuple[str, ...],
+                      joint: int, node: int) -> None:
+    """Add the nodes below ``joint`` (already node ``node``): a pivot per child where the
+    joint has several, a ``_bend`` node where a bone's length varies, the child, and an end
+    site under a leaf."""
+    kids = bones.kids[joint]
+    for k in kids:
+        aim, rest = bones.aims[((joint, k), 0)]
+        holder = node
+        if len(kids) > 1:
+            holder = nodes.add(f"{names[joint]}_to_{names[k]}", node, np.zeros(3), aim)
+        else:
+            nodes.turn(node, aim)
+        if len(bones.points[(joint, k)]) == 3:
+            bend, rest_bend = bones.aims[((joint, k), 1)]
+            holder, rest = nodes.add(f"{names[k]}_bend", holder, rest, bend), rest_bend
+        _grow_point_nodes(nodes, bones, names, k,
+                          nodes.add(names[k], holder, rest, nodes.world[holder]))
+    if not kids:
+        nodes.end_sites.add(nodes.add(f"{names[joint]}_end", node, np.zeros(3),
+                                      nodes.world[node]))
 
 
 def point_joint_bvh(names: tuple[str, ...], positions: NDArray[np.float64], root: int,
@@ -803,61 +1127,20 @@ def point_joint_bvh(names: tuple[str, ...], positions: NDArray[np.float64], root
     from scipy.spatial.transform import Rotation
 
     n_frames = positions.shape[0]
-    tree = rigid_tree(positions, root)
-    kids: dict[int, list[int]] = {j: [] for j in range(len(names))}
-    for j, p in enumerate(tree):
-        if p >= 0:
-            kids[p].append(j)
-    out_names: list[str] = []
-    out_parents: list[int] = []
-    offsets: list[NDArray[np.float64]] = []
-    world: list[Rotation] = []
-    locals_: list[Rotation] = []
-    end_sites: set[int] = set()
-
-    def add(name: str, parent: int, offset: NDArray[np.float64], rot: Rotation) -> int:
-        out_names.append(name)
-        out_parents.append(parent)
-        offsets.append(offset)
-        locals_.append(rot if parent < 0 else world[parent].inv() * rot)
-        world.append(rot)
-        return len(out_names) - 1
-
-    edges = [(j, k) for j in range(len(names)) for k in kids[j]]
-    points = {edge: bone_waypoints(positions[:, edge[0]], positions[:, edge[1]])
-              for edge in edges}
-    legs = [(edge, i) for edge in edges for i in range(len(points[edge]) - 1)]
-    quats, rests = aiming_rotations(np.stack([points[e][i + 1] - points[e][i]
-                                              for e, i in legs], axis=1))
-    aims = {leg: (Rotation.from_quat(quats[:, n]), rests[n]) for n, leg in enumerate(legs)}
-
-    def visit(j: int, node: int) -> None:
-        for k in kids[j]:
-            aim, rest = aims[((j, k), 0)]
-            holder = node
-            if len(kids[j]) > 1:
-                holder = add(f"{names[j]}_to_{names[k]}", node, np.zeros(3), aim)
-            else:
-                world[node] = aim
-                parent = out_parents[node]
-                locals_[node] = aim if parent < 0 else world[parent].inv() * aim
-            if len(points[(j, k)]) == 3:
-                bend, rest_bend = aims[((j, k), 1)]
-                holder, rest = add(f"{names[k]}_bend", holder, rest, bend), rest_bend
-            visit(k, add(names[k], holder, rest, world[holder]))
-        if not kids[j]:
-            end_sites.add(add(f"{names[j]}_end", node, np.zeros(3), world[node]))
-
-    visit(root, add(names[root], -1, np.zeros(3), Rotation.identity(n_frames)))
-    turning = [i for i in range(len(out_names)) if i not in end_sites]
-    rot_channels, angles = euler_channels([locals_[i] for i in turning])
-    channels: list[tuple[str, ...]] = [()] * len(out_names)
+    nodes = _PointNodes()
+    _grow_point_nodes(nodes, _point_bones(positions, rigid_tree(positions, root)), names,
+                      root, nodes.add(names[root], -1, np.zeros(3),
+                                      Rotation.identity(n_frames)))
+    turning = [i for i in range(len(nodes.names)) if i not in nodes.end_sites]
+    rot_channels, angles = euler_channels([nodes.local[i] for i in turning])
+    channels: list[tuple[str, ...]] = [()] * len(nodes.names)
     for i, chans in zip(turning, rot_channels, strict=True):
         channels[i] = chans
     channels[0] = ("Xposition", "Yposition", "Zposition", *channels[0])
     values = [positions[:, root], angles.reshape(n_frames, -1)]
-    return BvhMotion(tuple(out_names), tuple(out_parents), np.asarray(offsets, dtype=float),
-                     tuple(channels), float(frame_time), np.concatenate(values, axis=1))
+    return BvhMotion(tuple(nodes.names), tuple(nodes.parents),
+                     np.asarray(nodes.offsets, dtype=float), tuple(channels),
+                     float(frame_time), np.concatenate(values, axis=1))
 
 
 def fold_position_channels(motion: BvhMotion, *, atol: float = 1e-6) -> BvhMotion:

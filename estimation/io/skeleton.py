@@ -14,7 +14,7 @@ import math
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from ..bvh import BvhMotion, euler_channels, write_bvh
+from ..bvh import BvhMotion, rest_euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
 from ..numtext import JsonArray, fixed_blocks, json_blocks, plain, write_text_blocks
@@ -430,22 +430,74 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
     return p
 
 
+@dataclass(frozen=True, eq=False)
+class _Nodes:
+    """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
+    segment frame (metres) and, per node that turns, its rotation relative to its parent's
+    segment."""
+
+    names: tuple[str, ...]
+    parents: tuple[int, ...]
+    offsets: NDArray[np.float64]
+    local: dict[str, Rotation]
+
+
+def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
+    """Nodes in ``BVH_NODES`` order, end sites ``<node>_end`` after their parents."""
+    rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}
+    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
+    children: dict[str, list[str]] = {node: [] for node, _, _ in BVH_NODES}
+    for node, parent, _ in BVH_NODES:
+        if parent is not None:
+            children[parent].append(node)
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[NDArray[np.float64]] = []
+    local: dict[str, Rotation] = {"root": rotations["root"]}
+    stack: list[tuple[str, str | None]] = [("root", None)]
+    while stack:
+        node, parent = stack.pop()
+        parents.append(names.index(parent) if parent is not None else -1)
+        names.append(node)
+        if node.endswith("_end"):
+            segment, direction, default = END_SITES[node[:-4]]
+            offsets.append(np.asarray(direction, float) * float(
+                result.bone_lengths.get(segment, default)))
+            continue
+        if parent is None:
+            offsets.append(np.zeros(3))
+        else:
+            delta = positions[node] - positions[parent]
+            offsets.append(rotations[parent].inv().apply(delta).mean(axis=0))
+            local[node] = rotations[parent].inv() * rotations[node]
+        after = [*children[node], *([f"{node}_end"] if node in END_SITES else [])]
+        stack.extend((child, node) for child in reversed(after))
+    return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local)
+
+
+BVH_REST: Final[tuple[str, ...]] = ("auto", "segment")
+"""Rest poses of the skeleton BVH: per node the better playing of its segment frame and the
+take's mean pose (``auto``), or every node in its segment frame (``segment``)."""
+
+
 def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
-                    euler_order: str | None = None) -> BvhMotion:
+                    euler_order: str | None = None, rest: str = "auto") -> BvhMotion:
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
     shoulder → elbow → wrist (hand end site) per side; ``root`` → hip → knee → ankle (toe end
     site) per side. Each node turns with the segment it drives (root: pelvis, waist: spine,
     chest: chest, neck: head, shoulder: upper arm, elbow: forearm, wrist: hand, hip: thigh,
-    knee: shank, ankle: foot). In the rest pose every segment frame equals the world frame;
-    a node's OFFSET is the frame mean of ``R_seg(t)ᵀ (child(t) − joint(t))``, in the parent
-    node's segment frame. Rotation channels hold ``R_parent(t)⁻¹ R_seg(t)`` as intrinsic
-    Euler angles in degrees, in an order per node that keeps its channels off gimbal lock
-    (``bonefit.estimation.bvh.euler_channels``: a knee or elbow flexing about x gets x first or
-    last, never in the middle), unwrapped over time; the root's position channels hold the
-    ``root`` joint and its OFFSET is zero, so readers that add position channels to the
-    OFFSET (three.js) and readers that replace it (Blender) agree.
+    knee: shank, ankle: foot). A node's frame is its segment's frame turned by a constant rest
+    rotation ``C`` (``bonefit.estimation.bvh.rest_euler_channels``): identity (the segment frame,
+    upright, arms down, at rest) or the one that makes the take's mean pose of the node,
+    relative to its parent, the rest pose, whichever plays back better between frames.
+    A node's OFFSET is ``C_parentᵀ`` times the frame mean of ``R_seg(t)ᵀ (child(t) −
+    joint(t))``. Rotation channels hold ``C_parentᵀ R_parent(t)⁻¹ R_seg(t) C`` as intrinsic
+    Euler angles in degrees, in an order per node that keeps its channels off gimbal lock,
+    unwrapped over time; the root's position channels hold the ``root`` joint and its OFFSET
+    is zero, so readers that add position channels to the OFFSET (three.js) and readers that
+    replace it (Blender) agree.
 
     Parameters
     ----------
@@ -457,6 +509,9 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     euler_order : str, optional
         One intrinsic rotation order for every node (``"ZXY"`` was the only one before
         per-node orders) for tools that need a single order; by default per node.
+    rest : {"auto", "segment"}
+        ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
+        down, as before rest rotations), for tools that retarget from that pose.
 
     Returns
     -------
@@ -467,56 +522,35 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     ------
     InputError
         If a joint or orientation the hierarchy needs is missing or not finite, or
-        ``euler_order`` is not one of ``bonefit.estimation.bvh.EULER_ORDERS``.
+        ``euler_order`` is not one of ``bonefit.estimation.bvh.EULER_ORDERS``, or ``rest`` is not
+        one of ``BVH_REST``.
     """
+    if rest not in BVH_REST:
+        raise InputError(f"rest must be one of {', '.join(BVH_REST)}, got {rest!r}",
+                         field="rest")
     per_m = 1.0 / unit_scale(units)
-    rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}
-    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
-    children: dict[str, list[str]] = {node: [] for node, _, _ in BVH_NODES}
-    for node, parent, _ in BVH_NODES:
-        if parent is not None:
-            children[parent].append(node)
-
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[NDArray[np.float64]] = []
-    local: dict[str, Rotation] = {}
-
-    def add(name: str, parent: str | None, offset: NDArray[np.float64]) -> None:
-        parents.append(names.index(parent) if parent is not None else -1)
-        names.append(name)
-        offsets.append(offset * per_m)
-
-    def visit(node: str, parent: str | None) -> None:
-        if parent is None:
-            add(node, None, np.zeros(3))
-            local[node] = rotations[node]
-        else:
-            delta = positions[node] - positions[parent]
-            add(node, parent, rotations[parent].inv().apply(delta).mean(axis=0))
-            local[node] = rotations[parent].inv() * rotations[node]
-        for child in children[node]:
-            visit(child, node)
-        if node in END_SITES:
-            segment, direction, default = END_SITES[node]
-            length = float(result.bone_lengths.get(segment, default))
-            add(f"{node}_end", node, np.asarray(direction, dtype=float) * length)
-
-    visit("root", None)
-    turning = [name for name in names if name in local]
-    rot_channels, angles = euler_channels([local[name] for name in turning], euler_order)
-    by_node = dict(zip(turning, rot_channels, strict=True))
-    channels = tuple(by_node.get(name, ()) for name in names)
+    nodes = _skeleton_nodes(result)
+    turning = [j for j, name in enumerate(nodes.names) if name in nodes.local]
+    tree = tuple(turning.index(nodes.parents[j]) if nodes.parents[j] >= 0 else -1
+                 for j in turning)
+    chans = rest_euler_channels(tree, [nodes.local[nodes.names[j]] for j in turning],
+                                euler_order, centre=rest == "auto")
+    frame = np.tile([0.0, 0.0, 0.0, 1.0], (len(nodes.names), 1))
+    frame[turning] = chans.rest
+    above = frame[[max(p, 0) for p in nodes.parents]]
+    offsets = Rotation.from_quat(above).inv().apply(nodes.offsets) * per_m
+    by_node = dict(zip(turning, chans.channels, strict=True))
+    channels = tuple(by_node.get(j, ()) for j in range(len(nodes.names)))
     channels = ((*ROOT_POSITION_CHANNELS, *channels[0]), *channels[1:])
-    values = np.concatenate([positions["root"] * per_m,
-                             angles.reshape(len(angles), -1)], axis=1)
-    return BvhMotion(tuple(names), tuple(parents), np.asarray(offsets, dtype=float),
-                     channels, 1.0 / float(result.fps), values)
+    values = np.concatenate([_joint(result, "root") * per_m,
+                             chans.values.reshape(result.n_frames, -1)], axis=1)
+    return BvhMotion(nodes.names, nodes.parents, offsets, channels, 1.0 / float(result.fps),
+                     values)
 
 
 def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
                        units: str = "cm", precision: int = 6,
-                       euler_order: str | None = None) -> None:
+                       euler_order: str | None = None, rest: str = "auto") -> None:
     """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
 
     Parameters
@@ -529,6 +563,9 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
         Decimal places of offsets and channel values.
     euler_order : str, optional
         One rotation order for every node instead of per-node orders.
+    rest : {"auto", "segment"}
+        Rest pose: per node the better playing of segment frame and mean pose, or every
+        node in its segment frame.
     """
-    write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order), path,
+    write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest), path,
               precision=precision)

@@ -9,6 +9,7 @@ the midpoint of the JSON's neighbouring frames.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -18,12 +19,14 @@ from scipy.spatial.transform import Rotation
 
 from bonefit.estimation.bvh import (
     EULER_ORDERS,
+    JUMP_DEG,
     BvhMotion,
     continuous_euler,
     euler_channels,
     fold_position_channels,
     forward_kinematics,
     half_frame_error,
+    jump_steps,
     point_joint_bvh,
     read_bvh,
     write_bvh,
@@ -126,15 +129,30 @@ def test_skeleton_bvh_read_by_independent_readers_matches_the_json(
     assert np.linalg.norm(got - want, axis=-1).max() < 1e-3
 
 
-def half_frame_error_mm(result: SkeletonResult, order: str | None = None) -> float:
-    """Largest distance (mm) between the BVH posed at half frames, channels interpolated
-    linearly as Blender keys them, and the midpoint of the JSON's neighbouring frames."""
-    motion = skeleton_to_bvh(result, euler_order=order)
+def half_frame_errors_mm(result: SkeletonResult, order: str | None = None,
+                         rest: str = "auto") -> NDArray[np.float64]:
+    """Distance (mm, per step and joint) between the BVH posed at half frames, channels
+    interpolated linearly as Blender keys them, and the midpoint of the JSON's neighbouring
+    frames."""
+    motion = skeleton_to_bvh(result, euler_order=order, rest=rest)
     half = motion.with_values((motion.values[:-1] + motion.values[1:]) / 2)
     positions, _ = forward_kinematics(half)
     got = positions[:, [motion.index(j) for j in JOINTS]] / 100.0
     want = np.stack([result.joints[j] for j in JOINTS], axis=1)
-    return float(np.linalg.norm(got - (want[:-1] + want[1:]) / 2, axis=-1).max() * 1000)
+    return np.asarray(np.linalg.norm(got - (want[:-1] + want[1:]) / 2, axis=-1) * 1000)
+
+
+def json_jumps(result: SkeletonResult) -> NDArray[np.bool_]:
+    """Steps where a segment of the JSON turns by more than ``JUMP_DEG``."""
+    return jump_steps([Rotation.from_quat(q, scalar_first=True)
+                       for q in result.orientations.values()])
+
+
+def half_frame_error_mm(result: SkeletonResult, order: str | None = None,
+                        rest: str = "auto") -> float:
+    """Largest half-frame error (mm) over the steps that are not jumps in the JSON."""
+    errors = half_frame_errors_mm(result, order, rest)
+    return float(errors[~json_jumps(result)].max())
 
 
 @pytest.mark.parametrize("make", [lambda: rigid_result(n_frames=60, seed=2),
@@ -142,14 +160,16 @@ def half_frame_error_mm(result: SkeletonResult, order: str | None = None) -> flo
                                   flexing_result], ids=["random", "turning", "flexing"])
 def test_half_frames_interpolated_like_blender_stay_within_10_mm(make: object) -> None:
     assert callable(make)
-    assert half_frame_error_mm(make()) < 10.0
+    result = make()
+    assert not json_jumps(result).any()
+    assert half_frame_error_mm(result) < 10.0
 
 
 def test_knee_and_elbow_flexion_is_kept_off_the_middle_axis() -> None:
     result = flexing_result()
     # the clip is one where a single Z-X-Y order fails (flexion on the middle axis)
-    assert half_frame_error_mm(result, "ZXY") > 10.0
-    motion = skeleton_to_bvh(result)
+    assert half_frame_error_mm(result, "ZXY", rest="segment") > 10.0
+    motion = skeleton_to_bvh(result, rest="segment")
     local = motion.local_rotations()
     for node in ("l_knee", "r_knee", "l_elbow", "r_elbow"):
         j = motion.index(node)
@@ -158,6 +178,147 @@ def test_knee_and_elbow_flexion_is_kept_off_the_middle_axis() -> None:
         step = np.abs(np.diff(motion.channel_values(j), axis=0)).max(axis=1)
         turn = np.degrees((local[j][:-1].inv() * local[j][1:]).magnitude())
         assert np.all(step <= 2.0 * turn + 0.5), node
+
+
+@pytest.mark.parametrize("n_frames", [30, 40, 60])
+def test_a_rest_rotation_takes_one_euler_order_off_gimbal_lock(n_frames: int) -> None:
+    # knees and elbows flexing 0-135 deg about x: on Z-X-Y's middle axis, through its
+    # gimbal lock at 90 deg; centred on the mean flexion the channels stay within 70 deg
+    result = flexing_result(n_frames)
+    assert half_frame_error_mm(result, "ZXY", rest="segment") > 10.0
+    assert half_frame_error_mm(result, "ZXY") <= 10.0
+    motion = skeleton_to_bvh(result, euler_order="ZXY")
+    positions, _ = forward_kinematics(motion)
+    got = positions[:, [motion.index(j) for j in JOINTS]] / 100.0
+    want = np.stack([result.joints[j] for j in JOINTS], axis=1)
+    assert np.abs(got - want).max() < 1e-9  # the keyframes are untouched
+    # the rest pose changed: the shank (the ankle's OFFSET in the knee's frame) is bent
+    shank = motion.offsets[motion.index("l_ankle")]
+    assert abs(shank[1]) < 0.99 * np.linalg.norm(shank)
+
+
+AXIS = {"X": 0, "Y": 1, "Z": 2}
+
+
+def through_gimbal_locks(mean: Rotation, miss: NDArray[np.float64], leg: int = 12
+                         ) -> Rotation:
+    """Swings from ``mean`` through (within ``miss[k]``, rotation vectors) the gimbal lock
+    of order k nearest to it, 1.4 times as far, and back, for each of the six orders."""
+    ease = (1 - np.cos(np.pi * np.arange(leg) / leg)) / 2
+    keys = [mean]
+    for k, order in enumerate(EULER_ORDERS):
+        last, first = mean.apply(np.eye(3)[AXIS[order[2]]]), np.eye(3)[AXIS[order[0]]]
+        first = first if last @ first >= 0 else -first  # lock: the last axis on the first
+        arc = np.cross(last, first)
+        arc *= 1.4 * np.arccos(np.clip(last @ first, -1, 1)) / np.linalg.norm(arc)
+        keys += [Rotation.from_rotvec(miss[k]) * Rotation.from_rotvec(arc) * mean, mean]
+    legs = [a * Rotation.from_rotvec(np.outer(ease, (a.inv() * b).as_rotvec()))
+            for a, b in itertools.pairwise(keys)]
+    return Rotation.concatenate(legs)
+
+
+def gimbal_lock_result(seed: int, fps: float = 30.0) -> SkeletonResult:
+    """A rigid result whose left upper arm, about a mean pose as far from every order's
+    well-conditioned region as any (a half turn about the diagonal: each order's middle
+    angle is 42 deg there), passes by the gimbal lock of every Euler order."""
+    rng = np.random.default_rng(seed)
+    mean = (Rotation.from_rotvec(rng.normal(scale=0.1, size=3))
+            * Rotation.from_rotvec(np.pi * np.ones(3) / np.sqrt(3)))
+    miss = rng.normal(size=(6, 3))  # 3 deg off each lock, in a random direction
+    arm = through_gimbal_locks(mean, np.radians(3.0) * miss / np.linalg.norm(miss, axis=1,
+                                                                             keepdims=True))
+    t = np.arange(len(arm))[:, None] / fps
+    orient = {seg: Rotation.from_rotvec(0.1 * np.sin(3 * t + len(seg)) * [1, 0, 1])
+              for seg in [*SEGMENTS, "spine", "cervical"]}
+    orient["l_upperarm"] = orient["chest"] * arm
+    orient["l_forearm"] = orient["l_hand"] = orient["l_upperarm"] * Rotation.from_rotvec(
+        np.outer(0.3 * np.sin(2 * t[:, 0]), [1.0, 0.0, 0.0]))
+    return result_of(orient, fps)
+
+
+def result_of(orient: dict[str, Rotation], fps: float) -> SkeletonResult:
+    """A rigid result with these segment orientations (rest vectors of ``REST``)."""
+    n_frames = len(orient["pelvis"])
+    joints = {"root": np.array([0.1, 0.95, 0.0])
+              + np.linspace(0, 1, n_frames)[:, None] * np.array([0.4, 0.0, 0.8])}
+    for node, parent, _ in BVH_NODES[1:]:
+        assert parent is not None
+        joints[node] = joints[parent] + orient[DRIVER[parent]].apply(REST[node])
+    return SkeletonResult(
+        method="llsf", fps=fps, joints={j: joints[j] for j in JOINTS},
+        offsets=rigid_result(n_frames=2).offsets, bone_lengths={},
+        orientations={s: r.as_quat(scalar_first=True) for s, r in orient.items()},
+        quality={})
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_rest_rotations_play_back_every_order_past_its_gimbal_lock(seed: int) -> None:
+    result = gimbal_lock_result(seed)
+    centred = {o: half_frame_error_mm(result, o) for o in EULER_ORDERS}
+    assert max(centred.values()) <= 10.0, centred
+    assert half_frame_error_mm(result) <= 10.0
+    # in the segment frames at least one order goes astray near its lock
+    assert max(half_frame_error_mm(result, o, rest="segment") for o in EULER_ORDERS) > 10.0
+
+
+def test_a_t_pose_frame_before_the_take_is_a_reported_jump() -> None:
+    take = flexing_result(40)
+    orient = {s: Rotation.from_quat(q, scalar_first=True) for s, q in take.orientations.items()}
+    # frame 0: every segment in its rest frame (a T-pose-like calibration frame), then the take
+    # from a pelvis turned half way round
+    turned = {s: Rotation.concatenate([Rotation.identity(1),
+                                       Rotation.from_euler("y", [150.0], degrees=True) * r])
+              for s, r in orient.items()}
+    result = result_of(turned, take.fps)
+    jumps = json_jumps(result)
+    assert jumps.tolist() == [True] + [False] * 39
+    errors = half_frame_errors_mm(result)
+    assert errors[0].max() > 100.0  # no interpolation of rotations follows a 150 deg jump
+    assert errors[1:].max() <= 10.0
+    # the jump does not steer the writer: the take plays back as well as without that frame
+    alone = result_of({s: r[1:] for s, r in turned.items()}, take.fps)
+    assert errors[1:].max() <= half_frame_errors_mm(alone).max() + 1.0
+    assert JUMP_DEG == 60.0
+
+
+def sequential_continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Frame by frame: of the triple and its twin, wrapped, the one nearest the previous."""
+    twin = angles + np.array([180.0, 0.0, 180.0])
+    twin[..., 1] = 180.0 - angles[..., 1]
+    out = angles.copy()
+    for i in range(1, len(angles)):
+        a = angles[i] - 360.0 * np.round((angles[i] - out[i - 1]) / 360.0)
+        b = twin[i] - 360.0 * np.round((twin[i] - out[i - 1]) / 360.0)
+        nearer = np.abs(b - out[i - 1]).sum(axis=-1) < np.abs(a - out[i - 1]).sum(axis=-1)
+        out[i] = np.where(nearer[..., None], b, a)
+    return out
+
+
+@pytest.mark.parametrize("order", ["ZXY", "YZX"])
+def test_vectorised_continuous_euler_matches_frame_by_frame(order: str) -> None:
+    rng = np.random.default_rng(5)
+    # random walks through the whole sphere, gimbal lock included
+    walk = np.cumsum(rng.normal(scale=0.25, size=(400, 5, 3)), axis=0)
+    angles = Rotation.from_rotvec(walk.reshape(-1, 3)).as_euler(order, degrees=True)
+    angles = angles.reshape(400, 5, 3)
+    out = continuous_euler(angles)
+    np.testing.assert_allclose(out, sequential_continuous_euler(angles), atol=1e-9)
+    assert np.abs(np.diff(out, axis=0)).max() <= 180.0
+    back = Rotation.from_euler(order, out.reshape(-1, 3), degrees=True)
+    np.testing.assert_allclose(
+        (back.inv() * Rotation.from_rotvec(walk.reshape(-1, 3))).magnitude(), 0.0, atol=1e-9)
+
+
+def test_the_segment_rest_pose_keeps_segment_frames_and_a_bad_rest_is_refused() -> None:
+    result = flexing_result(30)
+    auto, segment = skeleton_to_bvh(result), skeleton_to_bvh(result, rest="segment")
+    ankle = segment.index("l_ankle")
+    np.testing.assert_allclose(segment.offsets[ankle], np.asarray(REST["l_ankle"]) * 100.0,
+                               atol=1e-9)
+    assert not np.allclose(auto.offsets[ankle], segment.offsets[ankle], atol=1.0)
+    with pytest.raises(InputError, match="rest must be one of") as err:
+        skeleton_to_bvh(result, rest="tpose")
+    assert err.value.field == "rest"
 
 
 def test_a_swinging_shoulder_gets_the_order_players_interpolate_best() -> None:

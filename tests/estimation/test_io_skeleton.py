@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -13,7 +14,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from bonefit.estimation.bvh import forward_kinematics, read_bvh
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh
 from bonefit.estimation.errors import InputError
 from bonefit.estimation.io.skeleton import (
     BVH_NODES,
@@ -105,6 +106,13 @@ def test_bvh_reproduces_a_rigid_result_within_a_millimetre(tmp_path: Path) -> No
         assert err.max() < 1e-5, joint  # only the 6-decimal rounding of the file
 
 
+def read_bvh_text(result: SkeletonResult, **options: str) -> BvhMotion:
+    """``result`` written as BVH text with ``options`` and read back."""
+    buf = io.StringIO()
+    write_skeleton_bvh(result, buf, **options)
+    return read_bvh(io.StringIO(buf.getvalue()))
+
+
 def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
     result = rigid_result(jitter=0.005, seed=3)
     write_skeleton_bvh(result, tmp_path / "s.bvh")
@@ -118,11 +126,15 @@ def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
         assert parent is not None
         local = rot[parent].inv().apply(result.joints[node] - result.joints[parent]).mean(0)
         expect[node] = expect[parent] + rot[parent].apply(local)
+    _, segment_frames = forward_kinematics(read_bvh_text(result, rest="segment"))
     for node in DRIVER:
         j = motion.index(node)
         np.testing.assert_allclose(positions[:, j] / 100, expect[node], atol=1e-5)
-        # every node turns with the segment it drives
-        assert (rotations[j].inv() * rot[node]).magnitude().max() < 1e-5
+        # every node turns with the segment it drives: by a constant rest rotation, none
+        # with rest="segment"
+        rest = rot[node].inv() * rotations[j]
+        assert (rest[0].inv() * rest).magnitude().max() < 1e-5
+        assert (segment_frames[j].inv() * rot[node]).magnitude().max() < 1e-5
     # jitter makes the mean-offset skeleton differ from the raw joints, but by millimetres
     err = np.linalg.norm(positions[:, motion.index("l_ankle")] / 100
                          - result.joints["l_ankle"], axis=-1)
