@@ -13,9 +13,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("estimation", "service", "bonefit")
 MAX_LINES = 80
 
-# Functions still over the limit, in modules their owners are restructuring (issue 18 §1):
-# (file, qualified name) -> what is left to do. Remove an entry once the function is short (the test below
-# fails while a listed function is no longer too long). Do not add to this list.
+# Functions still over the limit (issue 18 §1): (file, qualified name) -> what is left to
+# split out. Remove an entry once the function is short (the test below fails while a listed
+# function is no longer too long). Do not add to this list.
 ALLOWED: dict[tuple[str, str], str] = {
     ("estimation/joints.py", "estimate_joint"): "the robust loop, priors and hinge decision",
     ("estimation/skeleton.py", "estimate_skeleton"): "the per-joint plan and the shared fit",

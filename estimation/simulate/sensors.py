@@ -402,14 +402,24 @@ def simulate_sensors(  # noqa: PLR0913
     positions[dropped] = np.nan
     quats[dropped] = np.nan
     recording = SensorRecording(segments, positions, quats, rate, time)
+    truth = _truth(joints, rotations, local, bones,
+                   dataset=detect_skeleton(motion) if mapping is None else "custom")
+    return recording, truth
+
+
+def _truth(joints: Mapping[str, NDArray[np.float64]], rotations: dict[str, Rotation],
+           local: dict[str, NDArray[np.float64]],
+           bones: Mapping[str, tuple[NDArray[np.float64], NDArray[np.float64]]], *,
+           dataset: str) -> SimulationTruth:
+    """The exact joints (with the derived ones), rotations, sensor offsets and bone lengths."""
     all_joints = dict(joints)
     all_joints.update(derived_joints(joints))
-    return recording, SimulationTruth(
+    return SimulationTruth(
         joints={j: all_joints[j] for j in JOINTS}, segment_rotations=rotations,
         sensor_local=local,
         bone_lengths={seg: float(np.linalg.norm(bones[seg][1] - bones[seg][0]))
                       for seg in _TRUE_BONES},
-        dataset=detect_skeleton(motion) if mapping is None else "custom")
+        dataset=dataset)
 
 
 _TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
