@@ -247,7 +247,7 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
     from bonefit.estimation import pipeline
-    from bonefit.estimation.io.skeleton import offsets_from_dict
+    from bonefit.estimation.io.result_json import offsets_from_dict
 
     source = inputs["recording"]
     out = {"json": outdir / "skeleton.json", "bvh": outdir / "skeleton.bvh",

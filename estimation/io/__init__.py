@@ -18,6 +18,13 @@ if TYPE_CHECKING:
         write_kinematics_csv,
         write_translation,
     )
+    from .result_json import (
+        offsets_from_dict,
+        offsets_to_dict,
+        result_from_dict,
+        skeleton_from_dict,
+        translation_from_dict,
+    )
     from .sensors import (
         RowCounter,
         example_path,
@@ -27,10 +34,8 @@ if TYPE_CHECKING:
         write_sensor_npz,
     )
     from .skeleton import (
-        offsets_from_dict,
         read_skeleton_json,
         read_skeleton_offsets,
-        skeleton_from_dict,
         skeleton_to_bvh,
         skeleton_to_dict,
         write_skeleton_bvh,
@@ -52,6 +57,7 @@ __all__ = [
     "detect_tracker_layout",
     "example_path",
     "offsets_from_dict",
+    "offsets_to_dict",
     "parse_stations",
     "parse_tracker_layout",
     "read_kinematics",
@@ -59,11 +65,13 @@ __all__ = [
     "read_skeleton_json",
     "read_skeleton_offsets",
     "read_tracker_ascii",
+    "result_from_dict",
     "skeleton_from_dict",
     "skeleton_to_bvh",
     "skeleton_to_dict",
     "sniff_kinematics",
     "sniff_recording",
+    "translation_from_dict",
     "translation_to_dict",
     "write_kinematics_csv",
     "write_sensor_csv",
@@ -82,7 +90,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
                 "sniff_recording", "write_sensor_csv", "write_sensor_npz"),
     "tracker": ("TrackerLayout", "detect_tracker_layout", "parse_stations",
                 "parse_tracker_layout", "read_tracker_ascii"),
-    "skeleton": ("offsets_from_dict", "read_skeleton_json", "read_skeleton_offsets",
-                 "skeleton_from_dict", "skeleton_to_bvh", "skeleton_to_dict",
-                 "write_skeleton_bvh", "write_skeleton_csv", "write_skeleton_json"),
+    "result_json": ("offsets_from_dict", "offsets_to_dict", "result_from_dict",
+                    "skeleton_from_dict", "translation_from_dict"),
+    "skeleton": ("read_skeleton_json", "read_skeleton_offsets", "skeleton_to_bvh",
+                 "skeleton_to_dict", "write_skeleton_bvh", "write_skeleton_csv",
+                 "write_skeleton_json"),
 })
