@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from .orientations import estimate_orientations
     from .progress import Progress
     from .recording import SensorRecording
-    from .results import JointOffset, JointQuality, SkeletonResult
+    from .results import JointOffset, JointQuality, SkeletonResult, TranslationResult
     from .skeleton import (
         estimate_chest,
         estimate_root,
@@ -38,12 +38,7 @@ if TYPE_CHECKING:
         estimate_skeleton_from_offsets,
     )
     from .slip import SlipFit, estimate_slip, rotation_noise_variance
-    from .translation import (
-        ContactOptions,
-        HachajOptions,
-        TranslationResult,
-        estimate_translation,
-    )
+    from .translation import ContactOptions, HachajOptions, estimate_translation
 
 __all__ = [
     "DROPPED_IN_REDUCED",
@@ -97,10 +92,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "orientations": ("estimate_orientations",),
     "progress": ("Progress",),
     "recording": ("SensorRecording",),
-    "results": ("JointOffset", "JointQuality", "SkeletonResult"),
+    "results": ("JointOffset", "JointQuality", "SkeletonResult", "TranslationResult"),
     "skeleton": ("estimate_chest", "estimate_root", "estimate_skeleton",
                  "estimate_skeleton_from_offsets"),
     "slip": ("SlipFit", "estimate_slip", "rotation_noise_variance"),
-    "translation": ("ContactOptions", "HachajOptions", "TranslationResult",
-                    "estimate_translation"),
+    "translation": ("ContactOptions", "HachajOptions", "estimate_translation"),
 })

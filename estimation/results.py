@@ -1,4 +1,5 @@
-"""Result of skeleton estimation."""
+"""Results of skeleton and root-translation estimation (numpy only: the client reads them
+from the JSON documents without scipy)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
+
+from .errors import InputError
 
 TIMING_STAGES: Final[tuple[str, ...]] = ("read_s", "estimate_s", "write_s")
 """Stages every JSON result's ``timings`` names, in seconds (``docs/skeleton-io.md``)."""
@@ -176,3 +179,66 @@ class SkeletonResult:
     def n_frames(self) -> int:
         """Number of frames F."""
         return int(next(iter(self.joints.values())).shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class TranslationResult:
+    """A root path estimated for an inertial-suit recording.
+
+    Attributes
+    ----------
+    root : ndarray, shape (F, 3)
+        World position of the root joint (hips) per frame, metres, +Y up.
+    translation : ndarray, shape (F, 3)
+        Offset added to every joint of the input positions per frame, metres.
+    positions : ndarray, shape (F, J, 3), or None
+        Corrected global joint positions, metres, in the recording's joint order. None for
+        a result read from the translation JSON (``io.translation_from_dict``), which does
+        not carry them (J times the size of ``root``; the document has the feet's heights):
+        the writers that need them (BVH, kinematics CSV, MVNX) raise InputError then.
+    contacts : ndarray of str, shape (F,)
+        ``"left"``, ``"right"``, ``"both"`` or ``"none"`` per frame.
+    floor : ndarray, shape (F,)
+        Height of the floor under the body per frame, metres, in the frame of the foot
+        contact points (heel/toe joints, not the sole surface).
+    quality : dict
+        ``foot_skate_cm_s`` (mean horizontal speed of planted contact points),
+        ``floor_penetration_cm`` (deepest contact point below the floor),
+        ``max_vertical_jump_cm`` (largest frame-to-frame discontinuity of the hips height:
+        |Δy(t) − (Δy(t−1) + Δy(t+1))/2|), ``max_vertical_step_cm``, ``closure_cm``
+        (horizontal hips distance first→last frame), ``path_length_m`` (horizontal hips
+        path), ``contact_fraction`` and method-specific figures.
+    method : str
+    fps : float
+    timings : dict
+        Seconds per stage.
+
+    Notes
+    -----
+    Estimated by ``bonefit.estimation.translation.estimate_translation`` (Hachaj & Ogiela
+    2018, or the contact model; docs/translation.md).
+    """
+
+    root: NDArray[np.float64]
+    translation: NDArray[np.float64]
+    positions: NDArray[np.float64] | None
+    contacts: NDArray[np.str_]
+    floor: NDArray[np.float64]
+    quality: dict[str, Any]
+    method: str
+    fps: float
+    timings: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames F."""
+        return int(self.root.shape[0])
+
+    def joint_positions(self, purpose: str) -> NDArray[np.float64]:
+        """``positions``, or InputError saying that ``purpose`` needs them (a result read
+        from JSON has none)."""
+        if self.positions is None:
+            raise InputError(f"{purpose} needs every joint's position, which a translation "
+                             "read from JSON does not carry; write it from the estimate",
+                             field="positions")
+        return self.positions

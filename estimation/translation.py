@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time as _time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Final, NamedTuple
 
 import numpy as np
@@ -42,6 +42,7 @@ from .params import (
     check_number,
 )
 from .progress import Progress, no_progress
+from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
     body_heading,
     estimate_sensor_offset,
@@ -63,52 +64,6 @@ HACHAJ_WINDOW: Final[int] = 100
 
 HACHAJ_EPS_M: Final[float] = 0.05
 """Pass-2 threshold of the reference implementation (5 cm)."""
-
-
-@dataclass(frozen=True, eq=False)
-class TranslationResult:
-    """A root path estimated for an inertial-suit recording.
-
-    Attributes
-    ----------
-    root : ndarray, shape (F, 3)
-        World position of the root joint (hips) per frame, metres, +Y up.
-    translation : ndarray, shape (F, 3)
-        Offset added to every joint of the input positions per frame, metres.
-    positions : ndarray, shape (F, J, 3)
-        Corrected global joint positions, metres.
-    contacts : ndarray of str, shape (F,)
-        ``"left"``, ``"right"``, ``"both"`` or ``"none"`` per frame.
-    floor : ndarray, shape (F,)
-        Height of the floor under the body per frame, metres, in the frame of the foot
-        contact points (heel/toe joints, not the sole surface).
-    quality : dict
-        ``foot_skate_cm_s`` (mean horizontal speed of planted contact points),
-        ``floor_penetration_cm`` (deepest contact point below the floor),
-        ``max_vertical_jump_cm`` (largest frame-to-frame discontinuity of the hips height:
-        |Δy(t) − (Δy(t−1) + Δy(t+1))/2|), ``max_vertical_step_cm``, ``closure_cm``
-        (horizontal hips distance first→last frame), ``path_length_m`` (horizontal hips
-        path), ``contact_fraction`` and method-specific figures.
-    method : str
-    fps : float
-    timings : dict
-        Seconds per stage.
-    """
-
-    root: NDArray[np.float64]
-    translation: NDArray[np.float64]
-    positions: NDArray[np.float64]
-    contacts: NDArray[np.str_]
-    floor: NDArray[np.float64]
-    quality: dict[str, Any]
-    method: str
-    fps: float
-    timings: Mapping[str, float] = field(default_factory=dict)
-
-    @property
-    def n_frames(self) -> int:
-        """Number of frames F."""
-        return int(self.root.shape[0])
 
 
 # --------------------------------------------------------------------------- shared pieces

@@ -250,7 +250,7 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
     from bonefit.estimation import pipeline
-    from bonefit.estimation.io.skeleton import offsets_from_dict
+    from bonefit.estimation.io.result_json import offsets_from_dict
 
     source = inputs["recording"]
     out = {fmt: outdir / f"skeleton.{fmt}" for fmt in RESULT_FORMATS}

@@ -98,6 +98,21 @@ def test_public_names_resolve_and_load_lazily() -> None:
     run_fresh(code)
 
 
+def test_results_and_their_json_readers_load_without_scipy() -> None:
+    # the Python client reads result documents into these classes with numpy only; the
+    # names stay importable from where they were (the BVH writer's and estimator's modules)
+    run_fresh("import sys\n"
+              "from bonefit.estimation import SkeletonResult, TranslationResult\n"
+              "from bonefit.estimation.io import offsets_from_dict, result_from_dict\n"
+              "from bonefit.estimation.io import skeleton_from_dict, translation_from_dict\n"
+              "assert 'scipy' not in sys.modules\n"
+              "from bonefit.estimation.io import skeleton\n"
+              "from bonefit.estimation import translation\n"
+              "assert skeleton.skeleton_from_dict is skeleton_from_dict\n"
+              "assert skeleton.offsets_from_dict is offsets_from_dict\n"
+              "assert translation.TranslationResult is TranslationResult\n")
+
+
 def test_api_process_does_not_load_scipy() -> None:
     # uploads are sniffed in the API process: without scipy it needs ~40 MB less memory
     code = ("import sys, bonefit.cli, bonefit.service.app, bonefit.service.cli, "

@@ -8,8 +8,10 @@
         result = client.run("walk.csv", "skeleton", {"method": "auto"})
         print(result.bone_lengths["l_thigh"], result.joints["l_knee"].shape)
 
-:class:`AsyncClient` offers the same calls to ``await``. Every problem answer of the
-service is a :class:`ProblemError` carrying the RFC 9457 document.
+Results are the library's dataclasses (``bonefit.estimation.results.SkeletonResult``,
+``TranslationResult``), read from the JSON by the library's numpy-only reader
+(:func:`result_from_dict`). :class:`AsyncClient` offers the same calls to ``await``. Every
+problem answer of the service is a :class:`ProblemError` carrying the RFC 9457 document.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from .results import (
     Result,
     SkeletonResult,
     TranslationResult,
-    parse_result,
+    result_from_dict,
 )
 from .sync import Client
 from .transport import RetryPolicy
@@ -41,5 +43,5 @@ __all__ = [
     "RetryPolicy",
     "SkeletonResult",
     "TranslationResult",
-    "parse_result",
+    "result_from_dict",
 ]

@@ -12,7 +12,7 @@ import httpx
 
 from .. import __version__
 from .errors import ProblemError, problem_of
-from .results import Job, Recording, Result, parse_result
+from .results import Job, Recording, Result, result_from_dict
 from .sse import Event
 from .transport import auth_headers
 
@@ -83,7 +83,7 @@ def recording_of(response: httpx.Response) -> Recording:
 
 def result_of(content: bytes) -> Result:
     """The typed result of a result JSON download."""
-    return parse_result(json.loads(content))
+    return result_from_dict(json.loads(content))
 
 
 def check_succeeded(job: Job) -> Job:

@@ -18,6 +18,13 @@ if TYPE_CHECKING:
         write_kinematics_csv,
         write_translation,
     )
+    from .result_json import (
+        offsets_from_dict,
+        offsets_to_dict,
+        result_from_dict,
+        skeleton_from_dict,
+        translation_from_dict,
+    )
     from .sensors import (
         RowCounter,
         example_path,
@@ -27,11 +34,9 @@ if TYPE_CHECKING:
         write_sensor_npz,
     )
     from .skeleton import (
-        offsets_from_dict,
         read_skeleton_json,
         read_skeleton_npz,
         read_skeleton_offsets,
-        skeleton_from_dict,
         skeleton_to_bvh,
         skeleton_to_dict,
         write_skeleton_bvh,
@@ -54,6 +59,7 @@ __all__ = [
     "detect_tracker_layout",
     "example_path",
     "offsets_from_dict",
+    "offsets_to_dict",
     "parse_stations",
     "parse_tracker_layout",
     "read_kinematics",
@@ -62,11 +68,13 @@ __all__ = [
     "read_skeleton_npz",
     "read_skeleton_offsets",
     "read_tracker_ascii",
+    "result_from_dict",
     "skeleton_from_dict",
     "skeleton_to_bvh",
     "skeleton_to_dict",
     "sniff_kinematics",
     "sniff_recording",
+    "translation_from_dict",
     "translation_to_dict",
     "write_kinematics_csv",
     "write_sensor_csv",
@@ -86,8 +94,9 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
                 "sniff_recording", "write_sensor_csv", "write_sensor_npz"),
     "tracker": ("TrackerLayout", "detect_tracker_layout", "parse_stations",
                 "parse_tracker_layout", "read_tracker_ascii"),
-    "skeleton": ("offsets_from_dict", "read_skeleton_json", "read_skeleton_npz",
-                 "read_skeleton_offsets", "skeleton_from_dict", "skeleton_to_bvh",
-                 "skeleton_to_dict", "write_skeleton_bvh", "write_skeleton_csv",
-                 "write_skeleton_json", "write_skeleton_npz"),
+    "result_json": ("offsets_from_dict", "offsets_to_dict", "result_from_dict",
+                    "skeleton_from_dict", "translation_from_dict"),
+    "skeleton": ("read_skeleton_json", "read_skeleton_npz", "read_skeleton_offsets",
+                 "skeleton_to_bvh", "skeleton_to_dict", "write_skeleton_bvh",
+                 "write_skeleton_csv", "write_skeleton_json", "write_skeleton_npz"),
 })

@@ -508,7 +508,7 @@ def write_mvnx(result: TranslationResult, recording: KinematicsRecording,
     """
     if recording.source_path is None or recording.source_format != "mvnx":
         raise InputError("MVNX output needs an MVNX input", field="format")
-    corrected = y_up_to_z_up(result.positions)
+    corrected = y_up_to_z_up(result.joint_positions("an MVNX"))
     index = -1
     subject = -1
     in_normal = False

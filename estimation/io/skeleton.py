@@ -1,4 +1,5 @@
-"""Writers (JSON, CSV, BVH) and a JSON reader of skeleton results.
+"""Writers (JSON, CSV, BVH) and JSON file readers of skeleton results (the document
+readers, numpy only, are in ``io.result_json`` and importable from here).
 
 The JSON layout is a contract for scripted clients and is documented in
 ``docs/skeleton-io.md``; the BVH hierarchy is rooted at the ``root`` joint with one node per
@@ -26,13 +27,14 @@ from ..bvh import BvhMotion, rest_euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
 from ..numtext import JsonArray, fixed_blocks, json_blocks, plain, write_text_blocks
-from ..results import JointOffset, JointQuality, SkeletonResult, timings_document
+from ..results import JointOffset, SkeletonResult, timings_document
+from .result_json import SKELETON_KIND, offsets_to_dict
+from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
+from .result_json import skeleton_from_dict as skeleton_from_dict
 from .result_npz import read_document_npz, write_document_npz
 from .sensor_common import unit_scale
 
 PathLike = str | os.PathLike[str]
-
-JSON_KIND: Final[str] = "skeleton"
 
 BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = BVH_TREE
 """BVH joints as (node, parent node, segment whose orientation drives it), parents first."""
@@ -129,17 +131,13 @@ def skeleton_document(result: SkeletonResult, *, decimals: int = 6) -> dict[str,
     joints = {name: _rows(result.joints[name], decimals, f"joints.{name}")
               for name in _ordered(result.joints, JOINTS)}
     return {
-        "kind": JSON_KIND,
+        "kind": SKELETON_KIND,
         "method": result.method,
         "fps": float(result.fps),
         "frames": result.n_frames,
         "units": "m",
         "joints": joints,
-        "offsets": {name: {"sensor": off.sensor,
-                           "local": _rows(np.asarray(off.local)[None], decimals,
-                                          f"offsets.{name}").tolist()[0]}
-                    for name, off in ((n, result.offsets[n])
-                                      for n in _ordered(result.offsets, JOINTS))},
+        "offsets": offsets_to_dict(result.offsets, decimals=decimals),
         "bone_lengths": _json_safe(dict(result.bone_lengths)),
         "orientations": {name: _rows(q, decimals + 2, f"orientations.{name}")
                          for name, q in result.orientations.items()},
@@ -214,100 +212,6 @@ def _dump(document: Mapping[str, Any], path: PathLike | io.TextIOBase,
           indent: int | None) -> None:
     end = "" if isinstance(path, io.TextIOBase) else "\n"
     write_text_blocks(json_blocks(document, indent=indent), path, end=end)
-
-
-def _array(value: Any, shape_tail: tuple[int, ...], field: str) -> NDArray[np.float64]:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{field} must be numbers", field=field) from None
-    if arr.ndim != len(shape_tail) + 1 or arr.shape[1:] != shape_tail:
-        raise InputError(f"{field} must have shape (F, {', '.join(map(str, shape_tail))}), "
-                         f"got {arr.shape}", field=field)
-    return arr
-
-
-def skeleton_from_dict(data: Mapping[str, Any]) -> SkeletonResult:  # noqa: C901
-    """Rebuild a SkeletonResult from the JSON document of :func:`skeleton_to_dict`.
-
-    Raises
-    ------
-    InputError
-        If ``data`` is not a skeleton document or a field has the wrong shape.
-    """
-    if not isinstance(data, Mapping) or data.get("kind") != JSON_KIND:
-        raise InputError("not a bonefit skeleton document (kind must be 'skeleton')",
-                         field="kind")
-    for key in ("method", "fps", "joints", "orientations"):
-        if key not in data:
-            raise InputError(f"skeleton document lacks {key!r}", field=key)
-    if data.get("units", "m") != "m":
-        raise InputError(f"skeleton document units must be 'm', got {data['units']!r}",
-                         field="units")
-    for key in ("joints", "orientations", "offsets", "bone_lengths", "quality", "timings"):
-        if not isinstance(data.get(key, {}), Mapping):
-            raise InputError(f"{key} must be an object", field=key)
-    joints = {str(k): _array(v, (3,), f"joints.{k}") for k, v in data["joints"].items()}
-    if not joints:
-        raise InputError("skeleton document has no joints", field="joints")
-    quality = data.get("quality", {})
-    for k, v in quality.items():
-        if not isinstance(v, Mapping):
-            raise InputError(f"quality.{k} must be an object", field=f"quality.{k}")
-    warnings = data.get("warnings", [])
-    if not isinstance(warnings, list):
-        raise InputError("warnings must be a list", field="warnings")
-    return SkeletonResult(
-        method=str(data["method"]),
-        fps=_number(data["fps"], "fps"),
-        joints=joints,
-        offsets=offsets_from_dict(data.get("offsets", {})),
-        bone_lengths={str(k): _number(v, f"bone_lengths.{k}")
-                      for k, v in data.get("bone_lengths", {}).items() if v is not None},
-        orientations={str(k): _array(v, (4,), f"orientations.{k}")
-                      for k, v in data["orientations"].items()},
-        quality={str(k): JointQuality.of(dict(v)) for k, v in quality.items()},
-        warnings=tuple(str(w) for w in warnings),
-        timings={str(k): _number(v, f"timings.{k}")
-                 for k, v in data.get("timings", {}).items() if v is not None},
-    )
-
-
-def _number(value: Any, field: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise InputError(f"{field} must be a number, got {_json_type(value)}", field=field)
-    return float(value)
-
-
-def _json_type(value: Any) -> str:
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
-            type(None): "null"}.get(type(value), type(value).__name__)
-
-
-def offsets_from_dict(data: Mapping[str, Any]) -> dict[str, JointOffset]:
-    """Joint offsets from the ``offsets`` object of a skeleton document,
-    ``{"<joint>": {"sensor": "<segment>", "local": [x, y, z]}}`` (metres).
-
-    Raises
-    ------
-    InputError
-        ``field="offsets.<joint>"`` for an entry that is not a sensor name and three finite
-        numbers.
-    """
-    if not isinstance(data, Mapping):
-        raise InputError("offsets must be an object", field="offsets")
-    offsets = {}
-    for k, v in data.items():
-        try:
-            local = np.asarray(v["local"], dtype=float)
-            sensor = v["sensor"]
-        except (TypeError, KeyError, ValueError):
-            local, sensor = np.empty(0), None
-        if local.shape != (3,) or not np.isfinite(local).all() or not isinstance(sensor, str):
-            raise InputError(f"offsets.{k} must be {{\"sensor\": ..., \"local\": [x, y, z]}}",
-                             field=f"offsets.{k}")
-        offsets[str(k)] = JointOffset(sensor=sensor, local=local)
-    return offsets
 
 
 def _read_json(path: PathLike) -> Any:

@@ -70,11 +70,12 @@ def translation_document(result: TranslationResult,
         "timings": timings_document(result.timings),
     }
     if recording is not None:
+        positions = result.joint_positions("the feet's heights")
         out["time"] = JsonArray(recording.time, 6)
         out["feet"] = {"left": recording.left_foot, "right": recording.right_foot,
                        "toes": dict(recording.toes)}
         out["foot_heights"] = {
-            side: JsonArray(result.positions[:, recording.index(foot), 1], decimals)
+            side: JsonArray(positions[:, recording.index(foot), 1], decimals)
             for side, foot in (("left", recording.left_foot), ("right", recording.right_foot))}
         out["input_length_unit_m"] = recording.length_scale
         out["notes"] = list(recording.notes)
@@ -85,7 +86,7 @@ def _point_joint_bvh(result: TranslationResult, recording: KinematicsRecording,
                      scale: float) -> BvhMotion:
     """The corrected positions as a BVH of rotation channels under a moving root (see
     :func:`bonefit.estimation.bvh.point_joint_bvh`), for inputs without a rotation hierarchy."""
-    return point_joint_bvh(recording.joints, result.positions / scale,
+    return point_joint_bvh(recording.joints, result.joint_positions("a point-joint BVH") / scale,
                            recording.index(recording.root), 1.0 / result.fps)
 
 
@@ -205,7 +206,7 @@ def _kinematics_csv_text(result: TranslationResult, recording: KinematicsRecordi
     assert recording.table is not None
     table = recording.table.copy()
     col = {h: i for i, h in enumerate(recording.columns)}
-    corrected = result.positions / recording.length_scale
+    corrected = result.joint_positions("a kinematics CSV") / recording.length_scale
     for j, name in enumerate(recording.joints):
         for k, a in enumerate("xyz"):
             table[:, col[f"{name}.D{a}"]] = corrected[:, j, k]

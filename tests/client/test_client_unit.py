@@ -15,11 +15,20 @@ import httpx
 import numpy as np
 import pytest
 
-from bonefit.client import AsyncClient, Client, ProblemError, SkeletonResult, TranslationResult
+from bonefit.client import (
+    AsyncClient,
+    Client,
+    ProblemError,
+    SkeletonResult,
+    TranslationResult,
+    result_from_dict,
+)
 from bonefit.client.batch import collect_takes, parse_params, summary
-from bonefit.client.results import parse_result
 from bonefit.client.sse import events
 from bonefit.client.transport import RetryPolicy, retry_after
+from bonefit.estimation import results
+from bonefit.estimation.errors import InputError
+from bonefit.estimation.io import offsets_to_dict
 
 ROOT = Path(__file__).resolve().parents[2]
 JOB = {"id": "j1", "kind": "skeleton", "status": "queued", "recording_id": "r1", "params": {},
@@ -165,7 +174,7 @@ def test_retry_after_as_an_http_date() -> None:
     assert retry_after(httpx.Response(503)) is None
 
 
-def test_typed_skeleton_result() -> None:
+def test_typed_skeleton_result_is_the_librarys() -> None:
     doc = {"kind": "skeleton", "method": "auto", "fps": 60.0, "frames": 2, "units": "m",
            "joints": {"root": [[0, 1, 0], [0, 1.1, 0]], "l_knee": [[0.1, 0.5, 0], [0.1, 0.5, 0]]},
            "offsets": {"l_knee": {"sensor": "l_thigh", "local": [0, -0.4, 0]}},
@@ -174,31 +183,47 @@ def test_typed_skeleton_result() -> None:
            "quality": {"l_knee": {"reliability": "data", "data_sd_m": 0.002, "hinge": True,
                                   "rms_residual_m": None, "singular_value_ratio": 0.1}},
            "warnings": ["w"], "timings": {"read_s": 0.1}}
-    result = parse_result(doc)
+    result = result_from_dict(doc)
+    assert type(result) is results.SkeletonResult  # one class: the library's
     assert isinstance(result, SkeletonResult)
+    assert result.n_frames == 2
     assert result.joints["root"].shape == (2, 3)
     assert result.joints["root"][1, 1] == 1.1
     assert result.orientations["pelvis"].shape == (2, 4)
     assert result.quality["l_knee"].hinge is True
     assert result.quality["l_knee"].rms_residual_m is None
-    assert result.quality["l_knee"].extra == {"singular_value_ratio": 0.1}
-    assert result.offsets_param() == {"l_knee": {"sensor": "l_thigh", "local": [0.0, -0.4, 0.0]}}
+    assert result.quality["l_knee"]["singular_value_ratio"] == 0.1
+    assert dict(result.quality["l_knee"]) == doc["quality"]["l_knee"]  # every member kept
+    np.testing.assert_array_equal(result.offsets["l_knee"].local, [0.0, -0.4, 0.0])
+    # the calibration of this result, as the `offsets` parameter of the next jobs
+    param = offsets_to_dict(result.offsets)
+    assert json.loads(json.dumps(param)) == {"l_knee": {"sensor": "l_thigh",
+                                                        "local": [0.0, -0.4, 0.0]}}
 
 
 def test_typed_translation_result_and_bad_documents() -> None:
     doc = {"kind": "translation", "method": "contact", "fps": 100.0, "frames": 2, "units": "m",
-           "root_joint": "Hips", "root": [[0, 1, 0], [0.01, 1, 0]],
+           "up": "+Y", "root_joint": "Hips", "root": [[0, 1, 0], [0.01, 1, 0]],
            "translation": [[0, 0, 0], [0.01, 0, 0]], "floor": [0.0, 0.0],
            "contacts": ["left", "both"], "quality": {"closure_cm": None}, "timings": {},
            "time": [0.0, 0.01]}
-    result = parse_result(doc)
+    result = result_from_dict(doc)
+    assert type(result) is results.TranslationResult
     assert isinstance(result, TranslationResult)
-    np.testing.assert_array_equal(result.time, [0.0, 0.01])
-    assert result.contacts == ("left", "both")
-    with pytest.raises(ValueError, match="root: expected F rows of 3"):
-        parse_result({**doc, "root": [[0, 1], [0, 1]]})
-    with pytest.raises(ValueError, match="kind 'other'"):
-        parse_result({"kind": "other"})
+    assert result.n_frames == 2
+    np.testing.assert_array_equal(result.root[:, 0], [0.0, 0.01])
+    assert list(result.contacts) == ["left", "both"]
+    assert result.positions is None  # not in the document
+    assert result.quality == {"closure_cm": None}
+    for bad, field in (({**doc, "root": [[0, 1], [0, 1]]}, "root"),
+                       ({**doc, "contacts": ["left"]}, "contacts"),
+                       ({**doc, "floor": [0.0]}, "floor"),
+                       ({**doc, "units": "cm"}, "units"),
+                       ({"kind": "other"}, "kind")):
+        with pytest.raises(ValueError, match=field) as info:  # InputError is a ValueError
+            result_from_dict(bad)
+        assert isinstance(info.value, InputError)
+        assert info.value.field == field
 
 
 def test_batch_params_and_names(tmp_path: Path) -> None:
@@ -216,12 +241,17 @@ def test_batch_params_and_names(tmp_path: Path) -> None:
     assert "0 done, 0 already done, 0 failed" in summary([])
 
 
-def test_importing_the_client_loads_no_service_stack() -> None:
+def test_importing_the_client_loads_no_service_stack_and_no_scipy() -> None:
+    # run in a new interpreter: this one has loaded everything already
     code = ("import sys, bonefit.client\n"
-            "heavy = {'fastapi', 'scipy', 'sqlalchemy'} & {m.split('.')[0] for m in sys.modules}\n"
-            "heavy |= {m for m in sys.modules if m.split('.')[:2] in (['bonefit', 'service'], "
-            "['bonefit', 'estimation'])}\n"
-            "assert not heavy, sorted(heavy)\n")
+            "heavy = {'fastapi', 'starlette', 'pydantic', 'sqlalchemy', 'scipy', 'uvicorn'}\n"
+            "loaded = heavy & {m.split('.')[0] for m in sys.modules}\n"
+            "loaded |= {m for m in sys.modules if m.startswith('bonefit.service')}\n"
+            "assert not loaded, sorted(loaded)\n"
+            "from bonefit.estimation import results\n"
+            "assert bonefit.client.SkeletonResult is results.SkeletonResult\n"
+            "assert bonefit.client.TranslationResult is results.TranslationResult\n"
+            "assert 'scipy' not in sys.modules\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
 

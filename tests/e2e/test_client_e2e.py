@@ -87,13 +87,14 @@ def test_run_returns_typed_results(embedded: ServerProcess, sensor_csv_bytes: by
         skeleton = client.run(take, "skeleton", {"method": "auto"},
                               progress=lambda j: fractions.append(j.fraction))
         assert isinstance(skeleton, SkeletonResult)
-        assert skeleton.frames == 240
+        assert skeleton.n_frames == 240
         assert skeleton.joints["l_knee"].shape == (240, 3)
         assert fractions[-1] == 1.0
         walker = client.run(kinematics_csv_bytes, "translation", {"method": "contact"},
                             format="kinematics-csv")
         assert isinstance(walker, TranslationResult)
-        assert walker.root.shape == (walker.frames, 3)
+        assert walker.root.shape == (walker.n_frames, 3)
+        assert walker.positions is None  # the JSON carries the root path, not every joint
         assert set(walker.contacts) <= {"left", "right", "both", "none"}
         job = client.jobs(kind="skeleton", status="succeeded")[0]
         path = client.download(job, "bvh", tmp_path / "walk.bvh")
@@ -119,7 +120,7 @@ def test_async_client_runs_and_cancels(embedded: ServerProcess, sensor_csv_bytes
             return result, await client.wait(job, timeout=120)
 
     result, cancelled = asyncio.run(main())
-    assert result.frames == 240
+    assert result.n_frames == 240
     assert cancelled.status == "cancelled"
 
 
@@ -207,7 +208,7 @@ def test_distributed_restart_and_redis_outage_during_wait(
     with Client(api.base_url, KEY) as client:
         quick = client.run(sensor_csv_bytes, "skeleton")
         assert isinstance(quick, SkeletonResult)
-        assert quick.frames == 240
+        assert quick.n_frames == 240
         rec = client.upload(long_sensor_csv_bytes, filename="long.csv")
         job = client.submit("skeleton", rec)
         waiter = Waiter(client, job)
@@ -220,7 +221,7 @@ def test_distributed_restart_and_redis_outage_during_wait(
         final = waiter.result()
         assert final.status == "succeeded", final
         assert [j.id for j in jobs_of(client, rec.id)] == [job.id]  # no duplicate
-        assert client.result(final).frames > 0  # type: ignore[union-attr]
+        assert client.result(final).n_frames > 0
         after = client.run(sensor_csv_bytes, "skeleton")  # the queue works again
         assert isinstance(after, SkeletonResult)
 

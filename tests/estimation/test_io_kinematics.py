@@ -17,9 +17,12 @@ from bonefit.estimation.io.kinematics import (
     KinematicsRecording,
     read_kinematics,
     sniff_kinematics,
+    translation_to_dict,
     write_kinematics_csv,
     write_translation,
 )
+from bonefit.estimation.io.result_json import result_from_dict, translation_from_dict
+from bonefit.estimation.results import TranslationResult
 from bonefit.estimation.simulate.inertial import simulate_walker
 from bonefit.estimation.translation import estimate_translation
 from tests.estimation.conftest import two_feet_motion
@@ -92,6 +95,50 @@ def test_json_and_bvh_outputs(walker: KinematicsRecording, tmp_path: Path) -> No
                                    atol=1e-7)
     with pytest.raises(InputError, match="unknown output format"):
         write_translation(result, walker, tmp_path / "x", format="fbx")
+
+
+RECORDING_CONTEXT = {"root_joint", "time", "feet", "foot_heights", "input_length_unit_m",
+                     "notes"}
+"""Members of the translation JSON that describe the input, written only with the recording."""
+
+
+def test_json_reads_back_into_the_result(walker: KinematicsRecording, tmp_path: Path) -> None:
+    result = estimate_translation(walker)
+    path = tmp_path / "r.json"
+    write_translation(result, walker, path, format="json")
+    written = json.loads(path.read_text())
+    back = result_from_dict(written)
+    assert isinstance(back, TranslationResult)
+    assert (back.method, back.fps, back.n_frames) == (result.method, walker.fps, walker.n_frames)
+    for name in ("root", "translation", "floor"):  # 5 decimals in metres
+        np.testing.assert_allclose(getattr(back, name), getattr(result, name), atol=5e-6)
+    np.testing.assert_array_equal(back.contacts, result.contacts)
+    assert back.positions is None
+    # writer -> reader -> writer gives the same document, but for the input's members
+    assert translation_to_dict(back) == {k: v for k, v in written.items()
+                                         if k not in RECORDING_CONTEXT} | {"root_joint": None}
+    assert translation_from_dict(translation_to_dict(back)).quality == back.quality
+    with pytest.raises(InputError, match="every joint's position") as info:
+        write_translation(back, walker, tmp_path / "x.bvh", format="bvh")  # a point-joint BVH
+    assert info.value.field == "positions"
+
+
+def test_json_reader_names_the_bad_member(walker: KinematicsRecording) -> None:
+    document = translation_to_dict(estimate_translation(walker, method="hachaj2018"))
+    frames = document["frames"]
+    assert translation_from_dict(document).n_frames == frames
+    for change, field in (({"kind": "skeleton"}, "kind"), ({"root": document["root"][:-1]},
+                          "root"), ({"contacts": document["contacts"][1:]}, "contacts"),
+                          ({"translation": document["translation"][:-1]}, "translation"),
+                          ({"frames": frames + 1}, "root"), ({"frames": "12"}, "frames"),
+                          ({"up": "+Z"}, "up"), ({"fps": "60"}, "fps"),
+                          ({"quality": []}, "quality"), ({"floor": [[0.0]] * frames}, "floor")):
+        with pytest.raises(InputError) as info:
+            translation_from_dict({**document, **change})
+        assert info.value.field == field, change
+    del document["floor"]
+    with pytest.raises(InputError, match="lacks 'floor'"):
+        translation_from_dict(document)
 
 
 def test_accelerations_in_m_s2_are_reported(walker: KinematicsRecording, tmp_path: Path) -> None:
