@@ -163,8 +163,8 @@ class _SlipTerms(NamedTuple):
                    np.einsum("tji,tj->ti", ra, d), np.einsum("tji,tj->ti", rb, d))
 
 
-def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],  # noqa: PLR0917
-                 w: NDArray[np.float64], terms: _SlipTerms, ridge: float
+def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],
+                 w: NDArray[np.float64], terms: _SlipTerms, *, ridge: float
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The LLSF normal equations with the slip coefficients marginalised out (Schur
     complement), plus what recovers them: ``β = solve(n_bb, rhs_b − n_bc c)``.
@@ -326,8 +326,8 @@ def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float6
     return max(total / tau, 1.0)
 
 
-def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float64],  # noqa: PLR0917
-          pb: NDArray[np.float64], w: NDArray[np.float64], bias_compensation: bool,
+def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float64],
+          pb: NDArray[np.float64], w: NDArray[np.float64], *, bias_compensation: bool,
           point_m: float) -> NDArray[np.float64]:
     """Centre in frame a by the generalised Delogne–Kåsa estimator; c_b follows from c_a."""
     total = float(w.sum())
@@ -552,7 +552,7 @@ class JointModel:
             return NormalEquations(normal, rhs, np.zeros((0, 7)))
         if self.slip is not None:
             return NormalEquations(*_slip_system(data.ra, data.rb, data.d, w, self.slip.terms,
-                                                 self.slip.ridge))
+                                                 ridge=self.slip.ridge))
         normal, rhs = _llsf_system(data.ra, data.rb, data.d, w,
                                    data.unit_excluded if first else None)
         return NormalEquations(normal, rhs, np.zeros((0, 7)))
@@ -806,7 +806,8 @@ def gdke_centre(data: JointData, w: NDArray[np.float64], *, bias_compensation: b
                 point_m: float = 0.1) -> NDArray[np.float64]:
     """The centre ``[c_a; c_b]`` (6,) by GDKE in frame a, ``c_b`` the weighted mean of
     ``R_bᵀ (R_a c_a + p_a − p_b)``."""
-    ca = _gdke(data.ra, data.rb, data.pa, data.pb, w, bias_compensation, point_m)
+    ca = _gdke(data.ra, data.rb, data.pa, data.pb, w, bias_compensation=bias_compensation,
+               point_m=point_m)
     cb_t = np.einsum("tji,tj->ti", data.rb, rows.apply(data.ra, ca) + data.pa - data.pb)
     return np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
 

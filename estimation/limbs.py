@@ -598,8 +598,8 @@ def _coarse(limb: LimbInUpperFrame) -> LimbInUpperFrame | None:
     return LimbInUpperFrame(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
 
 
-def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,  # noqa: PLR0917
-                  w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
+def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], *,
+                  w_s: float, w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
     """Least squares on E: on a subsample first, then on every frame (``objective``)."""
     n_eval = 0
     coarse = _coarse(limb)
@@ -627,8 +627,8 @@ runs it ends at most 1e-10 (relative) above the least-squares E, which itself li
 1e-13) cost 1.7× the evaluations for agreement the comparison cannot use."""
 
 
-def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,  # noqa: PLR0917
-                  w_l: float, progress: Progress) -> tuple[Float, int, bool]:
+def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], *,
+                  w_s: float, w_l: float, progress: Progress) -> tuple[Float, int, bool]:
     l_up, l_low = lengths
 
     def cost(theta: Float) -> float:
@@ -1036,12 +1036,12 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective,
                                            _LimbSettings(method, optimizer, lengths, w_s, w_l,
                                                          robust_scale), report)
-    fit = _limb_fit(world, objective, theta, n_eval, ok, quality)
+    fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality)
     report(1.0, "limbs")
     return fit
 
 
-def _limb_fit(world: _World, objective: PaperObjective, theta: Float, n_eval: int, ok: bool,  # noqa: PLR0917
+def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval: int, ok: bool,
               quality: dict[str, Any]) -> LimbFit:
     """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
@@ -1082,10 +1082,10 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
     x0 = _initial_point(_coarse(limb) or limb, lengths)
     quality: dict[str, Any] = {"method": method}
     if method == "paper" and settings.optimizer == "nelder-mead":
-        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
+        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s=w_s, w_l=w_l, progress=report)
         quality["optimizer"] = "nelder-mead"
         return theta, n_eval, ok, quality
-    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l, objective)
+    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s=w_s, w_l=w_l, objective=objective)
     quality["optimizer"] = "least-squares"
     if method == "improved":
         report(0.3, "limbs")
