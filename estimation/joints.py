@@ -991,10 +991,10 @@ class JointOptions:
         return "gdke" if self.method == "gdke" else "llsf"
 
 
-def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,  # noqa: PLR0913
-                   decision: HingeDecision | None, options: JointOptions, *, rom: float,
-                   prior: Priors, centre: NDArray[np.float64], sd: float) -> dict[str, Any]:
-    """``JointFit.quality`` (see there) of the final centre ``centre`` (6,)."""
+def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction, options: JointOptions,
+                   *, rom: float, sd: float) -> dict[str, Any]:
+    """``JointFit.quality`` (see there) of the data and the robust fit; the entries of the
+    prior and of the hinge decision follow (``_prior_quality``, ``_hinge_quality``)."""
     sv = fit.sv
     ratio = hinge_value(sv)
     quality: dict[str, Any] = {
@@ -1011,12 +1011,26 @@ def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,  # noqa
     }
     if options.estimator == "gdke":
         quality["bias_compensation"] = options.bias_compensation
+    return quality
+
+
+def _prior_quality(fit: RobustFit, prior: Priors, centre: NDArray[np.float64]
+                   ) -> dict[str, Any]:
+    """The quality entries of the anatomical prior (none without one); ``centre`` (6,) the
+    final centre."""
+    quality: dict[str, Any] = {}
     if prior.prior is not None:
-        lam0 = float(sv[0] ** 2)
+        lam0 = float(fit.sv[0] ** 2)
         quality["prior_sigma_m"] = float(prior.prior[1])
         quality["prior_weight"] = fit.prior_weight
         quality["prior_shift_m"] = float(np.linalg.norm(centre[:3] - fit.c_data[:3]))
         quality["data_weight"] = lam0 / (lam0 + fit.prior_weight)
+    return quality
+
+
+def _hinge_quality(fit: RobustFit, decision: HingeDecision | None) -> dict[str, Any]:
+    """The quality entries of the hinge decision (none for no hinge)."""
+    quality: dict[str, Any] = {}
     if decision is not None:
         weak = fit.weak[:3]
         quality["axis"] = [float(x) for x in weak / max(float(np.linalg.norm(weak)), 1e-12)]
@@ -1156,7 +1170,8 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
                             f"{decision.rule} rule")
     rec = reconstruct(model, c, fit.back)
-    quality = _joint_quality(data, fit, rec, decision, options, rom=rom, prior=priors,
-                             centre=c, sd=sd)
+    quality = _joint_quality(data, fit, rec, options, rom=rom, sd=sd)
+    quality.update(_prior_quality(fit, priors, c))
+    quality.update(_hinge_quality(fit, decision))  # its data_weight replaces the prior's
     return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals, quality,
                     tuple(warnings))

@@ -832,7 +832,7 @@ class LocatedJoints:
 
     def release(self) -> None:
         """Drop the fits once every joint is located: their paths are in ``joints``, which
-        ``_completed`` then replaces path by path (a long take's memory)."""
+        ``_smoothed`` then replaces path by path (a long take's memory)."""
         self.fits.clear()
         self.own.clear()
         self.posterior.clear()
@@ -1047,11 +1047,12 @@ def skeleton_result(recording: SensorRecording, options: SkeletonOptions,
                     sensors: SensorPoses, located: LocatedJoints, *, report: Progress,
                     started: float) -> SkeletonResult:
     """``estimate_skeleton``'s result from the located joints: the paths completed
-    (``_completed``: smoothed, bone lengths, orientations; ``report(fraction,
+    (``_smoothed``, ``_completed``: bone lengths, orientations; ``report(fraction,
     "orientations")``), ``started`` the ``time.perf_counter()`` of the call."""
-    completed, bone_lengths, orientations = _completed(
-        located.joints, sensors.rotations, fps=recording.fps, smooth=options.smooth,
-        up=options.up, i0=options.i0, warnings=located.warnings, report=report)
+    completed = _smoothed(located.joints, recording.fps, smooth=options.smooth, report=report)
+    bone_lengths, orientations = _completed(completed, sensors.rotations, up=options.up,
+                                            i0=options.i0, warnings=located.warnings,
+                                            report=report)
     return SkeletonResult(
         method=options.method,
         fps=recording.fps,
@@ -1149,9 +1150,10 @@ def estimate_skeleton_from_offsets(
     mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
     joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
               for name, (seg, vec) in local.items()}
-    joints, bone_lengths, orientations = _completed(
-        joints, sensors.rotations, fps=recording.fps, smooth=smooth, up=up_vec, i0=i0,
-        warnings=warnings, report=scaled(report, 0.6, 1.0))
+    finish = scaled(report, 0.6, 1.0)
+    joints = _smoothed(joints, recording.fps, smooth=smooth, report=finish)
+    bone_lengths, orientations = _completed(joints, sensors.rotations, up=up_vec, i0=i0,
+                                            warnings=warnings, report=finish)
     return SkeletonResult(
         method="offsets",
         fps=recording.fps,
@@ -1187,23 +1189,28 @@ def _checked_offsets(recording: SensorRecording, offsets: Mapping[str, JointOffs
     return local
 
 
-def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,  # noqa: PLR0913
-               fps: float, smooth: bool, up: NDArray[np.float64], i0: int, warnings: list[str],
-               report: Progress,
-               ) -> tuple[dict[str, NDArray[np.float64]], dict[str, float],
-                          dict[str, NDArray[np.float64]]]:
-    """The joint paths (smoothed if asked: in ``joints``, path by path, so that each
-    unsmoothed one can go at once), bone lengths (checked against human size) and segment
-    orientations; ``report(fraction, "orientations")`` after each smoothed path."""
+def _smoothed(joints: dict[str, NDArray[np.float64]], fps: float, *, smooth: bool,
+              report: Progress) -> dict[str, NDArray[np.float64]]:
+    """The joint paths, smoothed if asked: in ``joints``, path by path, so that each
+    unsmoothed one can go at once; ``report(fraction, "orientations")`` at 0 and after each
+    smoothed path, up to 0.6 (``_completed`` follows)."""
     report(0.0, "orientations")
     if smooth:
         for k, name in enumerate(list(joints)):
             joints[name] = _smooth(joints[name], fps)
             report(0.6 * (k + 1) / len(joints), "orientations")
+    return joints
+
+
+def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,
+               up: NDArray[np.float64], i0: int, warnings: list[str], report: Progress,
+               ) -> tuple[dict[str, float], dict[str, NDArray[np.float64]]]:
+    """Bone lengths (checked against human size) and segment orientations of the final
+    joint paths (``_smoothed``); ``report(fraction, "orientations")`` from 0.6 to 1."""
     bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
     report(0.6, "orientations")
     orientations = estimate_orientations(joints, rotations, i0=i0, up=up)
     report(1.0, "orientations")
-    return joints, bone_lengths, orientations
+    return bone_lengths, orientations
