@@ -254,21 +254,40 @@ class Anchor:
     plane: float = 0.0
 
 
-def shared_fit(fit: JointFit, shared: SlipFit, j: int,  # noqa: PLR0913, PLR0917
-                pa_true: NDArray[np.float64], ra_rot: Rotation, pb_true: NDArray[np.float64],
-                rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_], *,
-                symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
-                prior: tuple[NDArray[np.float64], float] | None,
-                anchor: Anchor | None = None,
-                hinge_axis: NDArray[np.float64] | None = None,
-                ) -> tuple[JointFit, NDArray[np.float64]]:
+class PairPoses(NamedTuple):
+    """A joint's two sensors for ``shared_fit``: positions (F, 3) without their estimated
+    slip, sensor → world rotations and valid samples (F,), of sensor a and of sensor b."""
+
+    pa_true: NDArray[np.float64]
+    ra_rot: Rotation
+    pb_true: NDArray[np.float64]
+    rb_rot: Rotation
+    ok_a: NDArray[np.bool_]
+    ok_b: NDArray[np.bool_]
+
+
+class SharedPriors(NamedTuple):
+    """What ``shared_fit`` combines with the shared model's centre: a symmetry plane and a
+    Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, and a hinge
+    axis (3,) in frame a along which the model's precision is dropped."""
+
+    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    prior: tuple[NDArray[np.float64], float] | None = None
+    anchor: Anchor | None = None
+    hinge_axis: NDArray[np.float64] | None = None
+
+
+def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors: SharedPriors
+               ) -> tuple[JointFit, NDArray[np.float64]]:
     """The joint's centre from the shared slip model (posterior mean and covariance of its
     centre, every sensor's slip integrated out) combined with its priors (Gaussian, in
     absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision, less where its
     ``anchor`` is itself uncertain), and its path from the sensor positions without their
-    estimated slip (``pa_true``, ``pb_true``). Along ``hinge_axis`` (in frame a) the model's
-    precision is dropped: there it counts orientation noise as rotation. Also returns the
-    posterior covariance of the centre in frame a (3, 3)."""
+    estimated slip (``poses``). Along ``hinge_axis`` (in frame a) the model's precision is
+    dropped: there it counts orientation noise as rotation. Also returns the posterior
+    covariance of the centre in frame a (3, 3)."""
+    pa_true, ra_rot, pb_true, rb_rot, ok_a, ok_b = poses
+    symmetry, prior, anchor, hinge_axis = priors
     mean = shared.centres[j].reshape(6)
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
@@ -759,14 +778,14 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
         a, b = JOINT_SEGMENTS[plan.name]
         sensors, without = ctx.sensors, ctx.shared.without_slip
         axis = own.quality.get("axis") if own.quality.get("hinge") else None
-        fit, posterior = shared_fit(
-            own, ctx.shared.fit, ctx.shared.index[plan.name], without[a], sensors.rotations[a],
-            without[b], sensors.rotations[b], sensors.ok[a], sensors.ok[b],
-            symmetry=plan.symmetry if role == "torso" else None,
-            prior=plan.prior if role == "torso" else (own.local_a, LIMB_PRIOR_SIGMA_M),
-            anchor=plan.anchor if role == "torso" else None,
-            hinge_axis=None if role == "torso" or axis is None
-            else np.asarray(axis, dtype=float))
+        poses = PairPoses(without[a], sensors.rotations[a], without[b], sensors.rotations[b],
+                          sensors.ok[a], sensors.ok[b])
+        priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor) if role == "torso"
+                  else SharedPriors(prior=(own.local_a, LIMB_PRIOR_SIGMA_M),
+                                    hinge_axis=None if axis is None
+                                    else np.asarray(axis, dtype=float)))
+        fit, posterior = shared_fit(own, ctx.shared.fit, ctx.shared.index[plan.name], poses,
+                                    priors)
     return LocatedJoint(_with_reliability(ctx, plan, _with_data_sd(ctx, plan.name, fit)), own,
                         posterior)
 
