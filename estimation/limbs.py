@@ -687,9 +687,8 @@ def _hinge_axis(limb: LimbInUpperFrame, a: Float) -> tuple[Float, float]:
     return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
 
 
-def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,  # noqa: PLR0913, PLR0917
-                     w_hinge: float, w_line: float, w_length: float, w_distal: float,
-                     robust_scale: float | None, w_plane: float,
+def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
+                     weights: PriorWeights, *, robust_scale: float | None,
                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """θ = (k, a, L): middle joint (upper frame), distal joint (distal frame), lower length.
 
@@ -703,12 +702,11 @@ def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis:
     about its own axis leaves it in place, so in the thigh (upper-arm) frame its path follows
     the flexion arc; points beside it also swing with the ankle (wrist) and the twist.
     """
-    problem = _ImprovedProblem(limb, lengths, axis, _PriorWeights(
-        w_hinge, w_line, w_length, w_distal, w_plane), robust_scale)
+    problem = _ImprovedProblem(limb, lengths, axis, weights, robust_scale)
     return problem.residuals, problem.jacobian
 
 
-class _PriorWeights(NamedTuple):
+class PriorWeights(NamedTuple):
     """Per-frame weights of the improved method's prior rows (see ``improved_problem``)."""
 
     hinge: float
@@ -716,6 +714,13 @@ class _PriorWeights(NamedTuple):
     length: float
     distal: float
     plane: float
+
+
+def _prior_weights(doubt: float, gain: float) -> PriorWeights:
+    """The improved method's prior weights: the hinge's from the doubt about its axis, the
+    straight-limb, length and distal-offset ones scaled by ``gain`` (little motion)."""
+    return PriorWeights(_hinge_weight(doubt), gain * _W_LINE, gain * _W_LENGTH,
+                        gain * _W_DISTAL, _W_PLANE)
 
 
 def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
@@ -731,7 +736,7 @@ class _ImprovedProblem:
     θ = (k, a, L)."""
 
     def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
-                 weights: _PriorWeights, robust_scale: float | None) -> None:
+                 weights: PriorWeights, robust_scale: float | None) -> None:
         m = limb.n
         self.limb, self.lengths, self.axis, self.robust_scale = limb, lengths, axis, robust_scale
         self.h_bar = limb.h.mean(axis=0)
@@ -899,7 +904,6 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     # Little relative rotation between the two sensors means the data hardly constrain the
     # joints (and their noise would be fitted): lean on the priors accordingly.
     gain = float(np.clip((_MOTION_REF_DEG / max(motion_deg, 1e-3)) ** 2, 1.0, 100.0))
-    w_line, w_length, w_distal = gain * _W_LINE, gain * _W_LENGTH, gain * _W_DISTAL
     best: tuple[float, Float, Float, float] | None = None
     # Several starts on the subsample (the objective has local minima when the limb moves
     # little); the best one is polished on every frame.
@@ -909,9 +913,8 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
-            fun, jac = improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
-                                         w_line, w_length, w_distal, robust_scale,
-                                         _W_PLANE)
+            fun, jac = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain),
+                                        robust_scale=robust_scale)
             # MINPACK's trust region from these rough starts: the objective has several
             # local minima and its steps decide the basin (cheap on the subsample)
             sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
@@ -925,16 +928,16 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
             axis = new_axis
             if moved < 1e-4:
                 break
-        fun, _ = improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
-                                   w_length, w_distal, robust_scale, _W_PLANE)
+        fun, _ = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain),
+                                  robust_scale=robust_scale)
         r = fun(x)
         value = float(r @ r)
         if best is None or value < best[0]:
             best = (value, x, axis, doubt)
     assert best is not None
     _, x, axis, doubt = best
-    fun, jac = improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
-                                 w_length, w_distal, robust_scale, _W_PLANE)
+    fun, jac = improved_problem(limb, lengths, axis, _prior_weights(doubt, gain),
+                                robust_scale=robust_scale)
     if coarse is not limb:
         x, more, ok = levenberg_marquardt(*normal_from_residuals(fun, jac), x)
         n_eval += more
