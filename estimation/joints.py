@@ -163,8 +163,8 @@ class _SlipTerms(NamedTuple):
                    np.einsum("tji,tj->ti", ra, d), np.einsum("tji,tj->ti", rb, d))
 
 
-def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],  # noqa: PLR0917
-                 w: NDArray[np.float64], terms: _SlipTerms, ridge: float
+def _slip_system(ra: NDArray[np.float64], rb: NDArray[np.float64], d: NDArray[np.float64],
+                 w: NDArray[np.float64], terms: _SlipTerms, *, ridge: float
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The LLSF normal equations with the slip coefficients marginalised out (Schur
     complement), plus what recovers them: ``β = solve(n_bb, rhs_b − n_bc c)``.
@@ -326,8 +326,8 @@ def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float6
     return max(total / tau, 1.0)
 
 
-def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float64],  # noqa: PLR0917
-          pb: NDArray[np.float64], w: NDArray[np.float64], bias_compensation: bool,
+def _gdke(ra: NDArray[np.float64], rb: NDArray[np.float64], pa: NDArray[np.float64],
+          pb: NDArray[np.float64], w: NDArray[np.float64], *, bias_compensation: bool,
           point_m: float) -> NDArray[np.float64]:
     """Centre in frame a by the generalised Delogne–Kåsa estimator; c_b follows from c_a."""
     total = float(w.sum())
@@ -552,7 +552,7 @@ class JointModel:
             return NormalEquations(normal, rhs, np.zeros((0, 7)))
         if self.slip is not None:
             return NormalEquations(*_slip_system(data.ra, data.rb, data.d, w, self.slip.terms,
-                                                 self.slip.ridge))
+                                                 ridge=self.slip.ridge))
         normal, rhs = _llsf_system(data.ra, data.rb, data.d, w,
                                    data.unit_excluded if first else None)
         return NormalEquations(normal, rhs, np.zeros((0, 7)))
@@ -603,7 +603,30 @@ def slip_coefficients(back: NDArray[np.float64], c: NDArray[np.float64]
 
 
 class Priors(NamedTuple):
-    """Anatomical knowledge ``estimate_joint`` adds to the data (see its parameters)."""
+    """Anatomical knowledge ``estimate_joint`` adds to the data.
+
+    Attributes
+    ----------
+    symmetry : (ndarray (3,), ndarray (3,)), optional
+        A point ``m`` and unit normal ``u`` in sensor a's frame of a plane the centre should
+        lie in (for the waist: the mid-plane between the hips; for the neck: between the
+        shoulders), added as the soft constraint ``symmetry_weight · (u·(c_a − m))²`` to the
+        normalised LLSF cost. It only matters where the motion leaves that direction
+        ill-determined.
+    symmetry_weight : float
+        Weight of the plane constraint (the normal matrix is normalised to unit weight per
+        frame).
+    prior : (ndarray (3,), float), optional
+        Anatomical prior of the centre: a point in sensor a's frame (metres) and its
+        standard deviation ``s0`` (metres). Added as a Tikhonov term ``τ |c − c0|²`` with
+        ``c0`` the point in both frames and ``τ = σ² / (N_eff s0²)`` (``σ²`` the residual
+        variance per axis, ``N_eff`` the residual's effective sample count,
+        :func:`effective_samples`): the maximum a posteriori estimate under a Gaussian prior.
+        Directions the motion determines well (eigenvalues of the normalised normal matrix
+        ≫ τ) keep their data estimate; weakly excited directions are pulled toward the
+        prior. Replaces the hinge rule when given. The data's share along the weakest
+        direction is reported as ``quality["data_weight"]``.
+    """
 
     symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     symmetry_weight: float = 0.01
@@ -783,7 +806,8 @@ def gdke_centre(data: JointData, w: NDArray[np.float64], *, bias_compensation: b
                 point_m: float = 0.1) -> NDArray[np.float64]:
     """The centre ``[c_a; c_b]`` (6,) by GDKE in frame a, ``c_b`` the weighted mean of
     ``R_bᵀ (R_a c_a + p_a − p_b)``."""
-    ca = _gdke(data.ra, data.rb, data.pa, data.pb, w, bias_compensation, point_m)
+    ca = _gdke(data.ra, data.rb, data.pa, data.pb, w, bias_compensation=bias_compensation,
+               point_m=point_m)
     cb_t = np.einsum("tji,tj->ti", data.rb, rows.apply(data.ra, ca) + data.pa - data.pb)
     return np.concatenate([ca, np.einsum("t,ti->i", w, cb_t) / w.sum()])
 
@@ -834,91 +858,12 @@ def _motion_range(rotations_a: Rotation, rotations_b: Rotation, both: NDArray[np
     return rom, []
 
 
-def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction,  # noqa: PLR0913
-                   decision: HingeDecision | None, *, estimator: str, loss: str, rom: float,
-                   hinge_ratio: float, prior: Priors, bias_compensation: bool,
-                   centre: NDArray[np.float64], sd: float) -> dict[str, Any]:
-    """``JointFit.quality`` (see there) of the final centre ``centre`` (6,)."""
-    sv = fit.sv
-    ratio = hinge_value(sv)
-    quality: dict[str, Any] = {
-        "estimator": estimator,
-        "rms_residual_m": float(np.sqrt(rec.squared @ data.w0 / data.n_both)),
-        "singular_value_ratio": float(sv[0] / sv[-1]),
-        "hinge_ratio": ratio,
-        "range_of_motion_deg": rom,
-        "hinge": bool(ratio < hinge_ratio),
-        "loss": loss,
-        # w is 0 wherever not both are valid
-        "outlier_fraction": (np.count_nonzero(fit.w < 0.5) - data.excluded.size) / data.n_both,
-        "fit_sd_m": sd,
-    }
-    if estimator == "gdke":
-        quality["bias_compensation"] = bias_compensation
-    if prior.prior is not None:
-        lam0 = float(sv[0] ** 2)
-        quality["prior_sigma_m"] = float(prior.prior[1])
-        quality["prior_weight"] = fit.prior_weight
-        quality["prior_shift_m"] = float(np.linalg.norm(centre[:3] - fit.c_data[:3]))
-        quality["data_weight"] = lam0 / (lam0 + fit.prior_weight)
-    if decision is not None:
-        weak = fit.weak[:3]
-        quality["axis"] = [float(x) for x in weak / max(float(np.linalg.norm(weak)), 1e-12)]
-        quality["hinge_rule"] = decision.rule
-        if decision.rejected is not None:
-            quality["hinge_rule_rejected"] = decision.rejected
-        quality["axis_shift_m"] = decision.shift
-        quality["data_weight"] = decision.blend
-    return quality
+@dataclass(frozen=True)
+class JointOptions:
+    """The method options of ``estimate_joint`` (its keywords of the same names).
 
-
-def _hinge(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: HingeRule,  # noqa: PLR0917
-           priors: Priors, hinge: bool) -> HingeDecision | None:
-    """The hinge decision: None for no hinge; with a prior (which replaces the rule) no rule
-    and the prior's blend; else ``hinge_decision``."""
-    if not hinge:
-        return None
-    if priors.prior is not None:
-        lam0 = float(fit.sv[0] ** 2)
-        return HingeDecision(c, None, None, 0.0, lam0 / (lam0 + fit.prior_weight))
-    return hinge_decision(model, fit, c, rule_in)
-
-
-def estimate_joint(  # noqa: PLR0913
-    positions_a: NDArray[np.float64],
-    rotations_a: Rotation,
-    positions_b: NDArray[np.float64],
-    rotations_b: Rotation,
-    *,
-    method: str = "auto",
-    bias_compensation: bool = True,
-    loss: str = "huber",
-    valid: NDArray[np.bool_] | None = None,
-    neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
-    hinge_ratio: float = 0.3,
-    hinge_prior: float = 0.005,
-    trust_data_sd_m: float = 0.0,
-    min_range_deg: float = 2.0,
-    range_of_motion_deg: float | None = None,
-    warn_range_deg: float = 20.0,
-    huber_k: float = 2.0,
-    n_iterations: int = 4,
-    gdke_point_m: float = 0.1,
-    highpass: int = 0,
-    slip_period: float = 0.0,
-    bone_length: float | None = None,
-    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-    symmetry_weight: float = 0.01,
-    prior: tuple[NDArray[np.float64], float] | None = None,
-) -> JointFit:
-    """Locate the joint between two rigid bodies that each carry a 6-DOF sensor.
-
-    Parameters
+    Attributes
     ----------
-    positions_a, positions_b : ndarray, shape (F, 3)
-        Sensor origins in the world frame, metres (NaN rows are dropped samples).
-    rotations_a, rotations_b : Rotation, length F
-        Sensor → world rotations.
     method : {"auto", "llsf", "gdke"}
         ``"llsf"``: linear least squares on ``R_a c_a + p_a = R_b c_b + p_b`` (O'Brien et al.
         2000; the SCoRE system of Ehrig et al. 2006). ``"gdke"``: generalised
@@ -930,19 +875,11 @@ def estimate_joint(  # noqa: PLR0913
     loss : {"huber", "cauchy", "linear"}
         Per-frame robust loss, solved by iteratively reweighted least squares on the
         distance between the two reconstructions; down-weights outlier frames and slip.
-    valid : ndarray of bool, shape (F,) or (F, 2), optional
-        Frames (or per-sensor samples) to fit; defaults to the finite ones.
-    neighbours : (ndarray (F, 3) or None, ndarray (F, 3) or None)
-        World positions of the adjacent joint on body a and on body b (for a knee: hip and
-        ankle). Used only to fix a hinge's centre along its axis (see Notes).
     hinge_ratio : float
         A joint is treated as a hinge when the smallest singular value of the LLSF system is
         below ``hinge_ratio`` times the second smallest.
     min_range_deg, warn_range_deg : float
         Relative rotation range below which the fit fails (EstimationError) or warns.
-    range_of_motion_deg : float, optional
-        The range already measured by ``range_of_motion`` on the same valid frames (saves
-        computing it twice).
     hinge_prior : float
         Weight of the hinge rule against the data along the weakest direction: the final
         position along the axis is ``β·LLSF + (1 − β)·rule`` with ``β = λ / (λ + hinge_prior)``
@@ -957,28 +894,6 @@ def estimate_joint(  # noqa: PLR0913
         IRLS iterations for a robust loss.
     gdke_point_m : float
         Distance from sensor b's origin of the three extra GDKE points, metres.
-    bone_length : float, optional
-        Expected distance from the single neighbour (e.g. forearm length for a wrist), used
-        only when a hinge axis runs along the bone (see Notes).
-    symmetry : (ndarray (3,), ndarray (3,)), optional
-        A point ``m`` and unit normal ``u`` in sensor a's frame of a plane the centre should
-        lie in (for the waist: the mid-plane between the hips; for the neck: between the
-        shoulders), added as the soft constraint ``symmetry_weight · (u·(c_a − m))²`` to the
-        normalised LLSF cost. It only matters where the motion leaves that direction
-        ill-determined.
-    symmetry_weight : float
-        Weight of the plane constraint (the normal matrix is normalised to unit weight per
-        frame).
-    prior : (ndarray (3,), float), optional
-        Anatomical prior of the centre: a point in sensor a's frame (metres) and its
-        standard deviation ``s0`` (metres). Added as a Tikhonov term ``τ |c − c0|²`` with
-        ``c0`` the point in both frames and ``τ = σ² / (N_eff s0²)`` (``σ²`` the residual
-        variance per axis, ``N_eff`` the residual's effective sample count,
-        :func:`effective_samples`): the maximum a posteriori estimate under a Gaussian prior.
-        Directions the motion determines well (eigenvalues of the normalised normal matrix
-        ≫ τ) keep their data estimate; weakly excited directions are pulled toward the
-        prior. Replaces the hinge rule when given. The data's share along the weakest
-        direction is reported as ``quality["data_weight"]``.
     highpass : int
         LLSF only: when > 1, subtract a moving average over this many frames from every
         column of the system and its right-hand side before solving. The joint equation
@@ -991,14 +906,9 @@ def estimate_joint(  # noqa: PLR0913
         coefficients, and marginalise it out of the normal equations (see Notes). 0 disables
         it.
 
-    Returns
-    -------
-    JointFit
-
-    Raises
-    ------
-    EstimationError
-        When the relative rotation of the two bodies spans less than ``min_range_deg``.
+    symmetry_weight : float
+        Weight of the plane constraint (the normal matrix is normalised to unit weight per
+        frame).
 
     Notes
     -----
@@ -1051,38 +961,217 @@ def estimate_joint(  # noqa: PLR0913
     Ehrig et al., J. Biomech. 39 (2006) 2798 and 40 (2007) 2150; Knight & Semwal, WSCG 2007;
     Halvorsen, J. Biomech. 36 (2003) 999.
     """
-    if method not in _METHODS:
-        raise InputError(f"unknown joint method {method!r}; use one of {', '.join(_METHODS)}",
-                         field="method")
-    if loss not in _LOSSES:
-        raise InputError(f"unknown loss {loss!r}; use one of {', '.join(_LOSSES)}",
-                         field="loss")
+
+    method: str = "auto"
+    bias_compensation: bool = True
+    loss: str = "huber"
+    hinge_ratio: float = 0.3
+    hinge_prior: float = 0.005
+    trust_data_sd_m: float = 0.0
+    min_range_deg: float = 2.0
+    warn_range_deg: float = 20.0
+    huber_k: float = 2.0
+    n_iterations: int = 4
+    gdke_point_m: float = 0.1
+    highpass: int = 0
+    slip_period: float = 0.0
+    symmetry_weight: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.method not in _METHODS:
+            raise InputError(f"unknown joint method {self.method!r}; use one of "
+                             f"{', '.join(_METHODS)}", field="method")
+        if self.loss not in _LOSSES:
+            raise InputError(f"unknown loss {self.loss!r}; use one of {', '.join(_LOSSES)}",
+                             field="loss")
+
+    @property
+    def estimator(self) -> str:
+        """The estimator that runs: ``"gdke"`` or ``"llsf"`` (for ``"auto"`` too)."""
+        return "gdke" if self.method == "gdke" else "llsf"
+
+
+def _joint_quality(data: JointData, fit: RobustFit, rec: Reconstruction, options: JointOptions,
+                   *, rom: float, sd: float) -> dict[str, Any]:
+    """``JointFit.quality`` (see there) of the data and the robust fit; the entries of the
+    prior and of the hinge decision follow (``_prior_quality``, ``_hinge_quality``)."""
+    sv = fit.sv
+    ratio = hinge_value(sv)
+    quality: dict[str, Any] = {
+        "estimator": options.estimator,
+        "rms_residual_m": float(np.sqrt(rec.squared @ data.w0 / data.n_both)),
+        "singular_value_ratio": float(sv[0] / sv[-1]),
+        "hinge_ratio": ratio,
+        "range_of_motion_deg": rom,
+        "hinge": bool(ratio < options.hinge_ratio),
+        "loss": options.loss,
+        # w is 0 wherever not both are valid
+        "outlier_fraction": (np.count_nonzero(fit.w < 0.5) - data.excluded.size) / data.n_both,
+        "fit_sd_m": sd,
+    }
+    if options.estimator == "gdke":
+        quality["bias_compensation"] = options.bias_compensation
+    return quality
+
+
+def _prior_quality(fit: RobustFit, prior: Priors, centre: NDArray[np.float64]
+                   ) -> dict[str, Any]:
+    """The quality entries of the anatomical prior (none without one); ``centre`` (6,) the
+    final centre."""
+    quality: dict[str, Any] = {}
+    if prior.prior is not None:
+        lam0 = float(fit.sv[0] ** 2)
+        quality["prior_sigma_m"] = float(prior.prior[1])
+        quality["prior_weight"] = fit.prior_weight
+        quality["prior_shift_m"] = float(np.linalg.norm(centre[:3] - fit.c_data[:3]))
+        quality["data_weight"] = lam0 / (lam0 + fit.prior_weight)
+    return quality
+
+
+def _hinge_quality(fit: RobustFit, decision: HingeDecision | None) -> dict[str, Any]:
+    """The quality entries of the hinge decision (none for no hinge)."""
+    quality: dict[str, Any] = {}
+    if decision is not None:
+        weak = fit.weak[:3]
+        quality["axis"] = [float(x) for x in weak / max(float(np.linalg.norm(weak)), 1e-12)]
+        quality["hinge_rule"] = decision.rule
+        if decision.rejected is not None:
+            quality["hinge_rule_rejected"] = decision.rejected
+        quality["axis_shift_m"] = decision.shift
+        quality["data_weight"] = decision.blend
+    return quality
+
+
+def _hinge(model: JointModel, fit: RobustFit, c: NDArray[np.float64], rule_in: HingeRule,
+           priors: Priors, *, hinge: bool) -> HingeDecision | None:
+    """The hinge decision: None for no hinge; with a prior (which replaces the rule) no rule
+    and the prior's blend; else ``hinge_decision``."""
+    if not hinge:
+        return None
+    if priors.prior is not None:
+        lam0 = float(fit.sv[0] ** 2)
+        return HingeDecision(c, None, None, 0.0, lam0 / (lam0 + fit.prior_weight))
+    return hinge_decision(model, fit, c, rule_in)
+
+
+@dataclass(frozen=True, eq=False)
+class JointHints:
+    """What ``estimate_joint`` knows of one joint besides its two sensors.
+
+    Attributes
+    ----------
+    neighbours : (ndarray (F, 3) or None, ndarray (F, 3) or None)
+        World positions of the adjacent joint on body a and on body b (for a knee: hip and
+        ankle). Used only to fix a hinge's centre along its axis (``JointOptions``, Notes).
+    bone_length : float, optional
+        Expected distance from the single neighbour (e.g. forearm length for a wrist), used
+        only when a hinge axis runs along the bone (``JointOptions``, Notes).
+    symmetry : (ndarray (3,), ndarray (3,)), optional
+        A plane the centre should lie in: a point and unit normal in sensor a's frame (for
+        the waist: the mid-plane between the hips); a soft constraint (``Priors``).
+    prior : (ndarray (3,), float), optional
+        Anatomical prior of the centre: a point in sensor a's frame (metres) and its
+        standard deviation ``s0`` (metres); a Gaussian prior (``Priors``). Replaces the
+        hinge rule when given.
+    """
+
+    neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None)
+    bone_length: float | None = None
+    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    prior: tuple[NDArray[np.float64], float] | None = None
+
+
+def estimate_joint(  # noqa: PLR0913
+    positions_a: NDArray[np.float64], rotations_a: Rotation, positions_b: NDArray[np.float64],
+    rotations_b: Rotation, *, method: str = "auto", bias_compensation: bool = True,
+    loss: str = "huber", valid: NDArray[np.bool_] | None = None,
+    neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
+    hinge_ratio: float = 0.3, hinge_prior: float = 0.005, trust_data_sd_m: float = 0.0,
+    min_range_deg: float = 2.0, range_of_motion_deg: float | None = None,
+    warn_range_deg: float = 20.0, huber_k: float = 2.0, n_iterations: int = 4,
+    gdke_point_m: float = 0.1, highpass: int = 0, slip_period: float = 0.0,
+    bone_length: float | None = None,
+    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    symmetry_weight: float = 0.01, prior: tuple[NDArray[np.float64], float] | None = None,
+) -> JointFit:
+    """Locate the joint between two rigid bodies that each carry a 6-DOF sensor.
+
+    Parameters
+    ----------
+    positions_a, positions_b : ndarray, shape (F, 3)
+        Sensor origins in the world frame, metres (NaN rows are dropped samples).
+    rotations_a, rotations_b : Rotation, length F
+        Sensor → world rotations.
+    valid : ndarray of bool, shape (F,) or (F, 2), optional
+        Frames (or per-sensor samples) to fit; defaults to the finite ones.
+    range_of_motion_deg : float, optional
+        The range already measured by ``range_of_motion`` on the same valid frames.
+    neighbours, bone_length, symmetry, prior
+        What is known of this joint besides its two sensors (adjacent joints, a bone
+        length, a plane and a prior of its centre), each described in ``JointHints``.
+    method, bias_compensation, loss, hinge_ratio, hinge_prior, trust_data_sd_m, \
+min_range_deg, warn_range_deg, huber_k, n_iterations, gdke_point_m, highpass, slip_period, \
+symmetry_weight
+        The method options, each described (with the hinge rule, slip model) in ``JointOptions``.
+
+    Returns
+    -------
+    JointFit
+
+    Raises
+    ------
+    InputError
+        An unknown ``method`` or ``loss``.
+    EstimationError
+        When the relative rotation of the two bodies spans less than ``min_range_deg``.
+
+    Notes
+    -----
+    The steps: ``joint_data``, ``joint_model`` (the normal equations), ``fit_joint``
+    (``robust_fit`` with the priors, ``hinge_decision``, ``reconstruct``); references in
+    ``JointOptions``.
+    """
+    options = JointOptions(method, bias_compensation, loss, hinge_ratio, hinge_prior,
+                           trust_data_sd_m, min_range_deg, warn_range_deg, huber_k,
+                           n_iterations, gdke_point_m, highpass, slip_period, symmetry_weight)
     data = joint_data(positions_a, rotations_a, positions_b, rotations_b, valid)
     rom, warnings = _motion_range(rotations_a, rotations_b, data.both,
                                   measured=range_of_motion_deg, min_range_deg=min_range_deg,
                                   warn_range_deg=warn_range_deg)
     model = joint_model(data, method=method, highpass=highpass, slip_period=slip_period)
-    priors = Priors(symmetry, symmetry_weight, prior)
-    fit = robust_fit(model, priors, loss=loss, huber_k=huber_k, n_iterations=n_iterations)
-    estimator = "gdke" if method == "gdke" else "llsf"
+    return fit_joint(model, options, JointHints(neighbours, bone_length, symmetry, prior),
+                     rom=rom, warnings=warnings)
+
+
+def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, rom: float,
+              warnings: list[str]) -> JointFit:
+    """The joint's fit on its model: the robust loop with the priors, the hinge decision and
+    the reconstruction (``estimate_joint`` after its checks; ``rom`` the range of motion,
+    degrees, ``warnings`` so far, appended to)."""
+    data = model.data
+    priors = Priors(hints.symmetry, options.symmetry_weight, hints.prior)
+    fit = robust_fit(model, priors, loss=options.loss, huber_k=options.huber_k,
+                     n_iterations=options.n_iterations)
     sd = fit_sd(model, fit)
-    if sd <= trust_data_sd_m and estimator == "llsf":
+    neighbours = hints.neighbours
+    if sd <= options.trust_data_sd_m and options.estimator == "llsf":
         # the data alone locate the centre: priors and rules could only add their misfit
         fit = fit._replace(c=fit.c_data, prior_weight=0.0)
         priors, neighbours = Priors(), (None, None)
-    c = (gdke_centre(data, fit.w, bias_compensation=bias_compensation, point_m=gdke_point_m)
-         if estimator == "gdke" else fit.c)
-    hinge = hinge_value(fit.sv) < hinge_ratio
-    rule = HingeRule(neighbours, bone_length, hinge_prior)
-    decision = _hinge(model, fit, c, rule, priors, hinge)
+    c = (gdke_centre(data, fit.w, bias_compensation=options.bias_compensation,
+                     point_m=options.gdke_point_m)
+         if options.estimator == "gdke" else fit.c)
+    rule = HingeRule(neighbours, hints.bone_length, options.hinge_prior)
+    decision = _hinge(model, fit, c, rule, priors,
+                      hinge=hinge_value(fit.sv) < options.hinge_ratio)
     if decision is not None:
         c = decision.c
         if decision.rule is not None:
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
                             f"{decision.rule} rule")
     rec = reconstruct(model, c, fit.back)
-    quality = _joint_quality(data, fit, rec, decision, estimator=estimator, loss=loss, rom=rom,
-                             hinge_ratio=hinge_ratio, prior=priors,
-                             bias_compensation=bias_compensation, centre=c, sd=sd)
+    quality = _joint_quality(data, fit, rec, options, rom=rom, sd=sd)
+    quality.update(_prior_quality(fit, priors, c))
+    quality.update(_hinge_quality(fit, decision))  # its data_weight replaces the prior's
     return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals, quality,
                     tuple(warnings))

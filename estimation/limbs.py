@@ -598,8 +598,8 @@ def _coarse(limb: LimbInUpperFrame) -> LimbInUpperFrame | None:
     return LimbInUpperFrame(b=limb.b[::step], q=limb.q[::step], h=limb.h[::step])
 
 
-def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,  # noqa: PLR0917
-                  w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
+def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], *,
+                  w_s: float, w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
     """Least squares on E: on a subsample first, then on every frame (``objective``)."""
     n_eval = 0
     coarse = _coarse(limb)
@@ -627,8 +627,8 @@ runs it ends at most 1e-10 (relative) above the least-squares E, which itself li
 1e-13) cost 1.7× the evaluations for agreement the comparison cannot use."""
 
 
-def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], w_s: float,  # noqa: PLR0917
-                  w_l: float, progress: Progress) -> tuple[Float, int, bool]:
+def _fit_paper_nm(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], *,
+                  w_s: float, w_l: float, progress: Progress) -> tuple[Float, int, bool]:
     l_up, l_low = lengths
 
     def cost(theta: Float) -> float:
@@ -687,9 +687,8 @@ def _hinge_axis(limb: LimbInUpperFrame, a: Float) -> tuple[Float, float]:
     return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
 
 
-def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,  # noqa: PLR0913, PLR0917
-                     w_hinge: float, w_line: float, w_length: float, w_distal: float,
-                     robust_scale: float | None, w_plane: float,
+def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
+                     weights: PriorWeights, *, robust_scale: float | None,
                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """θ = (k, a, L): middle joint (upper frame), distal joint (distal frame), lower length.
 
@@ -703,12 +702,11 @@ def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis:
     about its own axis leaves it in place, so in the thigh (upper-arm) frame its path follows
     the flexion arc; points beside it also swing with the ankle (wrist) and the twist.
     """
-    problem = _ImprovedProblem(limb, lengths, axis, _PriorWeights(
-        w_hinge, w_line, w_length, w_distal, w_plane), robust_scale)
+    problem = _ImprovedProblem(limb, lengths, axis, weights, robust_scale)
     return problem.residuals, problem.jacobian
 
 
-class _PriorWeights(NamedTuple):
+class PriorWeights(NamedTuple):
     """Per-frame weights of the improved method's prior rows (see ``improved_problem``)."""
 
     hinge: float
@@ -716,6 +714,13 @@ class _PriorWeights(NamedTuple):
     length: float
     distal: float
     plane: float
+
+
+def _prior_weights(doubt: float, gain: float) -> PriorWeights:
+    """The improved method's prior weights: the hinge's from the doubt about its axis, the
+    straight-limb, length and distal-offset ones scaled by ``gain`` (little motion)."""
+    return PriorWeights(_hinge_weight(doubt), gain * _W_LINE, gain * _W_LENGTH,
+                        gain * _W_DISTAL, _W_PLANE)
 
 
 def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
@@ -731,7 +736,7 @@ class _ImprovedProblem:
     θ = (k, a, L)."""
 
     def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], axis: Float,
-                 weights: _PriorWeights, robust_scale: float | None) -> None:
+                 weights: PriorWeights, robust_scale: float | None) -> None:
         m = limb.n
         self.limb, self.lengths, self.axis, self.robust_scale = limb, lengths, axis, robust_scale
         self.h_bar = limb.h.mean(axis=0)
@@ -899,7 +904,6 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     # Little relative rotation between the two sensors means the data hardly constrain the
     # joints (and their noise would be fitted): lean on the priors accordingly.
     gain = float(np.clip((_MOTION_REF_DEG / max(motion_deg, 1e-3)) ** 2, 1.0, 100.0))
-    w_line, w_length, w_distal = gain * _W_LINE, gain * _W_LENGTH, gain * _W_DISTAL
     best: tuple[float, Float, Float, float] | None = None
     # Several starts on the subsample (the objective has local minima when the limb moves
     # little); the best one is polished on every frame.
@@ -909,9 +913,8 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
-            fun, jac = improved_problem(coarse, lengths, axis, _hinge_weight(doubt),
-                                         w_line, w_length, w_distal, robust_scale,
-                                         _W_PLANE)
+            fun, jac = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain),
+                                        robust_scale=robust_scale)
             # MINPACK's trust region from these rough starts: the objective has several
             # local minima and its steps decide the basin (cheap on the subsample)
             sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
@@ -925,16 +928,16 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
             axis = new_axis
             if moved < 1e-4:
                 break
-        fun, _ = improved_problem(coarse, lengths, axis, _hinge_weight(doubt), w_line,
-                                   w_length, w_distal, robust_scale, _W_PLANE)
+        fun, _ = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain),
+                                  robust_scale=robust_scale)
         r = fun(x)
         value = float(r @ r)
         if best is None or value < best[0]:
             best = (value, x, axis, doubt)
     assert best is not None
     _, x, axis, doubt = best
-    fun, jac = improved_problem(limb, lengths, axis, _hinge_weight(doubt), w_line,
-                                 w_length, w_distal, robust_scale, _W_PLANE)
+    fun, jac = improved_problem(limb, lengths, axis, _prior_weights(doubt, gain),
+                                robust_scale=robust_scale)
     if coarse is not limb:
         x, more, ok = levenberg_marquardt(*normal_from_residuals(fun, jac), x)
         n_eval += more
@@ -1036,12 +1039,12 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective,
                                            _LimbSettings(method, optimizer, lengths, w_s, w_l,
                                                          robust_scale), report)
-    fit = _limb_fit(world, objective, theta, n_eval, ok, quality)
+    fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality)
     report(1.0, "limbs")
     return fit
 
 
-def _limb_fit(world: _World, objective: PaperObjective, theta: Float, n_eval: int, ok: bool,  # noqa: PLR0917
+def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval: int, ok: bool,
               quality: dict[str, Any]) -> LimbFit:
     """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
@@ -1082,10 +1085,10 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
     x0 = _initial_point(_coarse(limb) or limb, lengths)
     quality: dict[str, Any] = {"method": method}
     if method == "paper" and settings.optimizer == "nelder-mead":
-        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s, w_l, report)
+        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s=w_s, w_l=w_l, progress=report)
         quality["optimizer"] = "nelder-mead"
         return theta, n_eval, ok, quality
-    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s, w_l, objective)
+    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s=w_s, w_l=w_l, objective=objective)
     quality["optimizer"] = "least-squares"
     if method == "improved":
         report(0.3, "limbs")

@@ -254,21 +254,40 @@ class Anchor:
     plane: float = 0.0
 
 
-def shared_fit(fit: JointFit, shared: SlipFit, j: int,  # noqa: PLR0913, PLR0917
-                pa_true: NDArray[np.float64], ra_rot: Rotation, pb_true: NDArray[np.float64],
-                rb_rot: Rotation, ok_a: NDArray[np.bool_], ok_b: NDArray[np.bool_], *,
-                symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
-                prior: tuple[NDArray[np.float64], float] | None,
-                anchor: Anchor | None = None,
-                hinge_axis: NDArray[np.float64] | None = None,
-                ) -> tuple[JointFit, NDArray[np.float64]]:
+class PairPoses(NamedTuple):
+    """A joint's two sensors for ``shared_fit``: positions (F, 3) without their estimated
+    slip, sensor → world rotations and valid samples (F,), of sensor a and of sensor b."""
+
+    pa_true: NDArray[np.float64]
+    ra_rot: Rotation
+    pb_true: NDArray[np.float64]
+    rb_rot: Rotation
+    ok_a: NDArray[np.bool_]
+    ok_b: NDArray[np.bool_]
+
+
+class SharedPriors(NamedTuple):
+    """What ``shared_fit`` combines with the shared model's centre: a symmetry plane and a
+    Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, and a hinge
+    axis (3,) in frame a along which the model's precision is dropped."""
+
+    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    prior: tuple[NDArray[np.float64], float] | None = None
+    anchor: Anchor | None = None
+    hinge_axis: NDArray[np.float64] | None = None
+
+
+def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors: SharedPriors
+               ) -> tuple[JointFit, NDArray[np.float64]]:
     """The joint's centre from the shared slip model (posterior mean and covariance of its
     centre, every sensor's slip integrated out) combined with its priors (Gaussian, in
     absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision, less where its
     ``anchor`` is itself uncertain), and its path from the sensor positions without their
-    estimated slip (``pa_true``, ``pb_true``). Along ``hinge_axis`` (in frame a) the model's
-    precision is dropped: there it counts orientation noise as rotation. Also returns the
-    posterior covariance of the centre in frame a (3, 3)."""
+    estimated slip (``poses``). Along ``hinge_axis`` (in frame a) the model's precision is
+    dropped: there it counts orientation noise as rotation. Also returns the posterior
+    covariance of the centre in frame a (3, 3)."""
+    pa_true, ra_rot, pb_true, rb_rot, ok_a, ok_b = poses
+    symmetry, prior, anchor, hinge_axis = priors
     mean = shared.centres[j].reshape(6)
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
@@ -415,7 +434,93 @@ class SensorPoses:
 
 @dataclass(frozen=True)
 class SkeletonOptions:
-    """The checked options of one ``estimate_skeleton`` call (see there)."""
+    """The checked options of one ``estimate_skeleton`` call (``skeleton_options``).
+
+    Attributes
+    ----------
+    method : {"auto", "llsf", "gdke", "reduced"}
+        ``"llsf"`` / ``"gdke"``: every joint between two sensors by that estimator as
+        published (plain least squares, no hinge rule); needs all 15 sensors.
+        ``"reduced"``: the paper exactly: torso joints by ``torso``, root and chest by eq. 1,
+        the four limbs by the variance cost E (eqs. 2–5, ``limbs.estimate_limb(method=
+        "paper")``) from the thigh/foot and upper-arm/hand sensors; works with 11 or 15
+        sensors (extra sensors are ignored). ``"auto"`` (default): every sensor present and
+        the best estimator per joint: every sensor's soft-tissue slip from all the joint
+        equations at once (``slip.estimate_slip``, corrected for the attenuation bias of
+        orientation noise where the motion is well above it), the torso joints (waist, neck,
+        shoulders, hips) from that shared model with their anatomical priors (below),
+        robust LLSF (Huber IRLS) for the limb joints, hinge knees and elbows resolved by the
+        straight-limb rule, wrists fitted on the positions without slip and, when they
+        twist, placed by the bone-length rule (``joints.estimate_joint``); limb joints whose
+        motion is well above the orientation noise (``SlipFit.signal_share`` at least
+        ``slip.EIV_SIGNAL_SHARE``) then take their centre from the shared model, with that
+        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs
+        whose middle sensor is missing by ``estimate_limb(method="improved")`` on the frames
+        in which both their sensors were measured, and zero-phase smoothing of the joint
+        paths. Gap-filled samples never enter a fit (nor, through the slip model's rotation
+        filter, the frames around them); the joints are placed in every frame.
+    optimizer : {"least-squares", "nelder-mead"}
+        Minimiser of E for ``method="reduced"``.
+    torso : {"llsf", "gdke"}
+        Torso estimator of ``method="reduced"``.
+    up : ndarray, shape (3,)
+        World up direction (segment orientations only).
+    i0 : int
+        Calibration frame of hands, feet and head orientations (paper eq. 7).
+    anthropometry : str or mapping
+        Table of standard segment lengths (``limbs.standard_lengths``).
+    w_s, w_l : float
+        Weights of the paper's eq. 5.
+    smooth : bool, optional
+        Smooth the joint paths (Savitzky–Golay, 0.1 s); default: only for ``"auto"``.
+    highpass_s : float
+        ``"auto"`` only: remove a moving average of this length (seconds) from each LLSF
+        system, cancelling sensor slip slower than the motion (0: off, the default; see
+        ``joints.estimate_joint(highpass=...)``).
+    slip_hz : float
+        ``"auto"`` only: model each sensor's soft-tissue slip below this frequency as a
+        smooth displacement in its frame, estimated from the equations of all joints at once
+        (``slip.estimate_slip``; 0: off: the torso joints are then fitted one by one by
+        ``joints.estimate_joint``, the wrists without a slip model). Not used with
+        ``highpass_s``.
+    min_range_deg : float
+        A joint whose two segments rotate less than this relative to each other
+        (``joints.range_of_motion``) is still estimated, from the anatomical priors where
+        ``"auto"`` has them, but flagged: ``quality[joint]["reliability"] == "prior"`` and a
+        warning naming it. When more than half of the two-sensor joints are that still, the
+        recording as a whole is refused (EstimationError, ``field="motion"``).
+    Notes
+    -----
+    Priors of ``"auto"`` (Gaussian priors on the centre, in both sensor frames; with the
+    shared slip model their precision ``1/s0²`` is added to the posterior precision of the
+    joint's centre, every sensor's slip integrated out; without it,
+    ``joints.estimate_joint(prior=...)`` weighs them by ``σ²/(N_eff s0²)`` against the
+    data; either way they act only along the directions the motion leaves undetermined):
+
+    - neck: ``NECK_RISE`` × shoulder width above the shoulders' midpoint, away from the
+      waist, in the chest sensor's frame (``s0 = PRIOR_SIGMA_M["neck"]``);
+    - shoulders and hips: the mirror image of the opposite joint about the trunk's
+      mid-sagittal plane (through the waist–neck line, normal along the left–right axis;
+      for the pelvis through the waist), ``s0 = PRIOR_SIGMA_M["mirror"]``. Left/right
+      symmetry of the skeleton does not depend on where the sensors sit;
+    - waist and neck: the mid-plane between the hips (shoulders), ``s0 =
+      SYMMETRY_SIGMA_M`` across it (``estimate_joint(symmetry_weight=0.01)`` of the
+      normalised LLSF cost without the shared model).
+
+    These priors are built from other estimated joints; with the shared model each one's
+    covariance is widened by those joints' posterior covariance (the neck's by that of the
+    shoulders' midpoint, a mirror image's by that of the mirrored joint, a mid-plane's by
+    that of the pair's midpoint across it), so a prior anchored on joints that barely move
+    pulls less (``quality[joint]["prior_anchor_sd_m"]``).
+
+    Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
+    carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
+    rotates less than ``min_range_deg``). With the shared slip model, every joint between two
+    sensors also has ``data_sd_m``: the standard deviation (metres, root of the trace of its
+    covariance in the first sensor's frame) of its centre from the recording alone, before
+    any prior or hinge rule; along a hinge's axis, where orientation noise passes for
+    rotation, it is optimistic.
+    """
 
     method: str = "auto"
     optimizer: str = "least-squares"
@@ -673,14 +778,14 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
         a, b = JOINT_SEGMENTS[plan.name]
         sensors, without = ctx.sensors, ctx.shared.without_slip
         axis = own.quality.get("axis") if own.quality.get("hinge") else None
-        fit, posterior = shared_fit(
-            own, ctx.shared.fit, ctx.shared.index[plan.name], without[a], sensors.rotations[a],
-            without[b], sensors.rotations[b], sensors.ok[a], sensors.ok[b],
-            symmetry=plan.symmetry if role == "torso" else None,
-            prior=plan.prior if role == "torso" else (own.local_a, LIMB_PRIOR_SIGMA_M),
-            anchor=plan.anchor if role == "torso" else None,
-            hinge_axis=None if role == "torso" or axis is None
-            else np.asarray(axis, dtype=float))
+        poses = PairPoses(without[a], sensors.rotations[a], without[b], sensors.rotations[b],
+                          sensors.ok[a], sensors.ok[b])
+        priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor) if role == "torso"
+                  else SharedPriors(prior=(own.local_a, LIMB_PRIOR_SIGMA_M),
+                                    hinge_axis=None if axis is None
+                                    else np.asarray(axis, dtype=float)))
+        fit, posterior = shared_fit(own, ctx.shared.fit, ctx.shared.index[plan.name], poses,
+                                    priors)
     return LocatedJoint(_with_reliability(ctx, plan, _with_data_sd(ctx, plan.name, fit)), own,
                         posterior)
 
@@ -746,7 +851,7 @@ class LocatedJoints:
 
     def release(self) -> None:
         """Drop the fits once every joint is located: their paths are in ``joints``, which
-        ``_completed`` then replaces path by path (a long take's memory)."""
+        ``_smoothed`` then replaces path by path (a long take's memory)."""
         self.fits.clear()
         self.own.clear()
         self.posterior.clear()
@@ -898,21 +1003,11 @@ def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str,
 
 
 def estimate_skeleton(  # noqa: PLR0913
-    recording: SensorRecording,
-    *,
-    method: str = "auto",
-    optimizer: str = "least-squares",
-    torso: str = "llsf",
-    up: ArrayLike = (0.0, 1.0, 0.0),
-    i0: int = 0,
-    anthropometry: str | Mapping[str, float] = "aist",
-    w_s: float = 0.01,
-    w_l: float = 0.01,
-    smooth: bool | None = None,
-    highpass_s: float = 0.0,
-    slip_hz: float = 0.5,
-    min_range_deg: float = 2.0,
-    progress: Progress | None = None,
+    recording: SensorRecording, *, method: str = "auto", optimizer: str = "least-squares",
+    torso: str = "llsf", up: ArrayLike = (0.0, 1.0, 0.0), i0: int = 0,
+    anthropometry: str | Mapping[str, float] = "aist", w_s: float = 0.01, w_l: float = 0.01,
+    smooth: bool | None = None, highpass_s: float = 0.0, slip_hz: float = 0.5,
+    min_range_deg: float = 2.0, progress: Progress | None = None,
 ) -> SkeletonResult:
     """Joint centres, bone lengths and segment orientations from a sensor recording.
 
@@ -921,57 +1016,10 @@ def estimate_skeleton(  # noqa: PLR0913
     recording : SensorRecording
         15 sensors (full suit) or the 11 of the reduced suit (``model.REDUCED_SEGMENTS``),
         positions in metres. Dropped samples (NaN) are filled by interpolation.
-    method : {"auto", "llsf", "gdke", "reduced"}
-        ``"llsf"`` / ``"gdke"``: every joint between two sensors by that estimator as
-        published (plain least squares, no hinge rule); needs all 15 sensors.
-        ``"reduced"``: the paper exactly: torso joints by ``torso``, root and chest by eq. 1,
-        the four limbs by the variance cost E (eqs. 2–5, ``limbs.estimate_limb(method=
-        "paper")``) from the thigh/foot and upper-arm/hand sensors; works with 11 or 15
-        sensors (extra sensors are ignored). ``"auto"`` (default): every sensor present and
-        the best estimator per joint: every sensor's soft-tissue slip from all the joint
-        equations at once (``slip.estimate_slip``, corrected for the attenuation bias of
-        orientation noise where the motion is well above it), the torso joints (waist, neck,
-        shoulders, hips) from that shared model with their anatomical priors (below),
-        robust LLSF (Huber IRLS) for the limb joints, hinge knees and elbows resolved by the
-        straight-limb rule, wrists fitted on the positions without slip and, when they
-        twist, placed by the bone-length rule (``joints.estimate_joint``); limb joints whose
-        motion is well above the orientation noise (``SlipFit.signal_share`` at least
-        ``slip.EIV_SIGNAL_SHARE``) then take their centre from the shared model, with that
-        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs
-        whose middle sensor is missing by ``estimate_limb(method="improved")`` on the frames
-        in which both their sensors were measured, and zero-phase smoothing of the joint
-        paths. Gap-filled samples never enter a fit (nor, through the slip model's rotation
-        filter, the frames around them); the joints are placed in every frame.
-    optimizer : {"least-squares", "nelder-mead"}
-        Minimiser of E for ``method="reduced"``.
-    torso : {"llsf", "gdke"}
-        Torso estimator of ``method="reduced"``.
-    up : array_like, shape (3,)
-        World up direction (segment orientations only).
-    i0 : int
-        Calibration frame of hands, feet and head orientations (paper eq. 7).
-    anthropometry : str or mapping
-        Table of standard segment lengths (``limbs.standard_lengths``).
-    w_s, w_l : float
-        Weights of the paper's eq. 5.
-    smooth : bool, optional
-        Smooth the joint paths (Savitzky–Golay, 0.1 s); default: only for ``"auto"``.
-    highpass_s : float
-        ``"auto"`` only: remove a moving average of this length (seconds) from each LLSF
-        system, cancelling sensor slip slower than the motion (0: off, the default; see
-        ``joints.estimate_joint(highpass=...)``).
-    slip_hz : float
-        ``"auto"`` only: model each sensor's soft-tissue slip below this frequency as a
-        smooth displacement in its frame, estimated from the equations of all joints at once
-        (``slip.estimate_slip``; 0: off: the torso joints are then fitted one by one by
-        ``joints.estimate_joint``, the wrists without a slip model). Not used with
-        ``highpass_s``.
-    min_range_deg : float
-        A joint whose two segments rotate less than this relative to each other
-        (``joints.range_of_motion``) is still estimated, from the anatomical priors where
-        ``"auto"`` has them, but flagged: ``quality[joint]["reliability"] == "prior"`` and a
-        warning naming it. When more than half of the two-sensor joints are that still, the
-        recording as a whole is refused (EstimationError, ``field="motion"``).
+    method, optimizer, torso, up, i0, anthropometry, w_s, w_l, smooth, highpass_s, slip_hz, \
+min_range_deg
+        The options, each described (with the priors of ``"auto"``) in ``SkeletonOptions``;
+        ``up`` is array_like (3,), ``smooth`` None: only for ``"auto"``.
     progress : callable, optional
         ``progress(fraction, stage)`` with stages ``gaps`` (filling, ranges of motion),
         ``slip`` (the shared slip model of ``"auto"``), ``torso``, ``limbs``,
@@ -995,35 +1043,9 @@ def estimate_skeleton(  # noqa: PLR0913
 
     Notes
     -----
-    Priors of ``"auto"`` (Gaussian priors on the centre, in both sensor frames; with the
-    shared slip model their precision ``1/s0²`` is added to the posterior precision of the
-    joint's centre, every sensor's slip integrated out; without it,
-    ``joints.estimate_joint(prior=...)`` weighs them by ``σ²/(N_eff s0²)`` against the
-    data; either way they act only along the directions the motion leaves undetermined):
-
-    - neck: ``NECK_RISE`` × shoulder width above the shoulders' midpoint, away from the
-      waist, in the chest sensor's frame (``s0 = PRIOR_SIGMA_M["neck"]``);
-    - shoulders and hips: the mirror image of the opposite joint about the trunk's
-      mid-sagittal plane (through the waist–neck line, normal along the left–right axis;
-      for the pelvis through the waist), ``s0 = PRIOR_SIGMA_M["mirror"]``. Left/right
-      symmetry of the skeleton does not depend on where the sensors sit;
-    - waist and neck: the mid-plane between the hips (shoulders), ``s0 =
-      SYMMETRY_SIGMA_M`` across it (``estimate_joint(symmetry_weight=0.01)`` of the
-      normalised LLSF cost without the shared model).
-
-    These priors are built from other estimated joints; with the shared model each one's
-    covariance is widened by those joints' posterior covariance (the neck's by that of the
-    shoulders' midpoint, a mirror image's by that of the mirrored joint, a mid-plane's by
-    that of the pair's midpoint across it), so a prior anchored on joints that barely move
-    pulls less (``quality[joint]["prior_anchor_sd_m"]``).
-
-    Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
-    carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
-    rotates less than ``min_range_deg``). With the shared slip model, every joint between two
-    sensors also has ``data_sd_m``: the standard deviation (metres, root of the trace of its
-    covariance in the first sensor's frame) of its centre from the recording alone, before
-    any prior or hinge rule; along a hinge's axis, where orientation noise passes for
-    rotation, it is optimistic.
+    The steps: ``skeleton_options``, ``locate_joints`` (``sensors_used``,
+    ``skeleton_context``, ``locate_torso``, ``mirror_torso``, ``derived_torso``,
+    ``locate_limbs``) and ``skeleton_result`` (smoothing, bone lengths, orientations).
 
     Miura, Kaiga, Tajima, Shibata & Tamamoto, "Sensor Number Reduction in Skeleton
     Estimation from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707 (2015);
@@ -1035,6 +1057,40 @@ def estimate_skeleton(  # noqa: PLR0913
         recording, method=method, optimizer=optimizer, torso=torso, up=up, i0=i0,
         anthropometry=anthropometry, w_s=w_s, w_l=w_l, smooth=smooth, highpass_s=highpass_s,
         slip_hz=slip_hz, min_range_deg=min_range_deg)
+    sensors, located = locate_joints(recording, options, report)
+    return skeleton_result(recording, options, sensors, located,
+                           report=scaled(report, 0.9, 1.0), started=started)
+
+
+def skeleton_result(recording: SensorRecording, options: SkeletonOptions,
+                    sensors: SensorPoses, located: LocatedJoints, *, report: Progress,
+                    started: float) -> SkeletonResult:
+    """``estimate_skeleton``'s result from the located joints: the paths completed
+    (``_smoothed``, ``_completed``: bone lengths, orientations; ``report(fraction,
+    "orientations")``), ``started`` the ``time.perf_counter()`` of the call."""
+    completed = _smoothed(located.joints, recording.fps, smooth=options.smooth, report=report)
+    bone_lengths, orientations = _completed(completed, sensors.rotations, up=options.up,
+                                            i0=options.i0, warnings=located.warnings,
+                                            report=report)
+    return SkeletonResult(
+        method=options.method,
+        fps=recording.fps,
+        joints={name: completed[name] for name in JOINTS},
+        offsets={name: located.offsets[name] for name in JOINTS},
+        bone_lengths=bone_lengths,
+        orientations=orientations,
+        quality={name: JointQuality.of(located.quality[name]) for name in JOINTS},
+        warnings=tuple(located.warnings),
+        timings={"estimate_s": _time.perf_counter() - started},
+    )
+
+
+def locate_joints(recording: SensorRecording, options: SkeletonOptions, report: Progress
+                  ) -> tuple[SensorPoses, LocatedJoints]:
+    """Every joint of ``estimate_skeleton`` located, before the paths are completed: the
+    sensors used and the located joints (their fits released). ``report(fraction, stage)``
+    of the whole fit, up to 0.9, with the stages ``gaps``, ``slip``, ``torso``, ``limbs``."""
+    method = options.method
     located = LocatedJoints(warnings=list(recording.warnings))
     report(0.0, "gaps")
     sensors = sensors_used(recording, method, located.warnings)
@@ -1048,23 +1104,10 @@ def estimate_skeleton(  # noqa: PLR0913
     joints = located.joints
     lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
     _check_units({"torso": lt}, located.warnings)  # before the limbs: their priors assume metres
-    locate_limbs(ctx, located, standard_lengths(lt, anthropometry), scaled(report, 0.55, 0.9))
+    locate_limbs(ctx, located, standard_lengths(lt, options.anthropometry),
+                 scaled(report, 0.55, 0.9))
     located.release()
-    completed, bone_lengths, orientations = _completed(
-        joints, sensors.rotations, fps=recording.fps, smooth=options.smooth, up=options.up,
-        i0=i0, warnings=located.warnings, report=scaled(report, 0.9, 1.0))
-    elapsed = _time.perf_counter() - started
-    return SkeletonResult(
-        method=method,
-        fps=recording.fps,
-        joints={name: completed[name] for name in JOINTS},
-        offsets={name: located.offsets[name] for name in JOINTS},
-        bone_lengths=bone_lengths,
-        orientations=orientations,
-        quality={name: JointQuality.of(located.quality[name]) for name in JOINTS},
-        warnings=tuple(located.warnings),
-        timings={"estimate_s": elapsed},
-    )
+    return sensors, located
 
 
 def estimate_skeleton_from_offsets(
@@ -1126,9 +1169,10 @@ def estimate_skeleton_from_offsets(
     mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
     joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
               for name, (seg, vec) in local.items()}
-    joints, bone_lengths, orientations = _completed(
-        joints, sensors.rotations, fps=recording.fps, smooth=smooth, up=up_vec, i0=i0,
-        warnings=warnings, report=scaled(report, 0.6, 1.0))
+    finish = scaled(report, 0.6, 1.0)
+    joints = _smoothed(joints, recording.fps, smooth=smooth, report=finish)
+    bone_lengths, orientations = _completed(joints, sensors.rotations, up=up_vec, i0=i0,
+                                            warnings=warnings, report=finish)
     return SkeletonResult(
         method="offsets",
         fps=recording.fps,
@@ -1164,23 +1208,28 @@ def _checked_offsets(recording: SensorRecording, offsets: Mapping[str, JointOffs
     return local
 
 
-def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,  # noqa: PLR0913
-               fps: float, smooth: bool, up: NDArray[np.float64], i0: int, warnings: list[str],
-               report: Progress,
-               ) -> tuple[dict[str, NDArray[np.float64]], dict[str, float],
-                          dict[str, NDArray[np.float64]]]:
-    """The joint paths (smoothed if asked: in ``joints``, path by path, so that each
-    unsmoothed one can go at once), bone lengths (checked against human size) and segment
-    orientations; ``report(fraction, "orientations")`` after each smoothed path."""
+def _smoothed(joints: dict[str, NDArray[np.float64]], fps: float, *, smooth: bool,
+              report: Progress) -> dict[str, NDArray[np.float64]]:
+    """The joint paths, smoothed if asked: in ``joints``, path by path, so that each
+    unsmoothed one can go at once; ``report(fraction, "orientations")`` at 0 and after each
+    smoothed path, up to 0.6 (``_completed`` follows)."""
     report(0.0, "orientations")
     if smooth:
         for k, name in enumerate(list(joints)):
             joints[name] = _smooth(joints[name], fps)
             report(0.6 * (k + 1) / len(joints), "orientations")
+    return joints
+
+
+def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, Rotation], *,
+               up: NDArray[np.float64], i0: int, warnings: list[str], report: Progress,
+               ) -> tuple[dict[str, float], dict[str, NDArray[np.float64]]]:
+    """Bone lengths (checked against human size) and segment orientations of the final
+    joint paths (``_smoothed``); ``report(fraction, "orientations")`` from 0.6 to 1."""
     bone_lengths = {seg: float(rows.norms(joints[b] - joints[a]).mean())
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
     report(0.6, "orientations")
     orientations = estimate_orientations(joints, rotations, i0=i0, up=up)
     report(1.0, "orientations")
-    return joints, bone_lengths, orientations
+    return bone_lengths, orientations

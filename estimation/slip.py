@@ -315,7 +315,7 @@ def estimate_slip(  # noqa: PLR0913
         blocks.append(joint_block(
             layout, j, (a, b), (rot[a], rot[b]),
             np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
-            (valid[a] & valid[b]).astype(float), v_eiv))
+            w=(valid[a] & valid[b]).astype(float), v_eiv=v_eiv))
         report(0.4 + 0.55 * (j + 1) / len(pairs), "slip")
     normal, rhs_all = _assemble(layout, blocks)
     x, blocks_c = _solve_system(normal, rhs_all, layout.n_s)
@@ -327,7 +327,7 @@ def estimate_slip(  # noqa: PLR0913
     if not any(block.eiv is not None for block in blocks):
         return SlipFit(slip, centres, blocks_c, (False,) * len(pairs), share)
     centres, blocks_c, corrected = _errors_in_variables(
-        normal, rhs_all, layout.n_s, blocks, centres, blocks_c)
+        normal, rhs_all, layout.n_s, blocks, centres, covariances=blocks_c)
     return SlipFit(slip, centres, blocks_c, corrected, share)
 
 
@@ -403,9 +403,9 @@ class JointBlock(NamedTuple):
     share: float
 
 
-def joint_block(layout: SlipLayout, j: int, pair: tuple[str, str],  # noqa: PLR0917
+def joint_block(layout: SlipLayout, j: int, pair: tuple[str, str],
                 rotations: tuple[NDArray[np.float64], NDArray[np.float64]],
-                d: NDArray[np.float64], w: NDArray[np.float64], v_eiv: float) -> JointBlock:
+                d: NDArray[np.float64], *, w: NDArray[np.float64], v_eiv: float) -> JointBlock:
     """The weighted rows of joint ``j`` between sensors ``pair`` in the slip model.
 
     Parameters
@@ -600,8 +600,8 @@ def _assemble(layout: SlipLayout, blocks: Sequence[JointBlock]
     return normal, rhs_all
 
 
-def _errors_in_variables(normal: NDArray[np.float64], rhs_all: NDArray[np.float64], n_s: int,  # noqa: PLR0917
-                         blocks: Sequence[JointBlock], centres: NDArray[np.float64],
+def _errors_in_variables(normal: NDArray[np.float64], rhs_all: NDArray[np.float64], n_s: int,
+                         blocks: Sequence[JointBlock], centres: NDArray[np.float64], *,
                          covariances: NDArray[np.float64]
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[bool, ...]]:
     """Centres, covariances and per-joint flags after the errors-in-variables correction:

@@ -220,8 +220,9 @@ def test_levenberg_marquardt_reaches_scipy_minimum(robust: float | None) -> None
     objective (robust, with bounds rows) and on the paper's E."""
     leg = make_leg(n=300, noise_m=0.002, noise_deg=0.5, seed=8)
     limb = limbs.limb_in_upper_frame(*leg.args())
-    fun, jac = limbs.improved_problem(limb, (0.4, 0.38), leg.axis_local, 0.03, 3e-4, 1e-4,
-                                       3e-4, robust, 0.2)
+    fun, jac = limbs.improved_problem(limb, (0.4, 0.38), leg.axis_local,
+                                      limbs.PriorWeights(0.03, 3e-4, 1e-4, 3e-4, 0.2),
+                                      robust_scale=robust)
     x0 = np.concatenate([leg.knee_local + 0.03, leg.ankle_local - 0.02, [0.35]])
     ref = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", ftol=1e-12,
                         xtol=1e-12, gtol=1e-12)
@@ -248,8 +249,9 @@ def test_improved_jacobian_matches_finite_differences(robust: float | None,
     leg = make_leg(n=80, noise_m=0.002, seed=7)
     limb = limbs.limb_in_upper_frame(*leg.args())
     axis = np.array([0.6, 0.0, 0.8])
-    fun, jac = limbs.improved_problem(limb, (0.4, 0.38), axis, 0.03, 3e-4, 1e-4, 3e-4, robust,
-                                       0.2)
+    fun, jac = limbs.improved_problem(limb, (0.4, 0.38), axis,
+                                      limbs.PriorWeights(0.03, 3e-4, 1e-4, 3e-4, 0.2),
+                                      robust_scale=robust)
     x = np.concatenate([leg.knee_local + 0.02, leg.ankle_local - 0.01, [0.37]])
     if bounds_active:  # shank 58 % too long, ankle 0.3 m from its sensor
         x[3:6] *= 0.3 / np.linalg.norm(x[3:6])

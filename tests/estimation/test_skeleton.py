@@ -20,6 +20,8 @@ from bonefit.estimation.results import JointOffset
 from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
 from bonefit.estimation.skeleton import (
     Anchor,
+    PairPoses,
+    SharedPriors,
     estimate_chest,
     estimate_root,
     estimate_skeleton,
@@ -472,8 +474,8 @@ def test_a_prior_is_only_as_certain_as_its_anchor() -> None:
     shifts = []
     for spread in (np.zeros((3, 3)), np.diag([4e-3, 2e-3, 1e-3])):
         anchor = Anchor(point=spread)
-        out, cov_a = shared_fit(fit, shared, 0, zeros, eye, zeros, eye, ok, ok,
-                                 symmetry=None, prior=(x0, s0), anchor=anchor)
+        out, cov_a = shared_fit(fit, shared, 0, PairPoses(zeros, eye, zeros, eye, ok, ok),
+                                 SharedPriors(prior=(x0, s0), anchor=anchor))
         p = np.linalg.inv(s0**2 * np.eye(3) + spread)
         post = np.linalg.inv(np.linalg.inv(c_data) + p)
         expected = post @ (np.linalg.solve(c_data, m) + p @ x0)

@@ -323,7 +323,7 @@ def test_a_joint_block_is_symmetric_touches_its_unknowns_and_fits_a_clean_joint(
     # component-major: matrices (9, F), the offset (3, F)
     rows = tuple(np.ascontiguousarray(r.as_matrix().reshape(N, 9).T) for r in (hub_rot, limb_rot))
     block = joint_block(layout, 1, ("hub", "limb"), (rows[0], rows[1]),
-                        np.ascontiguousarray((limb_pos - hub_pos).T), np.ones(N), 0.0)
+                        np.ascontiguousarray((limb_pos - hub_pos).T), w=np.ones(N), v_eiv=0.0)
     k = layout.k
     assert block.eiv is None
     assert block.share == 1.0
