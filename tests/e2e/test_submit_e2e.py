@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from bonefit.client import Client
+from bonefit.estimation.vocabulary import RESULT_FORMATS
 from tests.e2e.conftest import BONEFIT, Launcher, ServerProcess, clean_env
 
 pytestmark = pytest.mark.slow
@@ -69,8 +70,8 @@ def test_a_batch_with_a_broken_take_then_a_resume(server: ServerProcess, tmp_pat
     assert first.returncode == 1, first.stdout + first.stderr
     for take in takes:
         results = sorted(p.name for p in out.glob(f"{take.stem}.*"))
-        expected = [] if "broken" in take.name else [f"{take.stem}.{f}" for f in
-                                                     ("bvh", "csv", "json")]
+        expected = [] if "broken" in take.name else sorted(f"{take.stem}.{f}"
+                                                           for f in RESULT_FORMATS)
         assert results == expected
     assert (out / "take03.bvh").read_text().startswith("HIERARCHY")
     broken_line = next(line for line in first.stdout.splitlines()
