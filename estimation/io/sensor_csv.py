@@ -35,6 +35,7 @@ from .sensor_common import (
     time_from_fps,
     unit_scale,
 )
+from .tables import csv_records
 
 COMPONENTS: Final[tuple[str, ...]] = ("x", "y", "z", "qw", "qx", "qy", "qz")
 """Per-sensor columns of the sensor CSV, in the order they are stored."""
@@ -97,14 +98,7 @@ def csv_rows(handle: IO[str], start: int = 1) -> Iterator[tuple[int, list[str]]]
     is line ``start``."""
     reader = csv.reader(limits.bounded_lines(handle, start=start))
     offset = start - 1
-    while True:
-        try:
-            row = next(reader)
-        except StopIteration:
-            return
-        except csv.Error as exc:
-            raise InputError(f"unreadable CSV at line {offset + reader.line_num}: {exc}",
-                             line=offset + reader.line_num) from None
+    for row in csv_records(reader, first_line=start):
         line = start
         start = offset + reader.line_num + 1
         if not row or (len(row) == 1 and not row[0].strip()):

@@ -98,17 +98,18 @@ def _read_table_slowly(path: PathLike) -> tuple[list[str], NDArray[np.float64]]:
     return header, table
 
 
-def csv_records(reader: Any) -> Iterator[list[str]]:
+def csv_records(reader: Any, first_line: int = 2) -> Iterator[list[str]]:
     """The rows of a ``csv.reader``; its errors (a NUL byte, an unclosed quote) as
-    InputError."""
+    InputError naming the line. The reader's first line is line ``first_line`` of the file
+    (by default the one after a header read before the reader was made)."""
     while True:
         try:
             row = next(reader)
         except StopIteration:
             return
         except csv.Error as exc:
-            raise InputError(f"unreadable CSV at line {reader.line_num + 1}: {exc}",
-                             line=reader.line_num + 1) from None
+            line = first_line - 1 + reader.line_num
+            raise InputError(f"unreadable CSV at line {line}: {exc}", line=line) from None
         yield row
 
 
