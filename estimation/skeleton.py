@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from . import _rows as rows
 from .errors import EstimationError, InputError
 from .gaps import component_major, fill_sensor_major, sensor_major
-from .joints import JointFit, estimate_joint, range_of_motion
+from .joints import HINGE_RULE_SD_M, JointFit, estimate_joint, range_of_motion
 from .limbs import estimate_limb, standard_lengths, torso_length
 from .model import BONES, JOINT_SEGMENTS, JOINTS, LIMBS, REDUCED_SEGMENTS, SEGMENTS, Limb
 from .orientations import estimate_orientations
@@ -269,7 +269,8 @@ class PairPoses(NamedTuple):
 class SharedPriors(NamedTuple):
     """What ``shared_fit`` combines with the shared model's centre: a symmetry plane and a
     Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, and a hinge
-    axis (3,) in frame a along which the model's precision is dropped."""
+    axis (3,) in frame a along which the prior's sd is ``joints.HINGE_RULE_SD_M`` (a limb
+    joint's own fit there is its hinge rule's point)."""
 
     symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     prior: tuple[NDArray[np.float64], float] | None = None
@@ -283,9 +284,11 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     centre, every sensor's slip integrated out) combined with its priors (Gaussian, in
     absolute units: a prior of ``s0`` adds ``1/s0²`` to the precision, less where its
     ``anchor`` is itself uncertain), and its path from the sensor positions without their
-    estimated slip (``poses``). Along ``hinge_axis`` (in frame a) the model's precision is
-    dropped: there it counts orientation noise as rotation. Also returns the posterior
-    covariance of the centre in frame a (3, 3)."""
+    estimated slip (``poses``). Along ``hinge_axis`` (in frame a) the prior is the hinge
+    rule's, as wide as knees and elbows sit off their neighbours' line: the model (whose
+    joints here move well above the orientation noise, ``shared_role``) outweighs it where
+    it locates the centre along the axis better. Also returns the posterior covariance of
+    the centre in frame a (3, 3)."""
     pa_true, ra_rot, pb_true, rb_rot, ok_a, ok_b = poses
     symmetry, prior, anchor, hinge_axis = priors
     mean = shared.centres[j].reshape(6)
@@ -296,13 +299,13 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
              if prior is not None or hinge_axis is not None else np.eye(3))
-    precision = _data_precision(shared.covariances[j], n_bar, hinge_axis)
+    precision = _data_precision(shared.covariances[j])
     normal = precision.copy()
     rhs = precision @ mean
     prior_precision = np.zeros((6, 6))
     if prior is not None:
         offset_b = rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
-        prior_precision, point = _prior_terms(prior, anchor, n_bar, offset_b)
+        prior_precision, point = _prior_terms(prior, anchor, n_bar, offset_b, hinge_axis)
         normal += prior_precision
         rhs += prior_precision @ point
     if symmetry is not None:
@@ -330,32 +333,29 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
 
 
-def _data_precision(cov: NDArray[np.float64], n_bar: NDArray[np.float64],
-                    hinge_axis: NDArray[np.float64] | None) -> NDArray[np.float64]:
+def _data_precision(cov: NDArray[np.float64]) -> NDArray[np.float64]:
     """The data's precision (6, 6) of the centre from its covariance ``cov`` (a flat prior
-    leaves static directions with ~zero precision), none along ``hinge_axis`` (frame a;
-    ``n_bar`` carries it to frame b)."""
+    leaves static directions with ~zero precision)."""
     scale = float(np.trace(cov)) / 6.0
     lam, vec = np.linalg.eigh(cov / scale)
     precision = (vec / np.maximum(lam, 1e-300)) @ vec.T / scale
-    if hinge_axis is not None:
-        g = np.concatenate([hinge_axis, n_bar @ hinge_axis])
-        g /= np.linalg.norm(g)
-        keep = np.eye(6) - np.outer(g, g)
-        precision = keep @ precision @ keep
     return np.asarray(precision, dtype=np.float64)
 
 
 def _prior_terms(prior: tuple[NDArray[np.float64], float], anchor: Anchor | None,
-                 n_bar: NDArray[np.float64], offset_b: NDArray[np.float64]
+                 n_bar: NDArray[np.float64], offset_b: NDArray[np.float64],
+                 hinge_axis: NDArray[np.float64] | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The prior's precision (6, 6, block-diagonal: frame a, frame b) and point (6,):
-    ``s0² I`` widened by the anchor's covariance, the point carried to frame b by
-    ``c_b = N̄ c_a + o``."""
+    ``s0² I`` (``HINGE_RULE_SD_M²`` along ``hinge_axis``, frame a) widened by the anchor's
+    covariance, the point carried to frame b by ``c_b = N̄ c_a + o``."""
     x0 = np.asarray(prior[0], dtype=float)
     x0_b = n_bar @ x0 + offset_b
     spread = np.zeros((3, 3)) if anchor is None or anchor.point is None else anchor.point
     base = prior[1] ** 2 * np.eye(3)
+    if hinge_axis is not None:
+        axis = hinge_axis / max(float(np.linalg.norm(hinge_axis)), 1e-12)
+        base += (HINGE_RULE_SD_M**2 - prior[1] ** 2) * np.outer(axis, axis)
     prior_precision = np.zeros((6, 6))
     prior_precision[:3, :3] = np.linalg.inv(base + spread)
     prior_precision[3:, 3:] = np.linalg.inv(base + n_bar @ spread @ n_bar.T)
@@ -454,7 +454,8 @@ class SkeletonOptions:
         twist, placed by the bone-length rule (``joints.estimate_joint``); limb joints whose
         motion is well above the orientation noise (``SlipFit.signal_share`` at least
         ``slip.EIV_SIGNAL_SHARE``) then take their centre from the shared model, with that
-        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs
+        fit as a prior (``LIMB_PRIOR_SIGMA_M``; along a hinge axis, where that fit is the
+        straight-limb rule's point, ``joints.HINGE_RULE_SD_M``); limbs
         whose middle sensor is missing by ``estimate_limb(method="improved")`` on the frames
         in which both their sensors were measured, and zero-phase smoothing of the joint
         paths. Gap-filled samples never enter a fit (nor, through the slip model's rotation
