@@ -16,7 +16,13 @@ from scipy.spatial.transform import Rotation
 from . import _rows as rows
 from .errors import EstimationError, InputError
 from .gaps import component_major, fill_sensor_major, sensor_major
-from .joints import HINGE_RULE_SD_M, JointFit, estimate_joint, range_of_motion
+from .joints import (
+    HINGE_RULE_SD_M,
+    RULE_GATE_SIGMA,
+    JointFit,
+    estimate_joint,
+    range_of_motion,
+)
 from .limbs import estimate_limb, standard_lengths, torso_length
 from .model import BONES, JOINT_SEGMENTS, JOINTS, LIMBS, REDUCED_SEGMENTS, SEGMENTS, Limb
 from .orientations import estimate_orientations
@@ -299,7 +305,7 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
              if prior is not None or hinge_axis is not None else np.eye(3))
-    precision = _data_precision(shared.covariances[j])
+    precision = _hinge_precision(shared, j, n_bar, hinge_axis, prior)
     normal = precision.copy()
     rhs = precision @ mean
     prior_precision = np.zeros((6, 6))
@@ -331,6 +337,35 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
                      positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
                      quality=quality)
     return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
+
+
+def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
+                     hinge_axis: NDArray[np.float64] | None,
+                     prior: tuple[NDArray[np.float64], float] | None) -> NDArray[np.float64]:
+    """The shared model's precision (6, 6) of joint ``j``'s centre. Along ``hinge_axis``
+    (frame a; ``n_bar`` carries it to frame b) its covariance is widened by the attenuation
+    bias orientation noise may leave there (the weakest eigenvalue's noise part,
+    ``1 − signal_share``, times the centre's coordinate along that direction: errors in
+    variables, see ``slip``), and the precision is dropped there when the model and the
+    hinge rule's point (``prior``) disagree along the axis by more than
+    ``joints.RULE_GATE_SIGMA`` standard deviations of their difference: the model's
+    uncertainty along a hinge axis then does not hold."""
+    cov = shared.covariances[j]
+    if hinge_axis is None:
+        return _data_precision(cov)
+    axis = hinge_axis / max(float(np.linalg.norm(hinge_axis)), 1e-12)
+    g = np.concatenate([axis, n_bar @ axis])
+    g /= np.linalg.norm(g)
+    mean = shared.centres[j].reshape(6)
+    bias = (1.0 - shared.signal_share[j]) * float(g @ mean)
+    widened = cov + bias**2 * np.outer(g, g)
+    gap = float(axis @ (mean[:3] - prior[0])) if prior is not None else 0.0
+    spread = float(axis @ widened[:3, :3] @ axis) + HINGE_RULE_SD_M**2
+    precision = _data_precision(widened)
+    if gap**2 <= RULE_GATE_SIGMA**2 * spread:
+        return precision
+    keep = np.eye(6) - np.outer(g, g)
+    return np.asarray(keep @ precision @ keep, dtype=np.float64)
 
 
 def _data_precision(cov: NDArray[np.float64]) -> NDArray[np.float64]:
