@@ -40,6 +40,8 @@ from .params import (
     check_fps,
     check_integer,
     check_number,
+    options_of,
+    resolved_options,
 )
 from .progress import Progress, no_progress
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
@@ -428,7 +430,7 @@ class ContactOptions:
 MethodOptions = ContactOptions | HachajOptions
 """Options of one translation method."""
 
-METHOD_OPTIONS: Final[dict[str, type[ContactOptions] | type[HachajOptions]]] = {
+METHOD_OPTIONS: Final[dict[str, type[MethodOptions]]] = {
     "contact": ContactOptions, "hachaj2018": HachajOptions}
 """The options dataclass of each method of :func:`estimate_translation`."""
 
@@ -452,15 +454,7 @@ def method_options(method: str, options: Mapping[str, Any]) -> MethodOptions:
         Unknown method, an unknown option (``field`` names the first) or a value out of
         range (``field`` names it).
     """
-    if method not in METHOD_OPTIONS:
-        raise InputError(f"unknown method {method!r}; use {', '.join(METHODS)}", field="method")
-    cls = METHOD_OPTIONS[method]
-    fields = set(cls.__dataclass_fields__)
-    unknown = sorted(set(options) - fields)
-    if unknown:
-        raise InputError(f"unknown option(s) for {method}: {', '.join(unknown)}; "
-                         f"options: {', '.join(sorted(fields))}", field=unknown[0])
-    return cls(**options)
+    return options_of(method, METHOD_OPTIONS, options)
 
 
 def _saturated(raw: NDArray[np.float64], clip_g: float | None,
@@ -977,7 +971,7 @@ def estimate_translation(
     if recording.n_frames < 3:
         raise EstimationError("need at least 3 frames to estimate a translation",
                               field="frames")
-    opt = _resolve_options(method, options, method_options)
+    opt = resolved_options(method, METHOD_OPTIONS, options, method_options)
     report(0.0, method)
     timings: dict[str, float] = {}
     if isinstance(opt, HachajOptions):
@@ -1008,22 +1002,6 @@ def _foot_names(recording: KinematicsRecording, left_foot: str | None,
             raise InputError(f"no accelerations for foot {foot!r}; sensors: "
                              f"{', '.join(recording.accelerations)}", sensor=foot)
     return lf, rf
-
-
-def _resolve_options(method: str, options: MethodOptions | None,
-                     values: Mapping[str, Any]) -> MethodOptions:
-    """``options`` when given (then no keyword values), else ``values`` checked."""
-    if options is None:
-        return method_options(method, values)
-    if values:
-        raise InputError("give the method's options either as an options object or as "
-                         f"keywords, not both (got {', '.join(sorted(values))} too)",
-                         field=sorted(values)[0])
-    expected = METHOD_OPTIONS[method]
-    if not isinstance(options, expected):
-        raise InputError(f"options of {method} must be a {expected.__name__}, got "
-                         f"{type(options).__name__}", field="options")
-    return options
 
 
 class _Path(NamedTuple):
