@@ -30,7 +30,13 @@ if TYPE_CHECKING:
     from .orientations import estimate_orientations
     from .progress import Progress
     from .recording import SensorRecording
-    from .results import JointOffset, JointQuality, SkeletonResult, TranslationResult
+    from .results import (
+        JointOffset,
+        JointQuality,
+        SkeletonResult,
+        TranslationQuality,
+        TranslationResult,
+    )
     from .skeleton import (
         AutoOptions,
         GdkeOptions,
@@ -69,6 +75,7 @@ __all__ = [
     "SensorRecording",
     "SkeletonResult",
     "SlipFit",
+    "TranslationQuality",
     "TranslationResult",
     "estimate_chest",
     "estimate_joint",
@@ -100,7 +107,8 @@ __getattr__, __dir__ = lazy_attributes(__name__, {
     "orientations": ("estimate_orientations",),
     "progress": ("Progress",),
     "recording": ("SensorRecording",),
-    "results": ("JointOffset", "JointQuality", "SkeletonResult", "TranslationResult"),
+    "results": ("JointOffset", "JointQuality", "SkeletonResult", "TranslationQuality",
+                "TranslationResult"),
     "skeleton": ("AutoOptions", "GdkeOptions", "LlsfOptions", "ReducedOptions",
                  "estimate_chest", "estimate_root", "estimate_skeleton",
                  "estimate_skeleton_from_offsets"),

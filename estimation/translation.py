@@ -44,6 +44,7 @@ from .params import (
     resolved_options,
 )
 from .progress import Progress, no_progress
+from .results import TranslationQuality
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
     body_heading,
@@ -995,7 +996,8 @@ def estimate_translation(
     report(1.0, "done")
     return TranslationResult(root=path.corrected[:, root].copy(), translation=path.translation,
                              positions=path.corrected[:, :len(recording.joints)],  # no toe est.
-                             contacts=path.contacts, floor=path.floor, quality=quality,
+                             contacts=path.contacts, floor=path.floor,
+                             quality=TranslationQuality.of(quality),
                              method=method, fps=recording.fps, timings=timings)
 
 
