@@ -61,7 +61,7 @@ FORMATS: Final[tuple[str, ...]] = KINEMATICS_FORMATS
 # --------------------------------------------------------------------------- dispatch
 
 
-def detect_format(path: PathLike) -> str:
+def detect_kinematics_format(path: PathLike) -> str:
     """``"kinematics-csv"``, ``"bvh"`` or ``"mvnx"`` from the file's first bytes."""
     with open(path, "rb") as handle:
         head = handle.read(4096).lstrip(b"\xef\xbb\xbf").lstrip()
@@ -80,7 +80,7 @@ def detect_format(path: PathLike) -> str:
 
 def _kinematics_format(path: PathLike, format: str) -> str:
     if format == "auto":
-        return detect_format(path)
+        return detect_kinematics_format(path)
     if format not in FORMATS:
         raise InputError(f"unknown format {format!r}; use auto, {', '.join(FORMATS)}",
                          field="format")
