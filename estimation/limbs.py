@@ -911,8 +911,8 @@ class LimbOptions:
             raise InputError(f"unknown limb method {self.method!r}; use 'paper' or "
                              "'improved'", field="method")
         if self.optimizer not in OPTIMIZERS:
-            raise InputError(f"unknown optimizer {self.optimizer!r}; use 'least-squares' or "
-                             "'nelder-mead'", field="optimizer")
+            raise InputError(f"unknown optimizer {self.optimizer!r}; use "
+                             f"{' or '.join(map(repr, OPTIMIZERS))}", field="optimizer")
 
 
 def _checked_lengths(standard_lengths: tuple[float, float]) -> tuple[float, float]:
