@@ -21,6 +21,7 @@ from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import gaussian_filter1d
 
 UP: Final[NDArray[np.float64]] = np.array([0.0, 1.0, 0.0])
 """World up (+Y)."""
@@ -200,4 +201,57 @@ def _most_rigid(positions: NDArray[np.float64], joint: int, leg_m: float,
 def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     out: NDArray[np.float64] = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True),
                                               1e-12)
+    return out
+
+
+def accelerometer_tilt(readings: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:
+    """Tilt of a foot accelerometer from its flat-foot attitude, per frame, radians.
+
+    Parameters
+    ----------
+    readings : ndarray, shape (F, 3)
+        Specific force in the sensor frame (gravity included), any unit.
+    sigma : float
+        Gaussian smoothing of the readings, frames.
+
+    Returns
+    -------
+    ndarray, shape (F,)
+        Angle between the smoothed reading and the reference direction: the median
+        direction of the frames where the sensor is quiet (its magnitude within 5 % of the
+        median magnitude), which is the foot standing flat for most of a take. The mounting
+        rotation is constant, so it cancels.
+    """
+    smooth = gaussian_filter1d(readings, max(sigma, 0.5), axis=0, mode="nearest")
+    mag = np.linalg.norm(smooth, axis=1)
+    quiet = np.abs(mag - np.median(mag)) < 0.05 * np.median(mag)
+    if quiet.sum() < 10:
+        return np.zeros(readings.shape[0])
+    unit = _unit(smooth)
+    reference = _unit(np.median(unit[quiet], axis=0))
+    out: NDArray[np.float64] = np.arccos(np.clip(unit @ reference, -1.0, 1.0))
+    return out
+
+
+def roll_advance(tilt: NDArray[np.float64], leg_m: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """How far the ankle moves forward and up, (F,) each, metres, as the heel lifts by
+    ``tilt`` about the ball of the foot (:data:`TOE_AHEAD`, :data:`TOE_BELOW` of the leg ahead
+    and below): L (1 − cos θ) + d sin θ and L sin θ + d cos θ − d, θ clipped to where the
+    ankle is straight above the ball."""
+    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    theta = np.clip(tilt, 0.0, math.atan2(length, drop))
+    ahead = length * (1.0 - np.cos(theta)) + drop * np.sin(theta)
+    rise = length * np.sin(theta) + drop * (np.cos(theta) - 1.0)
+    return ahead, rise
+
+
+def rise_tilt(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64], leg_m: float
+              ) -> NDArray[np.float64]:
+    """Heel lift (F,) about the ball of the foot, radians, that raises the ankle by its height
+    above the other ankle: L sin θ + d cos θ = d + h (:func:`extrapolated_toe`'s rocker)."""
+    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
+    rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
+    out: NDArray[np.float64] = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt
     return out

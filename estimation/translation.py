@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time as _time
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Final, NamedTuple
 
 import numpy as np
@@ -44,11 +44,14 @@ from .params import (
 from .progress import Progress, no_progress
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
+    accelerometer_tilt,
     body_heading,
     estimate_sensor_offset,
     extrapolated_toe,
     foot_axes,
     leg_joints,
+    rise_tilt,
+    roll_advance,
     sensor_track,
 )
 from .vocabulary import TRANSLATION_METHODS
@@ -145,6 +148,11 @@ class _Feet:
     toe: int | None
     drop: float  # heel height above the toe when the foot is flat, m
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor in foot_axes, m
+    # Without a toe: the ankle's forward advance (F,) as the heel rolls over the ball, m,
+    # along the foot's heading (F, 3); the contact point is the ankle moved back by it.
+    roll: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    heading: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    lift: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def sensor(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Path (F, 3) of the foot's accelerometer: the ankle moved by ``offset`` along the
@@ -163,22 +171,27 @@ class _Feet:
     def sole(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Height of the contact point (toe frame: heel heights lowered by ``drop``)."""
         if self.toe is None:
-            return p[:, self.heel, 1].copy()
+            if self.lift is None:
+                return p[:, self.heel, 1].copy()
+            return p[:, self.heel, 1] - self.lift
         w = self.weights(p)
         return w * (p[:, self.heel, 1] - self.drop) + (1 - w) * p[:, self.toe, 1]
 
     def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.toe is None:
-            return p[:, self.heel].copy()
+            if self.roll is None or self.heading is None:
+                return p[:, self.heel].copy()
+            out: NDArray[np.float64] = p[:, self.heel] - self.heading * self.roll[:, None]
+            return out
         w = self.weights(p)[:, None]
         return w * p[:, self.heel] + (1 - w) * p[:, self.toe]
 
     def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
         earlier frame (so switching heel→toe moves nothing)."""
-        d_heel = p[1:, self.heel] - p[:-1, self.heel]
         if self.toe is None:
-            return d_heel
+            return np.diff(self.point(p), axis=0)
+        d_heel = p[1:, self.heel] - p[:-1, self.heel]
         w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
         return w * d_heel + (1 - w) * (p[1:, self.toe] - p[:-1, self.toe])
 
@@ -1063,7 +1076,8 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     lf, rf = names
     if opt.use_toes and opt.extrapolate_toes:
         recording = _with_estimated_toes(recording, names, root)
-    feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
+    feet = _rolling_feet(recording, _feet(recording, lf, rf, use_toes=opt.use_toes), names,
+                         root)
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
         states = _file_states(recording, names)
@@ -1108,3 +1122,41 @@ def _with_estimated_toes(recording: KinematicsRecording, names: tuple[str, str],
     joints = recording.joints + tuple(toes[foot] for foot in missing)
     return replace(recording, joints=joints, toes=toes,
                    positions=np.concatenate([p, np.stack(extra, axis=1)], axis=1))
+
+
+def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                  names: tuple[str, str], root: int) -> tuple[_Feet, _Feet]:
+    """``feet`` where a foot without a toe joint gets a contact point that rolls from the
+    ankle over the ball of the foot: the ankle moved back along the body's heading by
+    ``stance.roll_advance`` of the foot's tilt, measured by its accelerometer against its
+    flat-foot attitude. Unchanged without sensor-frame readings or legs."""
+    if all(f.toe is not None for f in feet) or recording.acceleration_frame != "sensor":
+        return feet
+    p = recording.positions
+    ankles = [f.heel for f in feet]
+    leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
+    legs = [leg_joints(p, ankle, leg) for ankle in ankles]
+    if legs[0] is None or legs[1] is None or leg <= 0:
+        return feet
+    heading = body_heading(p[:, legs[0][1]], p[:, legs[1][1]])
+    sigma = ROLL_SMOOTHING_S * recording.fps
+    out = []
+    for foot, name in zip(feet, names, strict=True):
+        if foot.toe is not None:
+            out.append(foot)
+            continue
+        if ROLL_SOURCE == "acc":
+            tilt = accelerometer_tilt(recording.accelerations[name], sigma)
+        else:
+            tilt = rise_tilt(p[:, foot.heel], p[:, feet[1 - names.index(name)].heel], leg)
+        ahead, rise = roll_advance(tilt, leg)
+        out.append(replace(foot, roll=ahead, heading=heading,
+                           lift=rise if os.environ.get("LIFT", "0") == "1" else None))
+    return out[0], out[1]
+
+
+ROLL_SMOOTHING_S: Final[float] = 0.05
+"""Gaussian σ of the foot accelerometer readings behind the foot's tilt, seconds."""
+
+import os
+ROLL_SOURCE = os.environ.get("ROLL_SOURCE", "rise")
