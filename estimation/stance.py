@@ -21,7 +21,6 @@ from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import gaussian_filter1d
 
 UP: Final[NDArray[np.float64]] = np.array([0.0, 1.0, 0.0])
 """World up (+Y)."""
@@ -204,47 +203,15 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
-def accelerometer_tilt(readings: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:
-    """Tilt of a foot accelerometer from its flat-foot attitude, per frame, radians.
 
-    Parameters
-    ----------
-    readings : ndarray, shape (F, 3)
-        Specific force in the sensor frame (gravity included), any unit.
-    sigma : float
-        Gaussian smoothing of the readings, frames.
-
-    Returns
-    -------
-    ndarray, shape (F,)
-        Angle between the smoothed reading and the reference direction: the median
-        direction of the frames where the sensor is quiet (its magnitude within 5 % of the
-        median magnitude), which is the foot standing flat for most of a take. The mounting
-        rotation is constant, so it cancels.
-    """
-    smooth = gaussian_filter1d(readings, max(sigma, 0.5), axis=0, mode="nearest")
-    mag = np.linalg.norm(smooth, axis=1)
-    quiet = np.abs(mag - np.median(mag)) < 0.05 * np.median(mag)
-    if quiet.sum() < 10:
-        return np.zeros(readings.shape[0])
-    unit = _unit(smooth)
-    reference = _unit(np.median(unit[quiet], axis=0))
-    out: NDArray[np.float64] = np.arccos(np.clip(unit @ reference, -1.0, 1.0))
-    return out
-
-
-def roll_advance(tilt: NDArray[np.float64], leg_m: float
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """How far the ankle moves forward and up, (F,) each, metres, as the heel lifts by
-    ``tilt`` about the ball of the foot (:data:`TOE_AHEAD`, :data:`TOE_BELOW` of the leg ahead
-    and below): L (1 − cos θ) + d sin θ and L sin θ + d cos θ − d, θ clipped to where the
-    ankle is straight above the ball."""
+def roll_advance(tilt: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]:
+    """How far (F,) the ankle moves forward, metres, as the heel lifts by ``tilt`` about the
+    ball of the foot (:data:`TOE_AHEAD` and :data:`TOE_BELOW` of the leg ahead and below):
+    L (1 − cos θ) + d sin θ, θ clipped to where the ankle is straight above the ball."""
     length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
     theta = np.clip(tilt, 0.0, math.atan2(length, drop))
-    ahead = length * (1.0 - np.cos(theta)) + drop * np.sin(theta)
-    rise = length * np.sin(theta) + drop * (np.cos(theta) - 1.0)
-    return ahead, rise
-
+    out: NDArray[np.float64] = length * (1.0 - np.cos(theta)) + drop * np.sin(theta)
+    return out
 
 def rise_tilt(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64], leg_m: float
               ) -> NDArray[np.float64]:

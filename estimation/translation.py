@@ -44,7 +44,6 @@ from .params import (
 from .progress import Progress, no_progress
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
-    accelerometer_tilt,
     body_heading,
     estimate_sensor_offset,
     extrapolated_toe,
@@ -152,7 +151,6 @@ class _Feet:
     # along the foot's heading (F, 3); the contact point is the ankle moved back by it.
     roll: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     heading: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
-    lift: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def sensor(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Path (F, 3) of the foot's accelerometer: the ankle moved by ``offset`` along the
@@ -171,9 +169,7 @@ class _Feet:
     def sole(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Height of the contact point (toe frame: heel heights lowered by ``drop``)."""
         if self.toe is None:
-            if self.lift is None:
-                return p[:, self.heel, 1].copy()
-            return p[:, self.heel, 1] - self.lift
+            return p[:, self.heel, 1].copy()
         w = self.weights(p)
         return w * (p[:, self.heel, 1] - self.drop) + (1 - w) * p[:, self.toe, 1]
 
@@ -1127,10 +1123,12 @@ def _with_estimated_toes(recording: KinematicsRecording, names: tuple[str, str],
 def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
                   names: tuple[str, str], root: int) -> tuple[_Feet, _Feet]:
     """``feet`` where a foot without a toe joint gets a contact point that rolls from the
-    ankle over the ball of the foot: the ankle moved back along the body's heading by
-    ``stance.roll_advance`` of the foot's tilt, measured by its accelerometer against its
-    flat-foot attitude. Unchanged without sensor-frame readings or legs."""
-    if all(f.toe is not None for f in feet) or recording.acceleration_frame != "sensor":
+    ankle over the ball of the foot: the ankle moved back along the body's heading (the hip
+    line) by ``stance.roll_advance`` of the heel lift that raises it above the other ankle
+    (``stance.rise_tilt``). A flat foot's point is the ankle, and the point moves only while
+    the heel lifts, so a foot turning on the spot does not sweep it. Unchanged when the legs
+    cannot be found."""
+    if all(f.toe is not None for f in feet):
         return feet
     p = recording.positions
     ankles = [f.heel for f in feet]
@@ -1139,24 +1137,10 @@ def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     if legs[0] is None or legs[1] is None or leg <= 0:
         return feet
     heading = body_heading(p[:, legs[0][1]], p[:, legs[1][1]])
-    sigma = ROLL_SMOOTHING_S * recording.fps
     out = []
-    for foot, name in zip(feet, names, strict=True):
-        if foot.toe is not None:
-            out.append(foot)
-            continue
-        if ROLL_SOURCE == "acc":
-            tilt = accelerometer_tilt(recording.accelerations[name], sigma)
-        else:
-            tilt = rise_tilt(p[:, foot.heel], p[:, feet[1 - names.index(name)].heel], leg)
-        ahead, rise = roll_advance(tilt, leg)
-        out.append(replace(foot, roll=ahead, heading=heading,
-                           lift=rise if os.environ.get("LIFT", "0") == "1" else None))
+    for k, foot in enumerate(feet):
+        if foot.toe is None:
+            tilt = rise_tilt(p[:, ankles[k]], p[:, ankles[1 - k]], leg)
+            foot = replace(foot, roll=roll_advance(tilt, leg), heading=heading)
+        out.append(foot)
     return out[0], out[1]
-
-
-ROLL_SMOOTHING_S: Final[float] = 0.05
-"""Gaussian σ of the foot accelerometer readings behind the foot's tilt, seconds."""
-
-import os
-ROLL_SOURCE = os.environ.get("ROLL_SOURCE", "rise")
