@@ -33,6 +33,12 @@ TOE_BELOW: Final[float] = 0.055
 """Ankle height above the ball of the flat foot, as a fraction of the leg length."""
 
 
+SHANK_RIGIDITY: Final[float] = 0.01
+"""A joint whose distance to the ankle varies by less than this fraction (std / mean) rides
+on the shank; the hip's distance varies with the knee's flexion (a 20° bend of a straight
+leg shortens it by 1.5 %)."""
+
+
 def foot_axes(ankle: NDArray[np.float64], toe: NDArray[np.float64]) -> NDArray[np.float64]:
     """Axes of the foot per frame: forward (ankle → toe), up, lateral.
 
@@ -179,7 +185,8 @@ def leg_joints(positions: NDArray[np.float64], ankle: int, leg_m: float
     if knee is None:
         return None
     to_ankle = np.linalg.norm(positions - positions[:, ankle:ankle + 1], axis=2)
-    on_shank = to_ankle.std(axis=0) < 0.05 * np.maximum(to_ankle.mean(axis=0), 1e-9)
+    on_shank = to_ankle.std(axis=0) < SHANK_RIGIDITY * np.maximum(to_ankle.mean(axis=0),
+                                                                  1e-9)
     hip = _most_rigid(positions, knee, leg_m, exclude=on_shank)
     return None if hip is None else (knee, hip)
 
