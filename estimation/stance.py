@@ -33,10 +33,10 @@ TOE_BELOW: Final[float] = 0.055
 """Ankle height above the ball of the flat foot, as a fraction of the leg length."""
 
 
-SHANK_RIGIDITY: Final[float] = 0.01
+SHANK_RIGIDITY: Final[float] = 0.002
 """A joint whose distance to the ankle varies by less than this fraction (std / mean) rides
 on the shank; the hip's distance varies with the knee's flexion (a 20° bend of a straight
-leg shortens it by 1.5 %)."""
+leg shortens it by 1.5 %; BVH and suit skeletons keep their bones rigid to rounding)."""
 
 
 def foot_axes(ankle: NDArray[np.float64], toe: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -200,7 +200,10 @@ def _most_rigid(positions: NDArray[np.float64], joint: int, leg_m: float,
     if not ok.any():
         return None
     score = np.where(ok, spread / np.maximum(mean, 1e-9), np.inf)
-    best = int(np.argmin(score))
+    # equally rigid joints (a leg that bends in one plane keeps its knee at a fixed distance
+    # from the other hip too): the nearest is the bone's own end
+    tied = score <= float(score.min()) + 1e-6
+    best = int(np.argmin(np.where(tied, mean, np.inf)))
     return best if score[best] < 0.05 else None
 
 
@@ -223,9 +226,27 @@ def roll_advance(tilt: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]
 def rise_tilt(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64], leg_m: float
               ) -> NDArray[np.float64]:
     """Heel lift (F,) about the ball of the foot, radians, that raises the ankle by its height
-    above the other ankle: L sin θ + d cos θ = d + h (:func:`extrapolated_toe`'s rocker)."""
+    h above the other ankle: L sin θ + d cos θ = d + h (:func:`extrapolated_toe`'s rocker),
+    at most where the ankle is straight above the ball. A foot planted on a step above the
+    other reads as lifted too (see docs/translation.md, Limitations)."""
     length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
     reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
     rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
     out: NDArray[np.float64] = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt
     return out
+
+
+def heading_by_knees(heading: NDArray[np.float64], hips: list[NDArray[np.float64]],
+                     knees: list[NDArray[np.float64]], ankles: list[NDArray[np.float64]]
+                     ) -> NDArray[np.float64]:
+    """``heading`` (F, 3), reversed when the knees bend backwards along it: knees flex
+    forward, so a hip line whose left and right are swapped (a mirrored file, or hips found
+    on the wrong sides) still gives the way the feet point. Each leg's hip, knee and ankle
+    paths (F, 3), metres."""
+    ahead = 0.0
+    for hip, knee, ankle in zip(hips, knees, ankles, strict=True):
+        axis = _unit(ankle - hip)
+        bend = knee - hip
+        bend = bend - axis * np.sum(bend * axis, axis=1, keepdims=True)
+        ahead += float(np.median(np.sum(bend * heading, axis=1)))
+    return -heading if ahead < 0 else heading

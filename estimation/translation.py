@@ -48,6 +48,7 @@ from .stance import (
     estimate_sensor_offset,
     extrapolated_toe,
     foot_axes,
+    heading_by_knees,
     leg_joints,
     rise_tilt,
     roll_advance,
@@ -1133,10 +1134,13 @@ def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     p = recording.positions
     ankles = [f.heel for f in feet]
     leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
-    legs = [leg_joints(p, ankle, leg) for ankle in ankles]
-    if legs[0] is None or legs[1] is None or leg <= 0:
+    found = [leg_joints(p, ankle, leg) for ankle in ankles]
+    legs = [lg for lg in found if lg is not None]
+    if len(legs) < 2 or leg <= 0:
         return feet
-    heading = body_heading(p[:, legs[0][1]], p[:, legs[1][1]])
+    heading = heading_by_knees(body_heading(p[:, legs[0][1]], p[:, legs[1][1]]),
+                               [p[:, hip] for _knee, hip in legs],
+                               [p[:, knee] for knee, _hip in legs], [p[:, a] for a in ankles])
     out = []
     for k, foot in enumerate(feet):
         if foot.toe is None:
