@@ -1,5 +1,6 @@
-"""Foot geometry of the contact model: a toe point where the file has none, the foot's axes
-and the lever arm of a foot accelerometer strapped away from the ankle.
+"""Foot geometry of the contact model: a stance point that rolls over the ball of the foot
+where the file has no toe joint, the foot's axes and the lever arm of a foot accelerometer
+strapped away from the ankle.
 
 Suits strap the foot sensor on the instep, a few centimetres ahead of and above the ankle, so
 it reads the ankle's acceleration plus the foot's rotational terms α×r + ω×(ω×r) (r the
@@ -127,42 +128,6 @@ def estimate_sensor_offset(base: NDArray[np.float64], axes_acc: NDArray[np.float
     return offset
 
 
-def extrapolated_toe(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64],
-                     forward: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]:
-    """Ball of the foot (F, 3) for a file without toe joints.
-
-    Parameters
-    ----------
-    ankle, other_ankle : ndarray, shape (F, 3)
-        This foot's and the other foot's ankle, metres, +Y up.
-    forward : ndarray, shape (F, 3)
-        Horizontal unit direction the foot points (the body's heading).
-    leg_m : float
-        Leg length (hips → ankle), metres: the foot's size scales with it
-        (:data:`TOE_AHEAD`, :data:`TOE_BELOW`).
-
-    Returns
-    -------
-    ndarray, shape (F, 3)
-
-    Notes
-    -----
-    The foot rolls about its ball at heel-off: an ankle raised h above the other ankle is
-    taken as a heel lifted by θ about the ball, L ahead of and d below the flat foot's ankle
-    (L sin θ + d cos θ = d + h), so the ball is ankle + forward (L cos θ − d sin θ) − up
-    (L sin θ + d cos θ) (the forefoot rocker, Perry & Burnfield ch. 3). A flat foot gives
-    the ball L ahead, d below.
-    """
-    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
-    reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
-    rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
-    theta = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt  # L sin θ + d cos θ = d + h
-    ahead = length * np.cos(theta) - drop * np.sin(theta)
-    below = length * np.sin(theta) + drop * np.cos(theta)
-    out: NDArray[np.float64] = ankle + forward * ahead[:, None] - UP * below[:, None]
-    return out
-
-
 def body_heading(left_hip: NDArray[np.float64], right_hip: NDArray[np.float64]
                  ) -> NDArray[np.float64]:
     """Horizontal unit direction (F, 3) the body faces: perpendicular to the hip line
@@ -225,10 +190,13 @@ def roll_advance(tilt: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]
 
 def rise_tilt(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64], leg_m: float
               ) -> NDArray[np.float64]:
-    """Heel lift (F,) about the ball of the foot, radians, that raises the ankle by its height
-    h above the other ankle: L sin θ + d cos θ = d + h (:func:`extrapolated_toe`'s rocker),
-    at most where the ankle is straight above the ball. A foot planted on a step above the
-    other reads as lifted too (see docs/translation.md, Limitations)."""
+    """Heel lift θ (F,) about the ball of the foot, radians, that raises the ankle by its
+    height h above the other ankle (F, 3 each, metres, +Y up).
+
+    The ball is L = :data:`TOE_AHEAD` and d = :data:`TOE_BELOW` leg lengths ahead of and
+    below the flat foot's ankle, so L sin θ + d cos θ = d + h (the forefoot rocker, Perry &
+    Burnfield ch. 3), at most where the ankle is straight above the ball. A foot planted on
+    a step above the other reads as lifted too (docs/translation.md, Limitations)."""
     length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
     reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
     rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
