@@ -178,7 +178,6 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
-
 def roll_advance(tilt: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]:
     """How far (F,) the ankle moves forward, metres, as the heel lifts by ``tilt`` about the
     ball of the foot (:data:`TOE_AHEAD` and :data:`TOE_BELOW` of the leg ahead and below):
@@ -187,6 +186,7 @@ def roll_advance(tilt: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]
     theta = np.clip(tilt, 0.0, math.atan2(length, drop))
     out: NDArray[np.float64] = length * (1.0 - np.cos(theta)) + drop * np.sin(theta)
     return out
+
 
 def rise_tilt(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64], leg_m: float
               ) -> NDArray[np.float64]:

@@ -1006,7 +1006,7 @@ def estimate_translation(
     timings["estimate_s"] = _time.perf_counter() - started
     report(1.0, "done")
     return TranslationResult(root=path.corrected[:, root].copy(), translation=path.translation,
-                             positions=path.corrected[:, :len(recording.joints)],  # no toe est.
+                             positions=path.corrected,
                              contacts=path.contacts, floor=path.floor,
                              quality=TranslationQuality.of(quality),
                              method=method, fps=recording.fps, timings=timings)
