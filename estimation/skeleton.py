@@ -82,12 +82,12 @@ GOOD_DATA_SD_M: Final[float] = 0.002
 DATA_LABEL_SD_M: Final[float] = 0.01
 """Standard deviation (metres) of the prior that a limb joint's own robust fit (with its
 hinge rule) puts on its centre from the shared slip model."""
-SHARED_AXIS_SD_FACTOR: Final[float] = 2.0
-"""How much larger (in sd) a hinge's centre is taken to be uncertain along its axis than the
-shared slip model's posterior says, where the model meets the straight-limb rule: the
-model's posterior is optimistic (the example motion's torso joints, 4 motions x 5 sensor
-seeds: centre error / posterior sd 1.6-2.3 RMS; benchmark hinges along their axes, 20
-pairs of seed 1: 1.5, with tails to 5)."""
+SHARED_SD_FACTOR: Final[float] = 2.0
+"""How much larger (in sd) a centre is taken to be uncertain than the shared slip model's
+posterior says: along a hinge's axis, where the model meets the straight-limb rule, and in
+a torso joint's ``data_sd_m``. The model's posterior is optimistic (the example motion's
+torso joints, 4 motions x 5 sensor seeds: centre error / posterior sd 1.6-2.3 RMS;
+benchmark hinges along their axes, 20 pairs of seed 1: 1.5, with tails to 5)."""
 SYMMETRY_SIGMA_M: Final[float] = 0.03
 """Standard deviation of the waist (neck) across the hips' (shoulders') mid-plane, metres,
 when the joint's centre comes from the shared slip model."""
@@ -344,7 +344,7 @@ def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
                      hinge_axis: NDArray[np.float64] | None,
                      prior: tuple[NDArray[np.float64], float] | None) -> NDArray[np.float64]:
     """The shared model's precision (6, 6) of joint ``j``'s centre. Along ``hinge_axis``
-    (frame a; ``n_bar`` carries it to frame b) its sd is ``SHARED_AXIS_SD_FACTOR`` times
+    (frame a; ``n_bar`` carries it to frame b) its sd is ``SHARED_SD_FACTOR`` times
     larger and its covariance is widened by the attenuation bias orientation noise may
     leave there (the weakest eigenvalue's noise part,
     ``1 − signal_share``, times the centre's coordinate along that direction: errors in
@@ -360,7 +360,7 @@ def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
     g /= np.linalg.norm(g)
     mean = shared.centres[j].reshape(6)
     bias = (1.0 - shared.signal_share[j]) * float(g @ mean)
-    widened = cov + ((SHARED_AXIS_SD_FACTOR**2 - 1.0) * float(g @ cov @ g) + bias**2) \
+    widened = cov + ((SHARED_SD_FACTOR**2 - 1.0) * float(g @ cov @ g) + bias**2) \
         * np.outer(g, g)
     gap = float(axis @ (mean[:3] - prior[0])) if prior is not None else 0.0
     spread = float(axis @ widened[:3, :3] @ axis) + HINGE_RULE_SD_M**2
@@ -969,16 +969,24 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
 
 
 def _with_data_sd(ctx: SkeletonContext, name: str, fit: JointFit) -> JointFit:
-    """How well the recording alone locates the centre (``data_sd_m``, frame a): the larger
-    of the shared model's posterior sd with a flat prior (every sensor's slip integrated
-    out; ``shared_sd_m``) and the joint's own data-only fit's (``fit_sd_m``, slip counted
-    as correlated noise). The shared model alone is overconfident along a hinge's axis and
-    for joints that rotate a few degrees (orientation noise passes for motion)."""
+    """How well the recording alone locates the centre (``data_sd_m``, frame a). For a torso
+    joint that moves well above the orientation noise (``signal_share`` at least
+    ``slip.EIV_SIGNAL_SHARE``), whose centre the shared model gives: ``SHARED_SD_FACTOR``
+    times the model's posterior sd with a flat prior (every sensor's slip integrated out;
+    ``shared_sd_m``). Otherwise the larger of that sd and the joint's own data-only fit's
+    (``fit_sd_m``, slip counted as correlated noise, pessimistic by about 5x where the
+    shared model applies: the example motion's neck, 11 mm against errors of 2-6 mm): the
+    shared model alone is overconfident along a hinge's axis and for joints that rotate a
+    few degrees (orientation noise passes for motion)."""
     if ctx.shared is None or name not in ctx.shared.index:
         return fit
-    cov_a = ctx.shared.fit.covariances[ctx.shared.index[name]][:3, :3]
+    j = ctx.shared.index[name]
+    cov_a = ctx.shared.fit.covariances[j][:3, :3]
     shared_sd = float(np.sqrt(np.trace(cov_a)))
-    sd = max(shared_sd, float(fit.quality.get("fit_sd_m", 0.0)))
+    if name in _TORSO_JOINTS and ctx.shared.fit.signal_share[j] >= EIV_SIGNAL_SHARE:
+        sd = SHARED_SD_FACTOR * shared_sd
+    else:
+        sd = max(shared_sd, float(fit.quality.get("fit_sd_m", 0.0)))
     return replace(fit, quality={**fit.quality, "shared_sd_m": shared_sd, "data_sd_m": sd})
 
 
