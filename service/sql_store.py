@@ -3,15 +3,23 @@ errors as the service's, and the transitions as compare-and-set updates."""
 
 from __future__ import annotations
 
+import functools
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, fields
 from typing import Any, Final
 
 import sqlalchemy as sa
 from sqlalchemy.engine import Engine
 
-from .errors import BackendError, StorageFull, StoreUnavailable, says_disk_full, translate_methods
+from .errors import (
+    BackendError,
+    StorageFull,
+    StoreUnavailable,
+    decorate_methods,
+    says_disk_full,
+    translate_methods,
+)
 from .jobs import PURGE_BATCH, Expect, Histogram, Job, JobStore, Recording, Status
 
 _metadata = sa.MetaData()
@@ -108,12 +116,40 @@ def sql_error(exc: Exception) -> BackendError | None:
     return None
 
 
+RECYCLE_SECONDS: Final = 1800.0
+"""A pooled server connection is replaced after this long (idle timeouts of servers and
+firewalls end older ones silently)."""
+
+
+def resent_once(method: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate a store method so that it runs once more when its connection turned out dead.
+
+    The pool is not pinged before each use (``pool_pre_ping`` costs a round trip on every
+    call: a third of a job's queue wait on PostgreSQL); instead a connection the server closed
+    (a restart, an idle timeout) fails its first statement, SQLAlchemy invalidates the pool and
+    the call is made again on a new connection. That statement never ran, so sending it again
+    is safe; a compare-and-set whose commit was lost in flight only finds its condition false
+    the second time (None, as for any lost race).
+    """
+
+    @functools.wraps(method)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(*args, **kwargs)
+        except sa.exc.DBAPIError as exc:
+            if not exc.connection_invalidated:
+                raise
+        return method(*args, **kwargs)
+
+    return wrapper
+
+
 def create_engine(url: str) -> Engine:
     """An engine for ``url``; SQLite gets WAL mode and a long busy timeout for many processes."""
     if url.startswith("postgresql://"):
         url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
     if not url.startswith("sqlite"):
-        return sa.create_engine(url, pool_pre_ping=True)
+        return sa.create_engine(url, pool_recycle=RECYCLE_SECONDS)
     if url in ("sqlite://", "sqlite:///:memory:"):
         return sa.create_engine(url, poolclass=sa.pool.StaticPool,
                                 connect_args={"check_same_thread": False})
@@ -130,13 +166,21 @@ def create_engine(url: str) -> Engine:
 
 
 @translate_methods(sql_error)
+@decorate_methods(resent_once)
 class SqlJobStore:
     """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core; its methods raise
     :class:`~bonefit.service.errors.StorageFull` and
-    :class:`~bonefit.service.errors.StoreUnavailable`."""
+    :class:`~bonefit.service.errors.StoreUnavailable`.
+
+    The calls on a job's way from submission to a worker (insert, read, compare-and-set) are
+    one statement each, sent in autocommit mode: one round trip, where a transaction costs a
+    BEGIN, the statement, a re-read and a COMMIT.
+    """
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
+        self.single = engine.execution_options(isolation_level="AUTOCOMMIT")
+        """The engine for single statements, each its own transaction."""
 
     @classmethod
     def from_url(cls, url: str) -> SqlJobStore:
@@ -157,13 +201,13 @@ class SqlJobStore:
 
     def add_recording(self, recording: Recording) -> None:
         """Insert a recording."""
-        with self.engine.begin() as conn:
+        with self.single.connect() as conn:
             conn.execute(recordings_table.insert().values(**asdict(recording)))
 
     def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
         """The tenant's recording, or None."""
         t = recordings_table
-        with self.engine.connect() as conn:
+        with self.single.connect() as conn:
             row = conn.execute(sa.select(t).where(t.c.id == recording_id,
                                                   t.c.tenant == tenant)).first()
         return _recording(row) if row else None
@@ -192,7 +236,7 @@ class SqlJobStore:
         """Insert a job, or return the one already holding its idempotency key."""
         t = jobs_table
         try:
-            with self.engine.begin() as conn:
+            with self.single.connect() as conn:
                 conn.execute(t.insert().values(**asdict(job)))
             return job
         except sa.exc.IntegrityError:
@@ -209,7 +253,7 @@ class SqlJobStore:
         query = sa.select(t).where(t.c.id == job_id)
         if tenant is not None:
             query = query.where(t.c.tenant == tenant)
-        with self.engine.connect() as conn:
+        with self.single.connect() as conn:
             row = conn.execute(query).first()
         return _job(row) if row else None
 
@@ -228,15 +272,12 @@ class SqlJobStore:
             return [_job(row) for row in conn.execute(query)]
 
     def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
-        """Compare and set in one transaction."""
+        """Compare and set in one statement (UPDATE ... RETURNING)."""
         t = jobs_table
         values = {**changes, "version": t.c.version + 1, "updated_at": time.time()}
-        with self.engine.begin() as conn:
-            done = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
-                                .values(**values))
-            if done.rowcount != 1:
-                return None
-            row = conn.execute(sa.select(t).where(t.c.id == job_id)).first()
+        with self.single.connect() as conn:
+            row = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
+                               .values(**values).returning(*t.c)).first()
         return _job(row) if row else None
 
     def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:

@@ -301,6 +301,28 @@ def test_an_unreachable_database_is_unavailable(tmp_path: Path) -> None:
     store.engine.dispose()
 
 
+def test_a_connection_the_server_closed_is_replaced_within_the_call(postgres_url: str) -> None:
+    """No ping before each use: a pooled connection the server dropped (a restart) fails its
+    first statement, and the store makes the call again on a new connection."""
+    store = SqlJobStore.from_url(postgres_url)
+    store.init()
+    stored = store.add_job(job())
+    pids = set()
+    for _ in range(3):  # fill the pool with connections of this engine
+        with store.single.connect() as conn:
+            pids.add(conn.execute(sa.text("SELECT pg_backend_pid()")).scalar_one())
+    admin = sa.create_engine(postgres_url, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        for pid in pids:
+            conn.execute(sa.text("SELECT pg_terminate_backend(:pid)"), {"pid": pid})
+    admin.dispose()
+    found = store.get_job(stored.id)
+    assert found is not None and found.id == stored.id
+    claimed = store.claim(stored, "w", time.time(), 30.0)  # a write after the outage
+    assert claimed is not None and claimed.status is Status.RUNNING
+    store.engine.dispose()
+
+
 def test_an_unreachable_queue_is_unavailable() -> None:
     queue = open_queue("redis://127.0.0.1:1/0")  # nothing listens on port 1
     with pytest.raises(QueueUnavailable) as caught:
