@@ -280,13 +280,13 @@ class SqlJobStore:
                                .values(**values).returning(*t.c)).first()
         return _job(row) if row else None
 
-    def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:
-        """Queued, with the attempts read → running on ``worker``, one more attempt."""
-        return self.update_job(job.id, {
-            "status": Status.RUNNING, "worker": worker, "attempts": job.attempts + 1,
+    def claim(self, job_id: str, worker: str, now: float, lease_seconds: float) -> Job | None:
+        """Queued → running on ``worker``, one more attempt (counted by the database)."""
+        return self.update_job(job_id, {
+            "status": Status.RUNNING, "worker": worker, "attempts": jobs_table.c.attempts + 1,
             "started_at": now, "lease_until": now + lease_seconds, "stage": "starting",
             "message": None, "fraction": 0.0,
-        }, expect={"status": Status.QUEUED, "attempts": job.attempts})
+        }, expect={"status": Status.QUEUED})
 
     def renew(self, job_id: str, worker: str, lease_until: float, *,
               fraction: float | None = None, stage: str | None = None) -> Job | None:
