@@ -3,9 +3,10 @@ errors as the service's, and the transitions as compare-and-set updates."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, fields
 from typing import Any, Final
 
@@ -179,8 +180,12 @@ class SqlJobStore:
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
-        self.single = engine.execution_options(isolation_level="AUTOCOMMIT")
-        """The engine for single statements, each its own transaction."""
+
+    @contextlib.contextmanager
+    def _single(self) -> Iterator[sa.Connection]:
+        """A connection for one statement, in autocommit mode (its own transaction)."""
+        with self.engine.connect() as conn:
+            yield conn.execution_options(isolation_level="AUTOCOMMIT")
 
     @classmethod
     def from_url(cls, url: str) -> SqlJobStore:
@@ -201,13 +206,13 @@ class SqlJobStore:
 
     def add_recording(self, recording: Recording) -> None:
         """Insert a recording."""
-        with self.single.connect() as conn:
+        with self._single() as conn:
             conn.execute(recordings_table.insert().values(**asdict(recording)))
 
     def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
         """The tenant's recording, or None."""
         t = recordings_table
-        with self.single.connect() as conn:
+        with self._single() as conn:
             row = conn.execute(sa.select(t).where(t.c.id == recording_id,
                                                   t.c.tenant == tenant)).first()
         return _recording(row) if row else None
@@ -236,7 +241,7 @@ class SqlJobStore:
         """Insert a job, or return the one already holding its idempotency key."""
         t = jobs_table
         try:
-            with self.single.connect() as conn:
+            with self._single() as conn:
                 conn.execute(t.insert().values(**asdict(job)))
             return job
         except sa.exc.IntegrityError:
@@ -253,7 +258,7 @@ class SqlJobStore:
         query = sa.select(t).where(t.c.id == job_id)
         if tenant is not None:
             query = query.where(t.c.tenant == tenant)
-        with self.single.connect() as conn:
+        with self._single() as conn:
             row = conn.execute(query).first()
         return _job(row) if row else None
 
@@ -275,7 +280,7 @@ class SqlJobStore:
         """Compare and set in one statement (UPDATE ... RETURNING)."""
         t = jobs_table
         values = {**changes, "version": t.c.version + 1, "updated_at": time.time()}
-        with self.single.connect() as conn:
+        with self._single() as conn:
             row = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
                                .values(**values).returning(*t.c)).first()
         return _job(row) if row else None

@@ -315,7 +315,7 @@ def test_a_connection_the_server_closed_is_replaced_within_the_call(postgres_url
     stored = store.add_job(job())
     pids = set()
     for _ in range(3):  # fill the pool with connections of this engine
-        with store.single.connect() as conn:
+        with store.engine.connect() as conn:
             pids.add(conn.execute(sa.text("SELECT pg_backend_pid()")).scalar_one())
     admin = sa.create_engine(postgres_url, isolation_level="AUTOCOMMIT")
     with admin.connect() as conn:
