@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time as _time
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Final, NamedTuple
 
 import numpy as np
@@ -49,9 +49,11 @@ from .results import TranslationResult as TranslationResult  # defined there, nu
 from .stance import (
     body_heading,
     estimate_sensor_offset,
-    extrapolated_toe,
     foot_axes,
+    heading_by_knees,
     leg_joints,
+    rise_tilt,
+    roll_advance,
     sensor_track,
 )
 from .vocabulary import TRANSLATION_METHODS
@@ -148,6 +150,10 @@ class _Feet:
     toe: int | None
     drop: float  # heel height above the toe when the foot is flat, m
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor in foot_axes, m
+    # Without a toe: (F, 3) the ankle's forward advance as the heel rolls over the ball,
+    # summed along the foot's heading as it changes, m; the contact point is the ankle moved
+    # back by it (turning the heading moves nothing).
+    roll: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def sensor(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Path (F, 3) of the foot's accelerometer: the ankle moved by ``offset`` along the
@@ -172,16 +178,19 @@ class _Feet:
 
     def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.toe is None:
-            return p[:, self.heel].copy()
+            if self.roll is None:
+                return p[:, self.heel].copy()
+            out: NDArray[np.float64] = p[:, self.heel] - self.roll
+            return out
         w = self.weights(p)[:, None]
         return w * p[:, self.heel] + (1 - w) * p[:, self.toe]
 
     def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
         earlier frame (so switching heel→toe moves nothing)."""
-        d_heel = p[1:, self.heel] - p[:-1, self.heel]
         if self.toe is None:
-            return d_heel
+            return np.diff(self.point(p), axis=0)
+        d_heel = p[1:, self.heel] - p[:-1, self.heel]
         w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
         return w * d_heel + (1 - w) * (p[1:, self.toe] - p[:-1, self.toe])
 
@@ -382,9 +391,11 @@ class ContactOptions:
     use_toes : bool
         Use heel/toe contact points when the recording names toe joints.
     extrapolate_toes : bool
-        Without toe joints, put a ball-of-the-foot point ahead of and below each ankle,
-        scaled by the leg and rolled by the heel's rise (``bonefit.estimation.stance``), so the
-        stance point rolls from heel to toe; needs ``use_toes``.
+        Without toe joints, roll each foot's stance point from the ankle over the ball of
+        the foot as the heel lifts (the ankle's rise above the other ankle, the foot's size
+        scaled by the leg, along the hip line's heading: ``bonefit.estimation.stance``);
+        needs ``use_toes``. Off by default: it fails the real recording's held-out check
+        (docs/translation.md).
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
         is fitted to the readings of the planted foot (``stance.estimate_sensor_offset``)
@@ -995,7 +1006,7 @@ def estimate_translation(
     timings["estimate_s"] = _time.perf_counter() - started
     report(1.0, "done")
     return TranslationResult(root=path.corrected[:, root].copy(), translation=path.translation,
-                             positions=path.corrected[:, :len(recording.joints)],  # no toe est.
+                             positions=path.corrected,
                              contacts=path.contacts, floor=path.floor,
                              quality=TranslationQuality.of(quality),
                              method=method, fps=recording.fps, timings=timings)
@@ -1049,9 +1060,9 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
     lf, rf = names
-    if opt.use_toes and opt.extrapolate_toes:
-        recording = _with_estimated_toes(recording, names, root)
     feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
+    if opt.use_toes and opt.extrapolate_toes:
+        feet = _rolling_feet(recording, feet, names, root)
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
         states = _file_states(recording, names)
@@ -1072,27 +1083,35 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)
 
 
-def _with_estimated_toes(recording: KinematicsRecording, names: tuple[str, str], root: int
-                         ) -> KinematicsRecording:
-    """``recording`` with a ball-of-the-foot joint ``<foot>_toe_estimated`` appended for
-    each foot without a toe joint (``stance.extrapolated_toe``, heading from the hip line);
-    unchanged when both feet have toes or the legs cannot be found."""
-    missing = [foot for foot in names if foot not in recording.toes]
-    if not missing:
-        return recording
+def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                  names: tuple[str, str], root: int) -> tuple[_Feet, _Feet]:
+    """``feet`` where a foot without a toe joint gets a contact point that rolls from the
+    ankle over the ball of the foot: the ankle moved back along the body's heading (the hip
+    line) by ``stance.roll_advance`` of the heel lift that raises it above the other ankle
+    (``stance.rise_tilt``). A flat foot's point is the ankle, and the point moves only while
+    the heel lifts (turning the heading with the heel up moves nothing), so a foot turning
+    on the spot does not sweep it. Unchanged when the legs cannot be found."""
+    if all(f.toe is not None for f in feet):
+        return feet
     p = recording.positions
-    ankles = [recording.index(foot) for foot in names]
+    ankles = [f.heel for f in feet]
     leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
-    legs = [leg_joints(p, ankle, leg) for ankle in ankles]
-    if legs[0] is None or legs[1] is None or leg <= 0:
-        return recording
-    heading = body_heading(p[:, legs[0][1]], p[:, legs[1][1]])
-    toes = dict(recording.toes)
-    extra = []
-    for k, foot in enumerate(names):
-        if foot in missing:
-            extra.append(extrapolated_toe(p[:, ankles[k]], p[:, ankles[1 - k]], heading, leg))
-            toes[foot] = f"{foot}_toe_estimated"
-    joints = recording.joints + tuple(toes[foot] for foot in missing)
-    return replace(recording, joints=joints, toes=toes,
-                   positions=np.concatenate([p, np.stack(extra, axis=1)], axis=1))
+    found = [leg_joints(p, ankle, leg) for ankle in ankles]
+    legs = [lg for lg in found if lg is not None]
+    if len(legs) < 2 or leg <= 0:
+        return feet
+    heading = heading_by_knees(body_heading(p[:, legs[0][1]], p[:, legs[1][1]]),
+                               [p[:, hip] for _knee, hip in legs],
+                               [p[:, knee] for knee, _hip in legs], [p[:, a] for a in ankles])
+    between = 0.5 * (heading[1:] + heading[:-1])
+    out = []
+    for k, foot in enumerate(feet):
+        if foot.toe is None:
+            tilt = rise_tilt(p[:, ankles[k]], p[:, ankles[1 - k]], leg)
+            shift = np.zeros((p.shape[0], 3))
+            np.cumsum(between * np.diff(roll_advance(tilt, leg))[:, None], axis=0,
+                      out=shift[1:])
+            foot = replace(foot, roll=shift)
+        out.append(foot)
+    return out[0], out[1]
+
