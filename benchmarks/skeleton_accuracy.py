@@ -335,9 +335,11 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
 
 
 def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: list[int], *,
-               max_frames: int, only: str, variant: Variant) -> None:
+               max_frames: int, only: str, variant: Variant) -> list[dict[str, Any]]:
     """The acceptance statistics of every run for each simulation seed: how much of a
-    figure is the particular draw of sensor placement, noise, slip and rig."""
+    figure is the particular draw of sensor placement, noise, slip and rig. Returns the
+    printed figures, one dict per (seed, run) and per (seed, sensors) for §2."""
+    rows: list[dict[str, Any]] = []
     print(f"{'seed':>4s}  {'method:sensors':16s}{'clip-joint median':>18s}{'p95':>7s}"
           f"{'pairs > 25 mm':>15s}{'limb median':>12s}{'hinge median':>13s}"
           f"{'pooled p95':>11s}{'calibrated (n)':>18s}")
@@ -349,6 +351,8 @@ def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: l
             over = sum(e > P95_15_MM for e, _, _ in ev.pairs[key])
             n_cal, share, _ = calibration(ev.labels[key])
             cal = f"{100 * share:.1f} % ({n_cal})" if n_cal else "-"
+            rows.append({"seed": seed, "run": key, **s, "pairs_over_25": over,
+                         "calibration_n": n_cal, "calibration_share": share})
             print(f"{seed:4d}  {key:16s}{s['clip_joint_median']:18.1f}{s['clip_joint_p95']:7.1f}"
                   f"{over:15d}{s['limb_clip_joint_median']:12.1f}"
                   f"{s['hinge_clip_joint_median']:13.1f}{s['p95']:11.1f}{cal:>18s}", flush=True)
@@ -356,10 +360,14 @@ def seed_table(data: Path, runs: list[tuple[str, int, dict[str, str]]], seeds: l
             for shared, name in ((False, "data_sd_m"), (True, "shared_sd_m")):
                 harm = no_harm(ev.labels, n, shared=shared)
                 if harm is not None:
+                    rows.append({"seed": seed, "no_harm": n, "sd": name, "pairs": harm[0],
+                                 "auto_median": harm[1], "llsf_median": harm[2],
+                                 "violations": harm[3], "worst": harm[4][:10]})
                     print(f"{seed:4d}  no harm, {n} sensors: {harm[0]} pairs with {name} <= "
                           f"{GOOD_DATA_SD_MM:g} mm, median auto {harm[1]:.2f} / llsf "
                           f"{harm[2]:.2f} mm, auto worse by > {NO_HARM_MM:g} mm on {harm[3]}",
                           flush=True)
+    return rows
 
 
 def print_realistic(summary: dict[str, dict[str, float]]) -> None:
@@ -431,6 +439,18 @@ def print_sd_bins(data_sd: dict[str, list[tuple[float, float]]]) -> None:
                       f"{np.sum(err[inside] > P95_15_MM):13d}")
 
 
+def run_seeds(args: argparse.Namespace, runs: list[tuple[str, int, dict[str, str]]],
+              variant: Variant) -> int:
+    """``--seeds``: the per-seed table, and its figures as ``--json``."""
+    rows = seed_table(args.data, runs, [int(x) for x in args.seeds.split(",")],
+                      max_frames=args.max_frames, only=args.only, variant=variant)
+    if args.json:
+        args.json.write_text(json.dumps({"noise": args.noise, "rig": args.rig,
+                                         "max_frames": args.max_frames, "rows": rows},
+                                        indent=1))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:  # noqa: C901
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
@@ -466,9 +486,7 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901
         wanted = set(args.runs.split(","))
         runs = [r for r in RUNS if f"{r[0]}:{r[1]}" in wanted]
     if args.seeds:
-        seed_table(args.data, runs, [int(x) for x in args.seeds.split(",")],
-                   max_frames=args.max_frames, only=args.only, variant=variant)
-        return 0
+        return run_seeds(args, runs, variant)
     ev = evaluate(args.data, runs, seed=args.seed, max_frames=args.max_frames, only=args.only,
                   verbose=True, variant=variant)
     errors, n_clips, seconds, failures, refused, priors, pairs, n_total, data_sd, _ = ev

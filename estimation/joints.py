@@ -108,6 +108,12 @@ SLIP_BASIS_MAX: Final[int] = 16
 """Most cosines of the slip model (``slip_basis``): on a long recording only the slowest slip
 is modelled."""
 
+HINGE_RULE_SD_M: Final[float] = 0.01
+"""Standard deviation (metres) of a knee's (elbow's) centre along its hinge axis about the
+straight-limb rule's point: real knees sit up to about 15 mm off the hip–ankle line
+(issue 20 §3); the rule is a prior of this width that the data outweigh where they locate
+the centre along the axis better."""
+
 RULE_GATE_SIGMA: Final[float] = 3.0
 """The foot-of-perpendicular rule is dropped when its shift along the hinge axis exceeds this
 many standard deviations of the data's own estimate along the axis (a consistency test of
@@ -772,10 +778,50 @@ def hinge_decision(model: JointModel, fit: RobustFit, c: NDArray[np.float64],
             rule, shift, rejected = None, 0.0, "foot-of-perpendicular"
     if rule is None:
         return HingeDecision(c, None, rejected, shift, 1.0)
+    if rule == "straight-limb":
+        return _straight_limb(model, fit, c, step, shift)
     # Tikhonov prior on the weak coordinate: data weight lam0, prior weight tau
     blend = lam0 / (lam0 + rule_in.hinge_prior)
     shift *= 1.0 - blend
     return HingeDecision(c + (shift / step) * fit.weak, rule, rejected, shift, blend)
+
+
+def _straight_limb(model: JointModel, fit: RobustFit, c: NDArray[np.float64], step: float,
+                   shift: float) -> HingeDecision:
+    """The straight-limb rule as a Gaussian prior of sd ``HINGE_RULE_SD_M`` along the axis,
+    combined with what the data say there once orientation noise is taken out (see
+    ``estimate_joint``, Notes): ``shift`` (metres) puts ``c`` on the rule, ``step`` is the
+    world distance per unit of the weak coordinate."""
+    v = rotation_noise_variance(model.data)
+    lam0 = float(fit.sv[0] ** 2)
+    # the weakest eigenvalue less what orientation noise adds to it (errors in variables)
+    lam_s = lam0 - (1.0 / (1.0 - v) ** 2 - 1.0) * (1.0 - lam0)
+    blend, x_data = 0.0, 0.0
+    if lam_s > 0.0:
+        x_c = float(fit.weak @ c)
+        # the data's own weak coordinate, de-attenuated, and its variance
+        x_data = x_c * lam0 / (lam_s * (1.0 - v)) - x_c
+        var_data = model.variance_per_information(c, fit.w, fit.back) * lam0 / lam_s**2
+        var_rule = (HINGE_RULE_SD_M / step) ** 2
+        blend = var_rule / (var_rule + var_data)
+    move = blend * x_data + (1.0 - blend) * shift / step
+    return HingeDecision(c + move * fit.weak, "straight-limb", None, move * step, blend)
+
+
+def rotation_noise_variance(data: JointData) -> float:
+    """Per-axis variance (rad²) of the two sensors' white orientation noise, 0 if unknown:
+    a rotation ``R exp([ε]×)`` with ``ε`` of variance ``v`` per axis has a third difference
+    (motion up to quadratic in time cancels) of squared Frobenius norm ``40 v χ²₃`` (its
+    median: 2.366); the smaller of the two sensors' estimates (fast motion only inflates
+    one). As ``slip.rotation_noise_variance``, on rotation matrices."""
+    estimates = []
+    for r, ok in ((data.ra, data.ok_a), (data.rb, data.ok_b)):
+        d3 = np.diff(r.reshape(-1, 9), n=3, axis=0)
+        good = np.convolve(ok.astype(float), np.ones(4), "valid") > 3.5
+        if good.sum() > 10:
+            squared = np.einsum("ti,ti->t", d3, d3)[good]
+            estimates.append(float(np.median(squared)) / (40.0 * 2.366))
+    return min(estimates) if estimates else 0.0
 
 
 def _along_bone(data: JointData, rule_in: HingeRule, centre: NDArray[np.float64],

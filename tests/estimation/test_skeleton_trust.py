@@ -78,3 +78,21 @@ def test_data_label_agrees_with_its_uncertainty(seed: int) -> None:
         assert error_mm(result.joints, truth.joints, joint) < bound, joint
     for joint in ("l_ankle", "r_ankle"):
         assert result.quality[joint]["reliability"] != "data", joint
+
+
+def test_hinges_off_the_line_follow_the_data_where_they_locate_them() -> None:
+    # knees and elbows 12 mm off their neighbours' line (random direction across the bone)
+    # with 0.1 rad/rad of twist coupled to flexion, 20 s, little noise and no slip: the
+    # straight-limb rule alone misses each by the offset's component along the flexion
+    # axis; weighed against what the data say there (net of orientation noise) it no
+    # longer overrides them. Median over 3 recordings x 4 hinges: 8.1 mm before, 4.7 now
+    errors = []
+    for seed in (10, 11, 12):
+        rig = HingeRig(offset_range_m=(0.012, 0.012), coupling_range=(0.1, 0.1), seed=seed)
+        rec, truth = simulate_sensors(example_motion(1200, fps=60.0, seed=0), units_m=0.01,
+                                      seed=seed, position_noise_m=0.001,
+                                      orientation_noise_deg=0.3, slip_m=0.0, rig=rig)
+        result = estimate_skeleton(rec)
+        assert all(result.quality[j].get("hinge_rule") == "straight-limb" for j in HINGES)
+        errors += [error_mm(result.joints, truth.joints, j) for j in HINGES]
+    assert float(np.median(errors)) < 6.0, errors
