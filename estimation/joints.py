@@ -16,6 +16,7 @@ from . import _rows as rows
 from . import quaternions as quat
 from .errors import EstimationError, InputError
 from .params import resolved_options
+from .results import JointQuality
 
 _LOSSES = ("linear", "huber", "cauchy")
 _METHODS = ("llsf", "gdke", "auto")
@@ -34,13 +35,15 @@ class JointFit:
         ``R_a c_a + p_a`` and ``R_b c_b + p_b`` (only the valid one where a sample was dropped).
     residuals : ndarray, shape (F,)
         Distance between the two reconstructions per frame, metres.
-    quality : dict
-        ``rms_residual_m``, ``singular_value_ratio`` (smallest / largest singular value of
-        the stacked LLSF system), ``hinge_ratio`` (smallest / second smallest),
-        ``range_of_motion_deg``, ``hinge`` (bool), ``axis`` (hinge axis in frame a, when a
-        hinge; unit, its sign chosen so that its largest-magnitude component is positive),
-        ``hinge_rule``, ``hinge_rule_rejected`` (a rule the data contradicted, see
-        ``estimate_joint``), ``estimator``, ``loss``, ``outlier_fraction``.
+    quality : JointQuality
+        Typed figures (``estimator``, ``rms_residual_m``, ``range_of_motion_deg``,
+        ``hinge`` (bool), ``data_weight``, ``data_sd_m``) and, in ``details`` (also read by
+        key: ``quality["axis"]``): ``singular_value_ratio`` (smallest / largest singular
+        value of the stacked LLSF system), ``hinge_ratio`` (smallest / second smallest),
+        ``axis`` (hinge axis in frame a, when a hinge; unit, its sign chosen so that its
+        largest-magnitude component is positive), ``hinge_rule``, ``hinge_rule_rejected`` (a
+        rule the data contradicted, see ``estimate_joint``), ``loss``, ``outlier_fraction``,
+        ``fit_sd_m``.
     warnings : tuple of str
         Human-readable warnings (small range of motion, ill-conditioned system).
     """
@@ -49,7 +52,7 @@ class JointFit:
     local_b: NDArray[np.float64]
     positions: NDArray[np.float64]
     residuals: NDArray[np.float64]
-    quality: dict[str, Any]
+    quality: JointQuality
     warnings: tuple[str, ...] = ()
 
 
@@ -1223,5 +1226,6 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
     quality = _joint_quality(data, fit, rec, options, rom=rom, sd=sd)
     quality.update(_prior_quality(fit, priors, c))
     quality.update(_hinge_quality(fit, decision))  # its data_weight replaces the prior's
-    return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals, quality,
+    return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals,
+                    JointQuality.of(quality),
                     tuple(warnings))

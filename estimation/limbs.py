@@ -84,6 +84,7 @@ from .errors import EstimationError, InputError
 from .least_squares import Normal, levenberg_marquardt, normal_from_residuals
 from .params import check_number, resolved_options
 from .progress import Progress, no_progress
+from .results import LimbQuality
 from .vocabulary import OPTIMIZERS
 
 __all__ = ["LimbFit", "LimbInUpperFrame", "LimbOptions", "estimate_limb", "limb_in_upper_frame",
@@ -110,8 +111,8 @@ class LimbFit:
         not E's minimiser.
     n_evaluations : int
         Cost (or residual) evaluations used.
-    quality : dict
-        ``method``, ``optimizer``, ``upper_length_m`` (mean proximal–middle distance),
+    quality : LimbQuality
+        Typed: ``method``, ``optimizer``, ``upper_length_m`` (mean proximal–middle distance),
         ``lower_length_m`` (mean middle–distal distance), ``lower_length_sd_m`` (its standard
         deviation over frames: 0 for a rigid segment), ``converged``; for ``"improved"`` also
         ``hinge_axis_local`` (flexion axis in the upper sensor frame), ``hinge_doubt`` (0 when
@@ -128,7 +129,7 @@ class LimbFit:
     distal: Float
     cost: float
     n_evaluations: int
-    quality: dict[str, Any] = field(default_factory=dict)
+    quality: LimbQuality = field(default_factory=LimbQuality)
 
 
 def torso_length(waist: ArrayLike, l_hip: ArrayLike, r_hip: ArrayLike,
@@ -1090,7 +1091,7 @@ def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval:
     middle = rows.transform(world.ru, k, world.pu)
     distal = rows.transform(world.rd, a, world.pd)
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
-                   cost=cost, n_evaluations=n_eval, quality=quality)
+                   cost=cost, n_evaluations=n_eval, quality=LimbQuality.of(quality))
 
 
 def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: PaperObjective,

@@ -201,6 +201,37 @@ class SkeletonResult:
 
 
 @dataclass(frozen=True, eq=False)
+class LimbQuality(Figures):
+    """Quality figures of one limb fit (``limbs.LimbFit.quality``; see :class:`Figures`
+    for the mapping by key).
+
+    Attributes
+    ----------
+    method : str or None
+        ``"paper"`` or ``"improved"``.
+    optimizer : str or None
+        ``"least-squares"`` or ``"nelder-mead"``.
+    upper_length_m, lower_length_m : float or None
+        Mean proximal–middle and middle–distal distances, metres.
+    lower_length_sd_m : float or None
+        Standard deviation of the middle–distal distance over frames, metres (0: rigid).
+    converged : bool or None
+        Whether the optimizer converged.
+    details : mapping of str to Any
+        The method's own figures (``n_evaluations``, ``hinge_axis_local``,
+        ``hinge_doubt``, ``flexion_range_deg``, ...; see ``limbs.LimbFit``).
+    """
+
+    method: str | None = None
+    optimizer: str | None = None
+    upper_length_m: float | None = None
+    lower_length_m: float | None = None
+    lower_length_sd_m: float | None = None
+    converged: bool | None = None
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
 class TranslationQuality(Figures):
     """Quality figures of a root path (``TranslationResult.quality``; see :class:`Figures`
     for the mapping by JSON key).

@@ -336,7 +336,7 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
                                       float(np.linalg.norm(c[:3] - mean[:3]))))
     fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
                      positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
-                     quality=quality)
+                     quality=JointQuality.of(quality))
     return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
 
 
@@ -987,7 +987,8 @@ def _with_data_sd(ctx: SkeletonContext, name: str, fit: JointFit) -> JointFit:
         sd = SHARED_SD_FACTOR * shared_sd
     else:
         sd = max(shared_sd, float(fit.quality.get("fit_sd_m", 0.0)))
-    return replace(fit, quality={**fit.quality, "shared_sd_m": shared_sd, "data_sd_m": sd})
+    return replace(fit, quality=JointQuality.of(
+        {**fit.quality, "shared_sd_m": shared_sd, "data_sd_m": sd}))
 
 
 def _with_reliability(ctx: SkeletonContext, plan: JointPlan, fit: JointFit) -> JointFit:
@@ -1000,13 +1001,13 @@ def _with_reliability(ctx: SkeletonContext, plan: JointPlan, fit: JointFit) -> J
                   else "the few frames available")
         note = (f"rotates only {ctx.motion.rom[name]:.1f}° (< {ctx.options.min_range_deg:g}°): "
                 f"located from {source}, unreliable")
-        return replace(fit, quality={**fit.quality, "reliability": "prior"},
+        return replace(fit, quality=JointQuality.of({**fit.quality, "reliability": "prior"}),
                        warnings=(note, *(w for w in fit.warnings
                                          if not w.startswith("small range"))))
     assisted = (fit.quality.get("data_weight", 1.0) < 0.5
                 or fit.quality.get("data_sd_m", 0.0) > DATA_LABEL_SD_M)
-    return replace(fit, quality={**fit.quality, "reliability":
-                                 "prior-assisted" if assisted else "data"})
+    label = "prior-assisted" if assisted else "data"
+    return replace(fit, quality=JointQuality.of({**fit.quality, "reliability": label}))
 
 
 @dataclass(eq=False)
@@ -1021,7 +1022,7 @@ class LocatedJoints:
     posterior: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     joints: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     offsets: dict[str, JointOffset] = field(default_factory=dict)
-    quality: dict[str, dict[str, Any]] = field(default_factory=dict)
+    quality: dict[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def locate(self, ctx: SkeletonContext, plan: JointPlan) -> JointFit:
         """Locate a joint by its plan, keep its own fit and posterior, and warn (unless

@@ -17,6 +17,7 @@ from bonefit.estimation.gaps import (
     sensor_major,
 )
 from bonefit.estimation.joints import effective_samples, estimate_joint, percentile, range_of_motion
+from bonefit.estimation.results import JointQuality
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
 
@@ -142,6 +143,9 @@ def test_foot_of_perpendicular_rule_dropped_when_data_contradict_it(seed: int) -
     fit = estimate_joint(pa, ra, pb, rb, neighbours=(elbow, None))
     assert fit.quality["hinge_rule"] == "foot-of-perpendicular"
     assert "hinge_rule_rejected" not in fit.quality
+    assert isinstance(fit.quality, JointQuality)  # typed figures as attributes
+    assert fit.quality.hinge is True
+    assert fit.quality.estimator == fit.quality["estimator"]
     assert local_error_mm(fit.local_a, local_a) < 5.0
 
 

@@ -22,6 +22,7 @@ from bonefit.estimation.limbs import (
     standard_lengths,
     torso_length,
 )
+from bonefit.estimation.results import LimbQuality
 
 THIGH, SHANK = 0.42, 0.40
 
@@ -107,6 +108,11 @@ def test_improved_recovers_exact_limb() -> None:
     axis = np.asarray(fit.quality["hinge_axis_local"])
     assert abs(axis @ leg.axis_local) > 0.9999
     assert fit.quality["flexion_range_deg"] == pytest.approx(80.0, abs=3.0)
+    # typed figures: the same values as attributes, the method's own ones by key
+    assert isinstance(fit.quality, LimbQuality)
+    assert fit.quality.lower_length_m == fit.quality["lower_length_m"]
+    assert (fit.quality.method, fit.quality.converged) == ("improved", True)
+    assert "hinge_doubt" in fit.quality.details
 
 
 def test_improved_beats_paper_with_noise() -> None:
