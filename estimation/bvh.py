@@ -699,12 +699,25 @@ def _step_cost(steps: _Steps, order: str) -> float:
 
     if len(steps.turn) == 0:
         return 0.0
-    angles = continuous_euler(np.stack([euler_degrees(Rotation.from_quat(steps.before), order),
-                                        euler_degrees(Rotation.from_quat(steps.after), order)]))
-    swing = np.maximum(np.abs(angles[1] - angles[0]).max(axis=1) - steps.turn, 0.0)
-    half = _quat_angle(_euler_quaternions(order, (angles[0] + angles[1]) / 2), steps.halfway)
+    before = euler_degrees(Rotation.from_quat(steps.before), order)
+    after = _next_euler(before, euler_degrees(Rotation.from_quat(steps.after), order))
+    swing = np.maximum(np.abs(after - before).max(axis=1) - steps.turn, 0.0)
+    half = _quat_angle(_euler_quaternions(order, (before + after) / 2), steps.halfway)
     keep = steps.keep
     return float(np.sum(half[keep] ** 2) + SWING_WEIGHT * np.sum(swing[keep] ** 2))
+
+
+def _next_euler(before: NDArray[np.float64], after: NDArray[np.float64]
+                ) -> NDArray[np.float64]:
+    """``continuous_euler(np.stack([before, after]))[1]`` for many two-frame takes (S, 3) at
+    once: ``after`` or its twin, whichever is nearer ``before``, moved by whole turns to
+    within 180° of it (the same operations, without the prefix scan's temporaries)."""
+    twin = _twin(after)
+    near_twin = (np.abs(_wrap(twin - before)).sum(axis=-1)
+                 < np.abs(_wrap(after - before)).sum(axis=-1))
+    chosen = np.where(near_twin[:, None], twin, after)
+    out: NDArray[np.float64] = chosen - 360.0 * np.round((chosen - before) / 360.0)
+    return out
 
 
 def _choice_steps(n_frames: int, max_steps: int = MAX_CHOICE_STEPS) -> NDArray[np.intp]:
@@ -965,12 +978,17 @@ def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
 
 
 def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton products p·q of scalar-last quaternions (N, 4) (either may be (1, 4))."""
-    pv, pw = p[:, :3], p[:, 3:]
-    qv, qw = q[:, :3], q[:, 3:]
-    vector = pw * qv + qw * pv + np.cross(pv, qv)
-    scalar = pw * qw - np.einsum("...j,...j->...", pv, qv)[:, None]
-    out: NDArray[np.float64] = np.concatenate([vector, scalar], axis=1)
+    """Hamilton products p·q of scalar-last quaternions (N, 4) (either may be (1, 4)).
+
+    Component by component (``pw qv + qw pv + pv × qv``, ``pw qw − pv · qv`` in that order of
+    operations, so the same bits as with ``np.cross``, whose overhead was most of the cost)."""
+    px, py, pz, pw = p.T
+    qx, qy, qz, qw = q.T
+    out = np.empty((max(len(p), len(q)), 4))
+    out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
+    out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
+    out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
+    out[:, 3] = pw * qw - np.einsum("...j,...j->...", p[:, :3], q[:, :3])
     return out
 
 
