@@ -526,18 +526,23 @@ def _twin_states(angles: NDArray[np.float64]) -> NDArray[np.intp]:
     """Per frame (F, ...), 0 for the given Tait–Bryan triple, 1 for its twin, choosing at each
     frame the one nearest (sum of wrapped differences) to the previous frame's choice.
 
-    The choice at frame i depends on frame i−1's only: a map of {0, 1} onto itself per frame,
-    composed over the take by a prefix scan in log₂ F vectorised steps."""
+    The choice at frame i depends on frame i−1's only: a map of {0, 1} onto itself per frame.
+    A map that sends both states to one decides the state by itself; the others keep or swap
+    it. So a frame's state is that of the last deciding step before it (0 at the first frame),
+    swapped once per swapping step since: two cumulative passes over the take."""
     twin = _twin(angles)
     cand = np.stack([angles, twin], axis=-2)  # (F, ..., 2, 3)
     dist = np.abs(_wrap(cand[1:, ..., None, :, :] - cand[:-1, ..., :, None, :])).sum(axis=-1)
-    maps = (dist[..., 1] < dist[..., 0]).astype(np.intp)  # (F-1, ..., previous state)
-    span = 1
-    while span < len(maps):
-        maps[span:] = np.take_along_axis(maps[span:], maps[:-span], axis=-1)
-        span *= 2
+    maps = dist[..., 1] < dist[..., 0]  # (F-1, ..., previous state): the next state
+    deciding = maps[..., 0] == maps[..., 1]
+    swaps = np.cumsum(maps[..., 0] & ~deciding, axis=0)
+    step = np.arange(len(maps)).reshape(-1, *([1] * (maps.ndim - 2)))
+    last = np.maximum.accumulate(np.where(deciding, step, -1), axis=0)
+    at = np.maximum(last, 0)
+    decided = np.where(last >= 0, np.take_along_axis(maps[..., 0], at, axis=0), False)
+    since = swaps - np.where(last >= 0, np.take_along_axis(swaps, at, axis=0), 0)
     states = np.zeros(angles.shape[:-1], dtype=np.intp)
-    states[1:] = maps[..., 0]
+    states[1:] = decided ^ (since % 2 == 1)
     return states
 
 
