@@ -783,7 +783,8 @@ def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: b
     return options[int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0])]
 
 
-def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Rotation],
+def rest_euler_channels(parents: tuple[int, ...] | list[int],
+                        rotations: list[Rotation] | list[NDArray[np.float64]],
                         order: str | None = None, *, centre: bool = True) -> NodeChannels:
     """BVH rotation channels of a tree of nodes, with an Euler order and a constant rest
     rotation per node chosen so that players interpolating the channels follow the motion.
@@ -803,8 +804,9 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Ro
     ----------
     parents : sequence of int
         Parent of each node (an earlier index), -1 for a root.
-    rotations : list of Rotation
-        Per node, its rotation (length F) relative to its parent's given frame.
+    rotations : list of Rotation or of ndarray, shape (F, 4)
+        Per node, its rotation (length F) relative to its parent's given frame (a Rotation
+        or its scalar-last unit quaternions).
     order : str, optional
         One intrinsic order for every node instead of the choice per node.
     centre : bool
@@ -829,7 +831,8 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Ro
     chosen: list[tuple[NDArray[np.float64], str]] = []
     for n, rotation in enumerate(rotations):
         above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
-        seen = _quat_multiply(_conjugate(above)[None], rotation.as_quat())
+        given = rotation if isinstance(rotation, np.ndarray) else rotation.as_quat()
+        seen = _quat_multiply(_conjugate(above)[None], given)
         rest, best = _best_channels(seen, orders, centre)
         rests.append(rest)
         chosen.append((_quat_multiply(seen, rest[None]), best))
@@ -994,6 +997,26 @@ def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np
     out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
     out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
     out[:, 3] = pw * qw - np.einsum("...j,...j->...", p[:, :3], q[:, :3])
+    return out
+
+
+def compose_quaternions(p: NDArray[np.float64], q: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+    """Rotations ``p · q`` (``q`` first) of scalar-last unit quaternions (N, 4) (either may
+    be (1, 4)), normalised.
+
+    The same formula and normalisation as scipy's ``Rotation.__mul__``: bit for bit
+    ``(P * Q).as_quat()`` for Rotations P, Q holding ``p`` and ``q``, without the cost of
+    building Rotation objects (most of a long take's BVH hierarchy).
+    """
+    px, py, pz, pw = p.T
+    qx, qy, qz, qw = q.T
+    out = np.empty((max(len(p), len(q)), 4))
+    out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
+    out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
+    out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
+    out[:, 3] = pw * qw - px * qx - py * qy - pz * qz
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
     return out
 
 

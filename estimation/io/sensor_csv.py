@@ -271,10 +271,10 @@ def _line_blocks(handle: IO[str], first: int) -> Iterator[tuple[int, str]]:
 def _parse_block(text: str, first: int, header: list[str]
                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Cells (n, C) and line numbers (n,) of the data rows of ``text``, whose first line is
-    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers (a second try with
-    empty cells written ``nan`` when there are some), row by row otherwise (naming the line and column of a fault). loadtxt refuses a comment,
-    a quote or a malformed cell and skips a blank line (one row short): either sends the
-    block to the row-by-row parse."""
+    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers (a second try
+    with empty cells written ``nan`` when there are some), row by row otherwise (naming the
+    line and column of a fault). loadtxt refuses a comment, a quote or a malformed cell and
+    skips a blank line (one row short): either sends the block to the row-by-row parse."""
     n_lines = text.count("\n")
     cells = _loadtxt(text)
     if cells is None and (",," in text or ",\n" in text or "\n," in text

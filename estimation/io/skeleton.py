@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from ..bvh import BvhMotion, rest_euler_channels, write_bvh
+from ..bvh import BvhMotion, compose_quaternions, rest_euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
 from ..numtext import JsonArray, fixed_blocks, json_blocks, plain, write_text_blocks
@@ -338,12 +338,12 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
 class _Nodes:
     """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
     segment frame (metres) and, per node that turns, its rotation relative to its parent's
-    segment."""
+    segment (scalar-last quaternions, F × 4)."""
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
     offsets: NDArray[np.float64]
-    local: dict[str, Rotation]
+    local: dict[str, NDArray[np.float64]]
 
 
 def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
@@ -357,7 +357,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     names: list[str] = []
     parents: list[int] = []
     offsets: list[NDArray[np.float64]] = []
-    local: dict[str, Rotation] = {"root": rotations["root"]}
+    quats = {node: rotation.as_quat() for node, rotation in rotations.items()}
+    local: dict[str, NDArray[np.float64]] = {"root": quats["root"]}
     stack: list[tuple[str, str | None]] = [("root", None)]
     while stack:
         node, parent = stack.pop()
@@ -373,7 +374,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         else:
             delta = positions[node] - positions[parent]
             offsets.append(rotations[parent].inv().apply(delta).mean(axis=0))
-            local[node] = rotations[parent].inv() * rotations[node]
+            local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
+                                              quats[node])
         after = [*children[node], *([f"{node}_end"] if node in END_SITES else [])]
         stack.extend((child, node) for child in reversed(after))
     return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local)
