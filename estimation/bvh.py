@@ -530,10 +530,7 @@ def _twin_states(angles: NDArray[np.float64]) -> NDArray[np.intp]:
     A map that sends both states to one decides the state by itself; the others keep or swap
     it. So a frame's state is that of the last deciding step before it (0 at the first frame),
     swapped once per swapping step since: two cumulative passes over the take."""
-    twin = _twin(angles)
-    cand = np.stack([angles, twin], axis=-2)  # (F, ..., 2, 3)
-    dist = np.abs(_wrap(cand[1:, ..., None, :, :] - cand[:-1, ..., :, None, :])).sum(axis=-1)
-    maps = dist[..., 1] < dist[..., 0]  # (F-1, ..., previous state): the next state
+    maps = _twin_maps(angles)  # (F-1, ..., previous state): the next state
     deciding = maps[..., 0] == maps[..., 1]
     swaps = np.cumsum(maps[..., 0] & ~deciding, axis=0)
     step = np.arange(len(maps)).reshape(-1, *([1] * (maps.ndim - 2)))
@@ -544,6 +541,33 @@ def _twin_states(angles: NDArray[np.float64]) -> NDArray[np.intp]:
     states = np.zeros(angles.shape[:-1], dtype=np.intp)
     states[1:] = decided ^ (since % 2 == 1)
     return states
+
+
+SMALL_STEP_DEG: Final[float] = 90.0
+"""Sum of the wrapped changes of a Tait–Bryan triple between two frames below which the
+triple's twin is certainly further away (by at least 360° minus twice this, far beyond
+rounding), so the step keeps whichever of the two the previous frame had."""
+
+
+def _twin_maps(angles: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Per step (F-1, ..., 2): from each state of the previous frame (0: the given triple,
+    1: its twin), whether this frame is nearer as its twin (sum of wrapped differences).
+
+    Only the steps whose given triples change by :data:`SMALL_STEP_DEG` or more are measured
+    all four ways; every other step keeps the state (its twin is at least 270° off)."""
+    same = np.abs(_wrap(angles[1:] - angles[:-1])).sum(axis=-1)
+    maps = np.zeros((*same.shape, 2), dtype=bool)
+    maps[..., 1] = True
+    big = np.nonzero(same >= SMALL_STEP_DEG)
+    if big[0].size:
+        later = angles[1:][big]
+        earlier = angles[:-1][big]
+        cand_later = np.stack([later, _twin(later)], axis=-2)  # (B, 2, 3)
+        cand_earlier = np.stack([earlier, _twin(earlier)], axis=-2)
+        dist = np.abs(_wrap(cand_later[:, None, :, :] - cand_earlier[:, :, None, :])
+                      ).sum(axis=-1)
+        maps[big] = dist[..., 1] < dist[..., 0]
+    return maps
 
 
 def _twin(angles: NDArray[np.float64]) -> NDArray[np.float64]:
