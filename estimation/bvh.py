@@ -712,12 +712,13 @@ class _Steps:
     after: NDArray[np.float64]
     turn: NDArray[np.float64]
     keep: NDArray[np.bool_]
-    halfway: NDArray[np.float64]
+    halfway: NDArray[np.float64]  # (4, S): a contiguous row per component
 
     @classmethod
     def of(cls, before: NDArray[np.float64], after: NDArray[np.float64]) -> _Steps:
         turn = _quat_angle(before, after)
-        return cls(before, after, turn, turn <= JUMP_DEG, _halfway(before, after))
+        return cls(before, after, turn, turn <= JUMP_DEG,
+                   np.ascontiguousarray(_halfway(before, after).T))
 
 
 def _step_cost(steps: _Steps, order: str) -> float:
@@ -731,9 +732,38 @@ def _step_cost(steps: _Steps, order: str) -> float:
     before = euler_degrees(Rotation.from_quat(steps.before), order)
     after = _next_euler(before, euler_degrees(Rotation.from_quat(steps.after), order))
     swing = np.maximum(np.abs(after - before).max(axis=1) - steps.turn, 0.0)
-    half = _quat_angle(_euler_quaternions(order, (before + after) / 2), steps.halfway)
+    half = _angle_between(_euler_rows(order, (before + after) / 2), steps.halfway)
     keep = steps.keep
     return float(np.sum(half[keep] ** 2) + SWING_WEIGHT * np.sum(swing[keep] ** 2))
+
+
+def _euler_rows(order: str, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`_euler_quaternions` as rows (4, S) (x, y, z, w), each turn about one axis
+    applied in closed form: the choice's hot loop, on contiguous rows."""
+    half = np.radians(angles.T) / 2
+    sin, cos = np.sin(half), np.cos(half)
+    q = np.zeros((4, angles.shape[0]))
+    q[_UNIT_AXES[order[0]]] = sin[0]
+    q[3] = cos[0]
+    for k in (1, 2):  # q · (sin · axis, cos)
+        a = _UNIT_AXES[order[k]]
+        b, c = (a + 1) % 3, (a + 2) % 3
+        q = np.stack([cos[k] * q[a] + sin[k] * q[3], cos[k] * q[b] + sin[k] * q[c],
+                      cos[k] * q[c] - sin[k] * q[b], cos[k] * q[3] - sin[k] * q[a]]
+                     )[np.argsort([a, b, c, 3])]
+    return q
+
+
+def _angle_between(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`_quat_angle` of unit quaternions given as rows (4, S) (x, y, z, w)."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    vx = pw * qx - qw * px - (py * qz - pz * qy)
+    vy = pw * qy - qw * py - (pz * qx - px * qz)
+    vz = pw * qz - qw * pz - (px * qy - py * qx)
+    w = px * qx + py * qy + pz * qz + pw * qw
+    return np.asarray(np.degrees(2.0 * np.arctan2(np.sqrt(vx * vx + vy * vy + vz * vz),
+                                                  np.abs(w))))
 
 
 def _next_euler(before: NDArray[np.float64], after: NDArray[np.float64]
