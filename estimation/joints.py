@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Final, NamedTuple
 
 import numpy as np
@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from . import _rows as rows
 from . import quaternions as quat
 from .errors import EstimationError, InputError
+from .params import resolved_options
 
 _LOSSES = ("linear", "huber", "cauchy")
 _METHODS = ("llsf", "gdke", "auto")
@@ -1081,18 +1082,11 @@ class JointHints:
     prior: tuple[NDArray[np.float64], float] | None = None
 
 
-def estimate_joint(  # noqa: PLR0913
+def estimate_joint(
     positions_a: NDArray[np.float64], rotations_a: Rotation, positions_b: NDArray[np.float64],
-    rotations_b: Rotation, *, method: str = "auto", bias_compensation: bool = True,
-    loss: str = "huber", valid: NDArray[np.bool_] | None = None,
-    neighbours: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
-    hinge_ratio: float = 0.3, hinge_prior: float = 0.005, trust_data_sd_m: float = 0.0,
-    min_range_deg: float = 2.0, range_of_motion_deg: float | None = None,
-    warn_range_deg: float = 20.0, huber_k: float = 2.0, n_iterations: int = 4,
-    gdke_point_m: float = 0.1, highpass: int = 0, slip_period: float = 0.0,
-    bone_length: float | None = None,
-    symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-    symmetry_weight: float = 0.01, prior: tuple[NDArray[np.float64], float] | None = None,
+    rotations_b: Rotation, *, valid: NDArray[np.bool_] | None = None,
+    range_of_motion_deg: float | None = None, options: JointOptions | None = None,
+    **keywords: Any,
 ) -> JointFit:
     """Locate the joint between two rigid bodies that each carry a 6-DOF sensor.
 
@@ -1106,13 +1100,14 @@ def estimate_joint(  # noqa: PLR0913
         Frames (or per-sensor samples) to fit; defaults to the finite ones.
     range_of_motion_deg : float, optional
         The range already measured by ``range_of_motion`` on the same valid frames.
-    neighbours, bone_length, symmetry, prior
-        What is known of this joint besides its two sensors (adjacent joints, a bone
-        length, a plane and a prior of its centre), each described in ``JointHints``.
-    method, bias_compensation, loss, hinge_ratio, hinge_prior, trust_data_sd_m, \
-min_range_deg, warn_range_deg, huber_k, n_iterations, gdke_point_m, highpass, slip_period, \
-symmetry_weight
-        The method options, each described (with the hinge rule, slip model) in ``JointOptions``.
+    options : JointOptions, optional
+        The method options as one object (the hinge rule and the slip model are described
+        there); default: from ``keywords``.
+    **keywords
+        ``neighbours``, ``bone_length``, ``symmetry``, ``prior``: what is known of this joint
+        besides its two sensors (adjacent joints, a bone length, a plane and a prior of its
+        centre), each described in ``JointHints``; and, instead of ``options``, its fields
+        (``method``, ``loss``, ``hinge_prior``, ``slip_period``, ...).
 
     Returns
     -------
@@ -1121,9 +1116,16 @@ symmetry_weight
     Raises
     ------
     InputError
-        An unknown ``method`` or ``loss``.
+        An unknown ``method`` or ``loss``, an unknown keyword (``field`` names it), both
+        ``options`` and option keywords.
     EstimationError
         When the relative rotation of the two bodies spans less than ``min_range_deg``.
+
+    Examples
+    --------
+    >>> opt = JointOptions(method="llsf", loss="linear")
+    >>> fit = estimate_joint(pa, ra, pb, rb, options=opt)  # doctest: +SKIP
+    >>> fit = estimate_joint(pa, ra, pb, rb, method="llsf", loss="linear")  # doctest: +SKIP
 
     Notes
     -----
@@ -1131,16 +1133,18 @@ symmetry_weight
     (``robust_fit`` with the priors, ``hinge_decision``, ``reconstruct``); references in
     ``JointOptions``.
     """
-    options = JointOptions(method, bias_compensation, loss, hinge_ratio, hinge_prior,
-                           trust_data_sd_m, min_range_deg, warn_range_deg, huber_k,
-                           n_iterations, gdke_point_m, highpass, slip_period, symmetry_weight)
+    hints = JointHints(**{f.name: keywords.pop(f.name) for f in fields(JointHints)
+                          if f.name in keywords})
+    options = resolved_options("estimate_joint", {"estimate_joint": JointOptions}, options,
+                               keywords)
     data = joint_data(positions_a, rotations_a, positions_b, rotations_b, valid)
     rom, warnings = _motion_range(rotations_a, rotations_b, data.both,
-                                  measured=range_of_motion_deg, min_range_deg=min_range_deg,
-                                  warn_range_deg=warn_range_deg)
-    model = joint_model(data, method=method, highpass=highpass, slip_period=slip_period)
-    return fit_joint(model, options, JointHints(neighbours, bone_length, symmetry, prior),
-                     rom=rom, warnings=warnings)
+                                  measured=range_of_motion_deg,
+                                  min_range_deg=options.min_range_deg,
+                                  warn_range_deg=options.warn_range_deg)
+    model = joint_model(data, method=options.method, highpass=options.highpass,
+                        slip_period=options.slip_period)
+    return fit_joint(model, options, hints, rom=rom, warnings=warnings)
 
 
 def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, rom: float,

@@ -82,11 +82,12 @@ from . import _rows as rows
 from .anthropometry import LIMB_KEYS, TABLES
 from .errors import EstimationError, InputError
 from .least_squares import Normal, levenberg_marquardt, normal_from_residuals
-from .params import check_number
+from .params import check_number, resolved_options
 from .progress import Progress, no_progress
 from .vocabulary import OPTIMIZERS
 
-__all__ = ["LimbFit", "estimate_limb", "paper_cost", "standard_lengths", "torso_length"]
+__all__ = ["LimbFit", "LimbInUpperFrame", "LimbOptions", "estimate_limb", "limb_in_upper_frame",
+           "paper_cost", "standard_lengths", "torso_length"]
 
 Float = NDArray[np.float64]
 
@@ -515,10 +516,9 @@ class _PaperTerms:
         return np.asarray(second)
 
 
-def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike,  # noqa: PLR0913, PLR0917
-               upper_rotations: Rotation, distal_positions: ArrayLike,
-               distal_rotations: Rotation, *, standard_lengths: tuple[float, float],
-               w_s: float = 0.01, w_l: float = 0.01) -> float:
+def paper_cost(theta: ArrayLike, limb: LimbInUpperFrame, *,
+               standard_lengths: tuple[float, float], w_s: float = 0.01,
+               w_l: float = 0.01) -> float:
     """The paper's cost ``E`` (eq. 5) at ``theta = (s_j, s_{j+1})``.
 
     Parameters
@@ -526,10 +526,9 @@ def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike
     theta : array_like, shape (6,)
         Middle joint in the upper sensor frame, then distal joint in the distal sensor frame,
         metres.
-    proximal, upper_positions, distal_positions : array_like, shape (F, 3)
-        World positions (metres) of the proximal joint and of the two sensors.
-    upper_rotations, distal_rotations : Rotation, length F
-        Sensor → world rotations.
+    limb : LimbInUpperFrame
+        The proximal joint and the distal sensor in the upper sensor's frame, from the world
+        poses by :func:`limb_in_upper_frame` (once for any number of ``theta``).
     standard_lengths : (float, float)
         ``L_{j−1,j}`` and ``L_{j,j+1}``, metres.
     w_s, w_l : float
@@ -544,9 +543,12 @@ def paper_cost(theta: ArrayLike, proximal: ArrayLike, upper_positions: ArrayLike
     Notes
     -----
     Miura et al. 2015, eqs. 2–5.
+
+    Examples
+    --------
+    >>> limb = limb_in_upper_frame(hip, thigh_p, thigh_r, foot_p, foot_r)  # doctest: +SKIP
+    >>> paper_cost(np.zeros(6), limb, standard_lengths=(0.42, 0.41))  # doctest: +SKIP
     """
-    limb = limb_in_upper_frame(proximal, upper_positions, upper_rotations, distal_positions,
-                    distal_rotations)
     fun, _ = paper_residuals(limb, standard_lengths, w_s, w_l)
     r = fun(np.asarray(theta, dtype=float).reshape(6))
     return float(np.einsum("i,i->", r, r))
@@ -872,15 +874,49 @@ def _measured(limb: LimbInUpperFrame, valid: ArrayLike | None) -> LimbInUpperFra
     return LimbInUpperFrame(b=limb.b[keep], q=limb.q[keep], h=limb.h[keep])
 
 
-def _check_limb_options(method: str, optimizer: str,
-                        standard_lengths: tuple[float, float]) -> tuple[float, float]:
-    """The standard lengths as floats, the method and optimizer checked."""
-    if method not in ("paper", "improved"):
-        raise InputError(f"unknown limb method {method!r}; use 'paper' or 'improved'",
-                         field="method")
-    if optimizer not in OPTIMIZERS:
-        raise InputError(f"unknown optimizer {optimizer!r}; use 'least-squares' or "
-                         "'nelder-mead'", field="optimizer")
+@dataclass(frozen=True)
+class LimbOptions:
+    """The method options of :func:`estimate_limb` (its keywords of the same names).
+
+    Attributes
+    ----------
+    method : {"improved", "paper"}
+        ``"paper"``: minimise the paper's E (eq. 5). ``"improved"``: see the module
+        docstring.
+    optimizer : {"least-squares", "nelder-mead"}
+        For ``method="paper"``: Levenberg–Marquardt with analytic derivatives (default) or
+        Nelder–Mead on E (the paper's simplex method). Both start from the same geometric
+        initial point and reach the same minimum. ``"improved"`` always uses
+        Levenberg–Marquardt.
+    w_s, w_l : float
+        Weights of the paper's eqs. 3 and 4 (0.01 in the paper; lengths in metres).
+    robust_scale : float or None
+        ``"improved"`` only: residual scale (metres) of the soft-L1 loss; None for plain
+        least squares.
+
+    Examples
+    --------
+    >>> LimbOptions(method="paper", optimizer="nelder-mead").w_s
+    0.01
+    """
+
+    method: str = "improved"
+    optimizer: str = "least-squares"
+    w_s: float = 0.01
+    w_l: float = 0.01
+    robust_scale: float | None = 0.01
+
+    def __post_init__(self) -> None:
+        if self.method not in ("paper", "improved"):
+            raise InputError(f"unknown limb method {self.method!r}; use 'paper' or "
+                             "'improved'", field="method")
+        if self.optimizer not in OPTIMIZERS:
+            raise InputError(f"unknown optimizer {self.optimizer!r}; use "
+                             f"{' or '.join(map(repr, OPTIMIZERS))}", field="optimizer")
+
+
+def _checked_lengths(standard_lengths: tuple[float, float]) -> tuple[float, float]:
+    """The standard lengths as floats, positive and finite."""
     lengths = (float(standard_lengths[0]), float(standard_lengths[1]))
     if not all(np.isfinite(v) and v > 0 for v in lengths):
         raise InputError("standard lengths must be positive", field="standard_lengths")
@@ -965,13 +1001,13 @@ def _flexion_range_deg(limb: LimbInUpperFrame, x: Float, axis: Float) -> float:
     return float(np.percentile(signed, 97.5) - np.percentile(signed, 2.5))
 
 
+# five input arrays, scipy style (as estimate_joint's four), the subject's lengths, the
+# measured frames, progress and the options object: nine
 def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,  # noqa: PLR0913
                   distal_positions: ArrayLike, distal_rotations: Rotation, *,
-                  standard_lengths: tuple[float, float], method: str = "improved",
-                  optimizer: str = "least-squares", w_s: float = 0.01, w_l: float = 0.01,
-                  robust_scale: float | None = 0.01,
-                  valid: ArrayLike | None = None,
-                  progress: Progress | None = None) -> LimbFit:
+                  standard_lengths: tuple[float, float], valid: ArrayLike | None = None,
+                  progress: Progress | None = None, options: LimbOptions | None = None,
+                  **keywords: Any) -> LimbFit:
     """Knee and ankle (elbow and wrist) from the thigh and foot (upper-arm and hand) sensors.
 
     Parameters
@@ -989,18 +1025,6 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     standard_lengths : (float, float)
         Standard upper and lower segment lengths ``L_{j−1,j}``, ``L_{j,j+1}`` (thigh and shank,
         or upper arm and forearm), metres; see :func:`standard_lengths`.
-    method : {"improved", "paper"}
-        ``"paper"``: minimise the paper's E (eq. 5). ``"improved"``: see the module docstring.
-    optimizer : {"least-squares", "nelder-mead"}
-        For ``method="paper"``: Levenberg–Marquardt with analytic derivatives (default) or
-        Nelder–Mead on E (the paper's simplex method). Both start from the same geometric
-        initial point and reach the same minimum. ``"improved"`` always uses
-        Levenberg–Marquardt.
-    w_s, w_l : float
-        Weights of the paper's eqs. 3 and 4 (0.01 in the paper; lengths in metres).
-    robust_scale : float or None, default 0.01
-        ``"improved"`` only: residual scale (metres) of the soft-L1 loss; None for plain least
-        squares.
     valid : array_like of bool, shape (F,), optional
         ``"improved"`` only: the frames in which both sensors were measured (not gap-filled).
         The joints are fitted on those alone (when there are at least 10) and placed in every
@@ -1008,6 +1032,11 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
         The paper's method uses every frame, as published.
     progress : callable, optional
         ``progress(fraction, stage)``.
+    options : LimbOptions, optional
+        The method options as one object; default: from ``keywords``.
+    **keywords
+        Instead of ``options``, its fields: ``method`` ("improved"), ``optimizer``,
+        ``w_s``, ``w_l``, ``robust_scale``.
 
     Returns
     -------
@@ -1030,15 +1059,15 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     module docstring.
     """
     report = progress or no_progress
-    lengths = _check_limb_options(method, optimizer, standard_lengths)
+    opt = resolved_options("estimate_limb", {"estimate_limb": LimbOptions}, options, keywords)
+    lengths = _checked_lengths(standard_lengths)
     report(0.0, "limbs")
     world = _world(proximal, upper_positions, upper_rotations, distal_positions,
                    distal_rotations)
     limb = _in_upper_frame(world)
-    objective = paper_normal(limb, lengths, w_s, w_l)
-    theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective,
-                                           _LimbSettings(method, optimizer, lengths, w_s, w_l,
-                                                         robust_scale), report)
+    objective = paper_normal(limb, lengths, opt.w_s, opt.w_l)
+    theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective, opt,
+                                           lengths=lengths, report=report)
     fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality)
     report(1.0, "limbs")
     return fit
@@ -1064,27 +1093,16 @@ def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval:
                    cost=cost, n_evaluations=n_eval, quality=quality)
 
 
-class _LimbSettings(NamedTuple):
-    """``estimate_limb``'s method, optimizer, standard lengths, weights and loss scale."""
-
-    method: str
-    optimizer: str
-    lengths: tuple[float, float]
-    w_s: float
-    w_l: float
-    robust_scale: float | None
-
-
 def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: PaperObjective,
-              settings: _LimbSettings, report: Progress
+              options: LimbOptions, *, lengths: tuple[float, float], report: Progress
               ) -> tuple[Float, int, bool, dict[str, Any]]:
     """θ of the method and optimizer asked for, the evaluations used, whether it converged
     and the method's quality figures; ``measured`` the frames the improved method fits."""
-    method, lengths, w_s, w_l = settings.method, settings.lengths, settings.w_s, settings.w_l
+    method, w_s, w_l = options.method, options.w_s, options.w_l
     # a start needs only means over the frames: the subsample's are as good
     x0 = _initial_point(_coarse(limb) or limb, lengths)
     quality: dict[str, Any] = {"method": method}
-    if method == "paper" and settings.optimizer == "nelder-mead":
+    if method == "paper" and options.optimizer == "nelder-mead":
         theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s=w_s, w_l=w_l, progress=report)
         quality["optimizer"] = "nelder-mead"
         return theta, n_eval, ok, quality
@@ -1094,7 +1112,7 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
         report(0.3, "limbs")
         theta, more, ok, extra = _fit_improved(
             measured, [theta, x0, _straight_start(measured, lengths)], lengths,
-            settings.robust_scale)
+            options.robust_scale)
         n_eval += more
         quality.update(extra)
         quality["fitted_frames"] = measured.n

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 import numbers
-from typing import Final
+from collections.abc import Mapping
+from dataclasses import fields
+from typing import Any, Final, TypeVar
 
 from .errors import InputError
 
@@ -46,6 +48,69 @@ HACHAJ_WINDOW_RANGE: Final[tuple[int, int]] = (1, 10_000)
 
 HACHAJ_EPS_RANGE: Final[tuple[float, float]] = (0.0, 1.0)
 """Accepted ``eps`` of ``hachaj2018``, metres (above the low end, at most the high end)."""
+
+Options = TypeVar("Options")
+
+
+def options_of(method: str, table: Mapping[str, type[Options]],
+               values: Mapping[str, Any]) -> Options:
+    """The options of ``method`` from keyword values, checked by the options class.
+
+    Parameters
+    ----------
+    method : str
+        A key of ``table``.
+    table : mapping of str to dataclass type
+        Each method's frozen options dataclass (an estimator's ``METHOD_OPTIONS``).
+    values : mapping of str to object
+        Field values of ``table[method]``; missing fields take their defaults.
+
+    Returns
+    -------
+    object
+        ``table[method](**values)``.
+
+    Raises
+    ------
+    InputError
+        Unknown method (``field="method"``), an option the method does not take (``field``
+        names the first, the message lists the method's options) or a value the class
+        refuses.
+    """
+    if method not in table:
+        raise InputError(f"unknown method {method!r}; use {', '.join(table)}", field="method")
+    cls = table[method]
+    names = sorted(f.name for f in fields(cls))  # type: ignore[arg-type]
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise InputError(f"unknown option(s) for {method}: {', '.join(unknown)}; "
+                         f"options: {', '.join(names)}", field=unknown[0])
+    return cls(**values)
+
+
+def resolved_options(method: str, table: Mapping[str, type[Options]], options: Options | None,
+                     values: Mapping[str, Any]) -> Options:
+    """``options`` when given (then no keyword ``values``), else :func:`options_of`.
+
+    Raises
+    ------
+    InputError
+        Both an options object and keywords, an object of another method's class
+        (``field="options"``), or what :func:`options_of` raises.
+    """
+    if options is None:
+        return options_of(method, table, values)
+    if values:
+        raise InputError("give the method's options either as an options object or as "
+                         f"keywords, not both (got {', '.join(sorted(values))} too)",
+                         field=sorted(values)[0])
+    if method not in table:
+        raise InputError(f"unknown method {method!r}; use {', '.join(table)}", field="method")
+    expected = table[method]
+    if not isinstance(options, expected):
+        raise InputError(f"options of {method} must be a {expected.__name__}, got "
+                         f"{type(options).__name__}", field="options")
+    return options
 
 
 def check_fps(fps: float, field: str = "fps") -> float:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -52,8 +52,12 @@ class SensorSource:
 @dataclass(frozen=True)
 class SkeletonRunOptions:
     """Options of :func:`bonefit.estimation.skeleton.estimate_skeleton` a run passes on (its
-    defaults). ``up`` is the source frame's up direction; ``offsets`` a calibration: the run
-    then calls ``estimate_skeleton_from_offsets`` (``up``, ``i0`` and ``smooth`` only)."""
+    defaults), as the CLI's flags and a job's params give them: every one, whatever the
+    method. The run passes the method those its options class takes
+    (``skeleton.METHOD_OPTIONS[method]``) and ignores the others (``optimizer`` of ``auto``).
+    ``up`` is the source frame's up direction; ``smooth`` None the method's default;
+    ``offsets`` a calibration: the run then calls ``estimate_skeleton_from_offsets`` (``up``,
+    ``i0`` and ``smooth`` only)."""
 
     method: str = "auto"
     optimizer: str = "least-squares"
@@ -129,10 +133,8 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     if on_read is not None:
         on_read(recording)
     if options.offsets is None:
-        result = estimate_skeleton(
-            recording, method=options.method, optimizer=options.optimizer, torso=options.torso,
-            up=options.up, i0=options.i0, anthropometry=options.anthropometry, w_s=options.w_s,
-            w_l=options.w_l, smooth=options.smooth, progress=progress)
+        result = estimate_skeleton(recording, method=options.method, progress=progress,
+                                   **_method_values(options))
     else:
         # a calibration's offsets leave nothing to fit: the method's options do not apply
         result = estimate_skeleton_from_offsets(recording, options.offsets, up=options.up,
@@ -228,6 +230,18 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
              for fmt, path in outputs]
     result = write_translation_files(result, recording, files)
     return TranslationRun(result, recording)
+
+
+def _method_values(options: SkeletonRunOptions) -> dict[str, Any]:
+    """The run's values of the fields its method's options class has (none for an unknown
+    method, which ``estimate_skeleton`` then refuses; ``smooth`` None: the method's
+    default)."""
+    from .skeleton import METHOD_OPTIONS
+
+    cls = METHOD_OPTIONS.get(options.method)
+    names = {f.name for f in fields(cls)} if cls is not None else set()
+    return {f.name: getattr(options, f.name) for f in fields(options)
+            if f.name in names}
 
 
 def _stage(stages: Stages | None, name: str) -> None:

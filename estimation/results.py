@@ -3,10 +3,11 @@ from the JSON documents without scipy)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any, Final
+from typing import Any, Final, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,8 +58,55 @@ class JointOffset:
     local: NDArray[np.float64]
 
 
+class Figures(Mapping[str, Any]):
+    """Quality figures with typed attributes: the base of :class:`JointQuality` and
+    :class:`TranslationQuality` (frozen dataclasses whose fields are the typed figures,
+    None when not reported, and ``details``, every other figure by key).
+
+    It is a read-only mapping of every reported figure by its JSON key, typed ones first, so
+    the JSON documents keep their keys: the writers take ``dict(quality)`` or ``.items()``,
+    the readers build one with :meth:`of`.
+    """
+
+    details: Mapping[str, Any]
+
+    @classmethod
+    def typed_figures(cls) -> tuple[str, ...]:
+        """The names of the typed figures (every field but ``details``), in order."""
+        return _typed_figures(cls)
+
+    @classmethod
+    def of(cls, figures: Mapping[str, Any]) -> Self:
+        """The figures of a mapping by key (an instance of this class is returned as is)."""
+        if isinstance(figures, cls):
+            return figures
+        typed = {k: figures[k] for k in cls.typed_figures() if figures.get(k) is not None}
+        rest = {k: v for k, v in figures.items() if k not in typed}
+        return cls(**typed, details=rest)  # type: ignore[call-arg]  # the dataclass's fields
+
+    def __getitem__(self, key: str) -> Any:
+        if key in self.typed_figures():
+            value = getattr(self, key)
+            if value is not None:
+                return value
+        return self.details[key]
+
+    def __iter__(self) -> Iterator[str]:
+        typed = self.typed_figures()
+        yield from (k for k in typed if getattr(self, k) is not None)
+        yield from (k for k in self.details if k not in typed or getattr(self, k) is None)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+@functools.cache
+def _typed_figures(cls: type[Figures]) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(cls) if f.name != "details")  # type: ignore[arg-type]
+
+
 @dataclass(frozen=True, eq=False)
-class JointQuality(Mapping[str, Any]):
+class JointQuality(Figures):
     """Quality figures of one joint (``SkeletonResult.quality[joint]``).
 
     The figures every located joint may carry are typed attributes (None: not reported for
@@ -97,35 +145,6 @@ class JointQuality(Mapping[str, Any]):
     data_weight: float | None = None
     data_sd_m: float | None = None
     details: Mapping[str, Any] = field(default_factory=dict)
-
-    @classmethod
-    def of(cls, figures: Mapping[str, Any]) -> JointQuality:
-        """The quality of a mapping of figures by key (a ``JointQuality`` is returned
-        as is)."""
-        if isinstance(figures, JointQuality):
-            return figures
-        typed = {k: figures[k] for k in _TYPED_QUALITY if figures.get(k) is not None}
-        rest = {k: v for k, v in figures.items() if k not in typed}
-        return cls(**typed, details=rest)
-
-    def __getitem__(self, key: str) -> Any:
-        if key in _TYPED_QUALITY:
-            value = getattr(self, key)
-            if value is not None:
-                return value
-        return self.details[key]
-
-    def __iter__(self) -> Iterator[str]:
-        yield from (k for k in _TYPED_QUALITY if getattr(self, k) is not None)
-        yield from (k for k in self.details if k not in _TYPED_QUALITY
-                    or getattr(self, k) is None)
-
-    def __len__(self) -> int:
-        return sum(1 for _ in self)
-
-
-_TYPED_QUALITY: Final[tuple[str, ...]] = tuple(
-    f.name for f in fields(JointQuality) if f.name != "details")
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,6 +201,47 @@ class SkeletonResult:
 
 
 @dataclass(frozen=True, eq=False)
+class TranslationQuality(Figures):
+    """Quality figures of a root path (``TranslationResult.quality``; see :class:`Figures`
+    for the mapping by JSON key).
+
+    Attributes
+    ----------
+    foot_skate_cm_s, foot_skate_p95_cm_s : float or None
+        Mean and 95th percentile of the horizontal speed of planted contact points, cm/s.
+    floor_penetration_cm, floor_penetration_p99_cm : float or None
+        Deepest contact point below the floor, and the 99th percentile, cm.
+    max_vertical_jump_cm : float or None
+        Largest frame-to-frame discontinuity of the hips height,
+        |Δy(t) − (Δy(t−1) + Δy(t+1))/2|, cm.
+    max_vertical_step_cm : float or None
+        Largest frame-to-frame change of the hips height, cm.
+    closure_cm : float or None
+        Horizontal hips distance from the first to the last frame, cm.
+    path_length_m : float or None
+        Length of the horizontal hips path, m.
+    contact_fraction : float or None
+        Share of frames with a foot in contact.
+    flight_frames : int or None
+        Frames with no foot in contact.
+    details : mapping of str to Any
+        The method's own figures (``contacts_source``, ``floor_levels``, ``ground_m``, ...).
+    """
+
+    foot_skate_cm_s: float | None = None
+    foot_skate_p95_cm_s: float | None = None
+    floor_penetration_cm: float | None = None
+    floor_penetration_p99_cm: float | None = None
+    max_vertical_jump_cm: float | None = None
+    max_vertical_step_cm: float | None = None
+    closure_cm: float | None = None
+    path_length_m: float | None = None
+    contact_fraction: float | None = None
+    flight_frames: int | None = None
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
 class TranslationResult:
     """A root path estimated for an inertial-suit recording.
 
@@ -201,13 +261,9 @@ class TranslationResult:
     floor : ndarray, shape (F,)
         Height of the floor under the body per frame, metres, in the frame of the foot
         contact points (heel/toe joints, not the sole surface).
-    quality : dict
-        ``foot_skate_cm_s`` (mean horizontal speed of planted contact points),
-        ``floor_penetration_cm`` (deepest contact point below the floor),
-        ``max_vertical_jump_cm`` (largest frame-to-frame discontinuity of the hips height:
-        |Δy(t) − (Δy(t−1) + Δy(t+1))/2|), ``max_vertical_step_cm``, ``closure_cm``
-        (horizontal hips distance first→last frame), ``path_length_m`` (horizontal hips
-        path), ``contact_fraction`` and method-specific figures.
+    quality : TranslationQuality
+        The path's figures (``closure_cm``, ``floor_penetration_cm``, ...) and the method's
+        own ones; any mapping given is converted.
     method : str
     fps : float
     timings : dict
@@ -224,10 +280,14 @@ class TranslationResult:
     positions: NDArray[np.float64] | None
     contacts: NDArray[np.str_]
     floor: NDArray[np.float64]
-    quality: dict[str, Any]
+    quality: TranslationQuality
     method: str
     fps: float
     timings: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # typed, whatever mapping the producer (or a JSON reader) gave
+        object.__setattr__(self, "quality", TranslationQuality.of(self.quality))
 
     @property
     def n_frames(self) -> int:

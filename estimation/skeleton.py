@@ -6,7 +6,7 @@ import math
 import time as _time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Final, NamedTuple
+from typing import Any, ClassVar, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,7 +20,14 @@ from .joints import JointFit, estimate_joint, range_of_motion
 from .limbs import estimate_limb, standard_lengths, torso_length
 from .model import BONES, JOINT_SEGMENTS, JOINTS, LIMBS, REDUCED_SEGMENTS, SEGMENTS, Limb
 from .orientations import estimate_orientations
-from .params import WEIGHT_MAX, check_fps, check_integer, check_number
+from .params import (
+    WEIGHT_MAX,
+    check_fps,
+    check_integer,
+    check_number,
+    options_of,
+    resolved_options,
+)
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
@@ -133,18 +140,6 @@ def _parse_up(up: ArrayLike) -> NDArray[np.float64]:
     if vec.shape != (3,) or not np.all(np.isfinite(vec)) or np.linalg.norm(vec) == 0:
         raise InputError(f"up must be a non-zero 3-vector, got {up!r}", field="up")
     return np.asarray(vec / np.linalg.norm(vec))
-
-
-def _check_options(fps: float, *, i0: int, w_s: float, w_l: float, highpass_s: float,
-                   slip_hz: float, min_range_deg: float) -> None:
-    """Refuse a frame rate or numeric option outside its range (InputError naming it)."""
-    check_fps(fps)
-    check_integer(i0, "i0", low=0, high=2**53)
-    for name, value in (("w_s", w_s), ("w_l", w_l)):
-        check_number(value, name, low=0.0, high=WEIGHT_MAX)
-    check_number(highpass_s, "highpass_s", low=0.0, high=60.0, unit=" s")
-    check_number(slip_hz, "slip_hz", low=0.0, high=fps / 2, unit=" Hz")
-    check_number(min_range_deg, "min_range_deg", low=0.0, high=180.0, unit="°")
 
 
 def _units_hint(length: float, low: float, high: float) -> str:
@@ -432,70 +427,192 @@ class SensorPoses:
                    quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SkeletonOptions:
-    """The checked options of one ``estimate_skeleton`` call (``skeleton_options``).
+    """What every method of :func:`estimate_skeleton` takes: the base of each method's options
+    dataclass (``METHOD_OPTIONS``), not used alone.
 
     Attributes
     ----------
-    method : {"auto", "llsf", "gdke", "reduced"}
-        ``"llsf"`` / ``"gdke"``: every joint between two sensors by that estimator as
-        published (plain least squares, no hinge rule); needs all 15 sensors.
-        ``"reduced"``: the paper exactly: torso joints by ``torso``, root and chest by eq. 1,
-        the four limbs by the variance cost E (eqs. 2–5, ``limbs.estimate_limb(method=
-        "paper")``) from the thigh/foot and upper-arm/hand sensors; works with 11 or 15
-        sensors (extra sensors are ignored). ``"auto"`` (default): every sensor present and
-        the best estimator per joint: every sensor's soft-tissue slip from all the joint
-        equations at once (``slip.estimate_slip``, corrected for the attenuation bias of
-        orientation noise where the motion is well above it), the torso joints (waist, neck,
-        shoulders, hips) from that shared model with their anatomical priors (below),
-        robust LLSF (Huber IRLS) for the limb joints, hinge knees and elbows resolved by the
-        straight-limb rule, wrists fitted on the positions without slip and, when they
-        twist, placed by the bone-length rule (``joints.estimate_joint``); limb joints whose
-        motion is well above the orientation noise (``SlipFit.signal_share`` at least
-        ``slip.EIV_SIGNAL_SHARE``) then take their centre from the shared model, with that
-        fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides along a hinge axis; limbs
-        whose middle sensor is missing by ``estimate_limb(method="improved")`` on the frames
-        in which both their sensors were measured, and zero-phase smoothing of the joint
-        paths. Gap-filled samples never enter a fit (nor, through the slip model's rotation
-        filter, the frames around them); the joints are placed in every frame.
-    optimizer : {"least-squares", "nelder-mead"}
-        Minimiser of E for ``method="reduced"``.
-    torso : {"llsf", "gdke"}
-        Torso estimator of ``method="reduced"``.
-    up : ndarray, shape (3,)
-        World up direction (segment orientations only).
+    up : (float, float, float)
+        World up direction (segment orientations only); any non-zero 3-vector, kept as a unit
+        vector.
     i0 : int
         Calibration frame of hands, feet and head orientations (paper eq. 7).
-    anthropometry : str or mapping
-        Table of standard segment lengths (``limbs.standard_lengths``).
-    w_s, w_l : float
-        Weights of the paper's eq. 5.
-    smooth : bool, optional
-        Smooth the joint paths (Savitzky–Golay, 0.1 s); default: only for ``"auto"``.
-    highpass_s : float
-        ``"auto"`` only: remove a moving average of this length (seconds) from each LLSF
-        system, cancelling sensor slip slower than the motion (0: off, the default; see
-        ``joints.estimate_joint(highpass=...)``).
-    slip_hz : float
-        ``"auto"`` only: model each sensor's soft-tissue slip below this frequency as a
-        smooth displacement in its frame, estimated from the equations of all joints at once
-        (``slip.estimate_slip``; 0: off: the torso joints are then fitted one by one by
-        ``joints.estimate_joint``, the wrists without a slip model). Not used with
-        ``highpass_s``.
+    smooth : bool
+        Smooth the joint paths (Savitzky–Golay, 0.1 s); the default only for ``"auto"``.
     min_range_deg : float
         A joint whose two segments rotate less than this relative to each other
         (``joints.range_of_motion``) is still estimated, from the anatomical priors where
-        ``"auto"`` has them, but flagged: ``quality[joint]["reliability"] == "prior"`` and a
+        ``"auto"`` has them, but flagged: ``quality[joint].reliability == "prior"`` and a
         warning naming it. When more than half of the two-sensor joints are that still, the
         recording as a whole is refused (EstimationError, ``field="motion"``).
+    """
+
+    method: ClassVar[str]
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    i0: int = 0
+    smooth: bool = False
+    min_range_deg: float = 2.0
+
+    def __post_init__(self) -> None:
+        if getattr(type(self), "method", None) is None:
+            raise TypeError("SkeletonOptions is the base of the methods' options; use one of "
+                            "METHOD_OPTIONS (AutoOptions, LlsfOptions, GdkeOptions, "
+                            "ReducedOptions)")
+        x, y, z = _parse_up(self.up).tolist()
+        object.__setattr__(self, "up", (x, y, z))
+        object.__setattr__(self, "i0", check_integer(self.i0, "i0", low=0, high=2**53))
+        if not isinstance(self.smooth, bool | np.bool_):
+            raise InputError(f"smooth must be true or false, got {self.smooth!r}", field="smooth")
+        check_number(self.min_range_deg, "min_range_deg", low=0.0, high=180.0, unit="°")
+
+    @property
+    def plain(self) -> bool:
+        """Every joint by one published estimator (``llsf`` or ``gdke``)."""
+        return self.method in ("llsf", "gdke")
+
+    @property
+    def estimator(self) -> str:
+        """``estimate_joint``'s method for the joints between two sensors."""
+        return self.method
+
+    @property
+    def loss(self) -> str:
+        """``estimate_joint``'s loss (robust for ``auto`` only)."""
+        return "linear"
+
+    def highpass(self, fps: float) -> int:
+        """``estimate_joint``'s high-pass length, frames (``auto`` only)."""
+        return 0
+
+
+@dataclass(frozen=True, kw_only=True)
+class LlsfOptions(SkeletonOptions):
+    """Options of ``method="llsf"``: every joint between two sensors by LLSF as published
+    (plain least squares, no hinge rule); needs all 15 sensors. Fields: those of
+    :class:`SkeletonOptions`.
+
+    Examples
+    --------
+    >>> LlsfOptions(smooth=True, up=(0, 0, 2)).up
+    (0.0, 0.0, 1.0)
+    """
+
+    method: ClassVar[str] = "llsf"
+
+
+@dataclass(frozen=True, kw_only=True)
+class GdkeOptions(SkeletonOptions):
+    """Options of ``method="gdke"``: as :class:`LlsfOptions` with GDKE for every joint."""
+
+    method: ClassVar[str] = "gdke"
+
+
+@dataclass(frozen=True, kw_only=True)
+class VarianceCostOptions(SkeletonOptions):
+    """What the methods that fit limbs by the paper's variance cost E (``reduced``, and
+    ``auto`` for a limb without its middle sensor) add to :class:`SkeletonOptions`.
+
+    Attributes
+    ----------
+    anthropometry : str or mapping
+        Table of standard segment lengths (``limbs.standard_lengths``).
+    w_s, w_l : float
+        Weights of the paper's eq. 5 (0 … ``params.WEIGHT_MAX``).
+    """
+
+    anthropometry: str | Mapping[str, float] = "aist"
+    w_s: float = 0.01
+    w_l: float = 0.01
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("w_s", "w_l"):
+            check_number(getattr(self, name), name, low=0.0, high=WEIGHT_MAX)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReducedOptions(VarianceCostOptions):
+    """Options of ``method="reduced"``: the paper exactly. The torso joints by ``torso``, root
+    and chest by eq. 1, the four limbs by the variance cost E (eqs. 2–5,
+    ``limbs.estimate_limb(method="paper")``) from the thigh/foot and upper-arm/hand sensors;
+    works with 11 or 15 sensors (extra sensors are ignored).
+
+    Attributes
+    ----------
+    optimizer : {"least-squares", "nelder-mead"}
+        Minimiser of E.
+    torso : {"llsf", "gdke"}
+        Estimator of the torso joints.
+
+    Examples
+    --------
+    >>> ReducedOptions(optimizer="nelder-mead", torso="gdke").estimator
+    'gdke'
+    """
+
+    method: ClassVar[str] = "reduced"
+    optimizer: str = "least-squares"
+    torso: str = "llsf"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.optimizer not in OPTIMIZERS:
+            raise InputError(f"unknown optimizer {self.optimizer!r}; use "
+                             f"{' or '.join(OPTIMIZERS)}", field="optimizer")
+        if self.torso not in TORSO_ESTIMATORS:
+            raise InputError(f"unknown torso estimator {self.torso!r}; use "
+                             f"{' or '.join(TORSO_ESTIMATORS)}", field="torso")
+
+    @property
+    def estimator(self) -> str:
+        """``torso``: the estimator of the torso joints."""
+        return self.torso
+
+
+@dataclass(frozen=True, kw_only=True)
+class AutoOptions(VarianceCostOptions):
+    """Options of ``method="auto"`` (the default): every sensor present and the best estimator
+    per joint.
+
+    Every sensor's soft-tissue slip from all the joint equations at once
+    (``slip.estimate_slip``, corrected for the attenuation bias of orientation noise where
+    the motion is well above it), the torso joints (waist, neck, shoulders, hips) from that
+    shared model with their anatomical priors (below), robust LLSF (Huber IRLS) for the limb
+    joints, hinge knees and elbows resolved by the straight-limb rule, wrists fitted on the
+    positions without slip and, when they twist, placed by the bone-length rule
+    (``joints.estimate_joint``); limb joints whose motion is well above the orientation noise
+    (``SlipFit.signal_share`` at least ``slip.EIV_SIGNAL_SHARE``) then take their centre from
+    the shared model, with that fit as a prior (``LIMB_PRIOR_SIGMA_M``) that alone decides
+    along a hinge axis; limbs whose middle sensor is missing by
+    ``estimate_limb(method="improved")`` on the frames in which both their sensors were
+    measured, and zero-phase smoothing of the joint paths. Gap-filled samples never enter a
+    fit (nor, through the slip model's rotation filter, the frames around them); the joints
+    are placed in every frame.
+
+    Attributes
+    ----------
+    smooth : bool
+        As in :class:`SkeletonOptions`, default True.
+    highpass_s : float
+        Remove a moving average of this length (seconds, 0 … 60) from each LLSF system,
+        cancelling sensor slip slower than the motion (0: off, the default; see
+        ``joints.estimate_joint(highpass=...)``).
+    slip_hz : float
+        Model each sensor's soft-tissue slip below this frequency (at most half the frame
+        rate) as a smooth displacement in its frame, estimated from the equations of all
+        joints at once (``slip.estimate_slip``; 0: off: the torso joints are then fitted one
+        by one by ``joints.estimate_joint``, the wrists without a slip model). Not used with
+        ``highpass_s``.
+
     Notes
     -----
-    Priors of ``"auto"`` (Gaussian priors on the centre, in both sensor frames; with the
-    shared slip model their precision ``1/s0²`` is added to the posterior precision of the
-    joint's centre, every sensor's slip integrated out; without it,
-    ``joints.estimate_joint(prior=...)`` weighs them by ``σ²/(N_eff s0²)`` against the
-    data; either way they act only along the directions the motion leaves undetermined):
+    Priors (Gaussian priors on the centre, in both sensor frames; with the shared slip
+    model their precision ``1/s0²`` is added to the posterior precision of the joint's
+    centre, every sensor's slip integrated out; without it,
+    ``joints.estimate_joint(prior=...)`` weighs them by ``σ²/(N_eff s0²)`` against the data;
+    either way they act only along the directions the motion leaves undetermined):
 
     - neck: ``NECK_RISE`` × shoulder width above the shoulders' midpoint, away from the
       waist, in the chest sensor's frame (``s0 = PRIOR_SIGMA_M["neck"]``);
@@ -511,7 +628,7 @@ class SkeletonOptions:
     covariance is widened by those joints' posterior covariance (the neck's by that of the
     shoulders' midpoint, a mirror image's by that of the mirrored joint, a mid-plane's by
     that of the pair's midpoint across it), so a prior anchored on joints that barely move
-    pulls less (``quality[joint]["prior_anchor_sd_m"]``).
+    pulls less (``quality[joint].details["prior_anchor_sd_m"]``).
 
     Quality per joint: ``reliability`` is ``"data"``, ``"prior-assisted"`` (the prior
     carries more than half the weight along the weakest direction) or ``"prior"`` (the joint
@@ -520,65 +637,81 @@ class SkeletonOptions:
     covariance in the first sensor's frame) of its centre from the recording alone, before
     any prior or hinge rule; along a hinge's axis, where orientation noise passes for
     rotation, it is optimistic.
+
+    Examples
+    --------
+    >>> opt = AutoOptions(slip_hz=0.0, smooth=False)
+    >>> opt.method, opt.loss, opt.highpass(100.0)
+    ('auto', 'huber', 0)
     """
 
-    method: str = "auto"
-    optimizer: str = "least-squares"
-    torso: str = "llsf"
-    up: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
-    i0: int = 0
-    anthropometry: str | Mapping[str, float] = "aist"
-    w_s: float = 0.01
-    w_l: float = 0.01
+    method: ClassVar[str] = "auto"
     smooth: bool = True
     highpass_s: float = 0.0
     slip_hz: float = 0.5
-    min_range_deg: float = 2.0
 
-    @property
-    def plain(self) -> bool:
-        """Every joint by one published estimator (``llsf`` or ``gdke``)."""
-        return self.method in ("llsf", "gdke")
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_number(self.highpass_s, "highpass_s", low=0.0, high=60.0, unit=" s")
+        check_number(self.slip_hz, "slip_hz", low=0.0, unit=" Hz")  # ≤ fps/2: check_recording
 
     @property
     def estimator(self) -> str:
-        """``estimate_joint``'s method for the joints between two sensors."""
-        return self.method if self.plain else (self.torso if self.method == "reduced"
-                                               else "llsf")
+        """LLSF (robust) for the joints between two sensors."""
+        return "llsf"
 
     @property
     def loss(self) -> str:
-        """``estimate_joint``'s loss: robust for ``auto``."""
-        return "huber" if self.method == "auto" else "linear"
+        """Huber IRLS."""
+        return "huber"
 
     def highpass(self, fps: float) -> int:
-        """``estimate_joint``'s high-pass length, frames (``auto`` only)."""
-        return round(self.highpass_s * fps) if self.method == "auto" else 0
+        """``highpass_s`` in frames at ``fps``."""
+        return round(self.highpass_s * fps)
 
 
-def skeleton_options(recording: SensorRecording, *, method: str = "auto",  # noqa: PLR0913
-                     optimizer: str = "least-squares", torso: str = "llsf",
-                     up: ArrayLike = (0.0, 1.0, 0.0), i0: int = 0,
-                     anthropometry: str | Mapping[str, float] = "aist", w_s: float = 0.01,
-                     w_l: float = 0.01, smooth: bool | None = None, highpass_s: float = 0.0,
-                     slip_hz: float = 0.5, min_range_deg: float = 2.0) -> SkeletonOptions:
-    """``estimate_skeleton``'s options for ``recording``, checked (InputError naming the
-    option, EstimationError for fewer than 10 frames)."""
-    if method not in METHODS:
-        raise InputError(f"unknown method {method!r}; use one of {', '.join(METHODS)}",
-                         field="method")
-    if optimizer not in OPTIMIZERS:
-        raise InputError(f"unknown optimizer {optimizer!r}; use least-squares or nelder-mead",
-                         field="optimizer")
-    if torso not in TORSO_ESTIMATORS:
-        raise InputError(f"unknown torso estimator {torso!r}; use llsf or gdke", field="torso")
-    up_vec = _parse_up(up)
-    _check_options(recording.fps, i0=i0, w_s=w_s, w_l=w_l, highpass_s=highpass_s,
-                   slip_hz=slip_hz, min_range_deg=min_range_deg)
-    _check_frames(recording, i0)
-    return SkeletonOptions(method, optimizer, torso, up_vec, i0, anthropometry, w_s, w_l,
-                           (method == "auto") if smooth is None else smooth, highpass_s,
-                           slip_hz, min_range_deg)
+METHOD_OPTIONS: Final[dict[str, type[SkeletonOptions]]] = {
+    "auto": AutoOptions, "llsf": LlsfOptions, "gdke": GdkeOptions, "reduced": ReducedOptions}
+"""The options dataclass of each method of :func:`estimate_skeleton`."""
+
+
+def skeleton_options(method: str, values: Mapping[str, Any]) -> SkeletonOptions:
+    """The options of ``method`` from keyword values, checked.
+
+    Parameters
+    ----------
+    method : {"auto", "llsf", "gdke", "reduced"}
+    values : mapping of str to object
+        Field values of ``METHOD_OPTIONS[method]``; missing fields take their defaults.
+
+    Returns
+    -------
+    SkeletonOptions
+        An ``AutoOptions``, ``LlsfOptions``, ``GdkeOptions`` or ``ReducedOptions``.
+
+    Raises
+    ------
+    InputError
+        Unknown method, an option the method does not take (``field`` names the first) or a
+        value out of range (``field`` names it).
+
+    Examples
+    --------
+    >>> skeleton_options("reduced", {"optimizer": "nelder-mead"})
+    ReducedOptions(up=(0.0, 1.0, 0.0), i0=0, smooth=False, min_range_deg=2.0, \
+anthropometry='aist', w_s=0.01, w_l=0.01, optimizer='nelder-mead', torso='llsf')
+    """
+    return options_of(method, METHOD_OPTIONS, values)
+
+
+def check_recording(recording: SensorRecording, options: SkeletonOptions) -> None:
+    """Refuse a recording ``options`` cannot be applied to: a frame rate outside
+    ``params.MIN_FPS`` … ``MAX_FPS``, ``slip_hz`` above half of it, ``i0`` outside the frames
+    (InputError naming the field), fewer than 10 frames (EstimationError)."""
+    check_fps(recording.fps)
+    if isinstance(options, AutoOptions):
+        check_number(options.slip_hz, "slip_hz", low=0.0, high=recording.fps / 2, unit=" Hz")
+    _check_frames(recording, options.i0)
 
 
 def _check_frames(recording: SensorRecording, i0: int) -> None:
@@ -687,7 +820,8 @@ def skeleton_context(sensors: SensorPoses, options: SkeletonOptions, fps: float,
     highpass = options.highpass(fps)
     shared = (shared_slip(sensors, motion.pairs, fps, options.slip_hz,
                           scaled(progress, 0.15, 1.0))
-              if options.method == "auto" and options.slip_hz > 0 and highpass <= 1 else None)
+              if isinstance(options, AutoOptions) and options.slip_hz > 0 and highpass <= 1
+              else None)
     return SkeletonContext(sensors, options, motion, shared, highpass)
 
 
@@ -969,13 +1103,15 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
     _, mid, dist = limb.joints
     upper, _, distal = limb.segments
     sensors, opt = ctx.sensors, ctx.options
+    assert isinstance(opt, VarianceCostOptions)  # llsf and gdke need every sensor
     keys = limb.length_keys
     lf = estimate_limb(
         located.joints[limb.joints[0]], sensors.positions[upper], sensors.rotations[upper],
         sensors.positions[distal], sensors.rotations[distal],
         standard_lengths=(std[keys[0]], std[keys[1]]),
         method="paper" if opt.method == "reduced" else "improved",
-        optimizer=opt.optimizer, w_s=opt.w_s, w_l=opt.w_l, progress=stage,
+        optimizer=opt.optimizer if isinstance(opt, ReducedOptions) else "least-squares",
+        w_s=opt.w_s, w_l=opt.w_l, progress=stage,
         valid=sensors.ok[upper] & sensors.ok[distal] if opt.method == "auto" else None)
     located.joints[mid] = lf.middle
     located.joints[dist] = lf.distal
@@ -1002,12 +1138,13 @@ def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str,
         stage(1.0, "limbs")
 
 
-def estimate_skeleton(  # noqa: PLR0913
-    recording: SensorRecording, *, method: str = "auto", optimizer: str = "least-squares",
-    torso: str = "llsf", up: ArrayLike = (0.0, 1.0, 0.0), i0: int = 0,
-    anthropometry: str | Mapping[str, float] = "aist", w_s: float = 0.01, w_l: float = 0.01,
-    smooth: bool | None = None, highpass_s: float = 0.0, slip_hz: float = 0.5,
-    min_range_deg: float = 2.0, progress: Progress | None = None,
+def estimate_skeleton(
+    recording: SensorRecording,
+    *,
+    method: str | None = None,
+    progress: Progress | None = None,
+    options: SkeletonOptions | None = None,
+    **method_options: Any,
 ) -> SkeletonResult:
     """Joint centres, bone lengths and segment orientations from a sensor recording.
 
@@ -1016,15 +1153,22 @@ def estimate_skeleton(  # noqa: PLR0913
     recording : SensorRecording
         15 sensors (full suit) or the 11 of the reduced suit (``model.REDUCED_SEGMENTS``),
         positions in metres. Dropped samples (NaN) are filled by interpolation.
-    method, optimizer, torso, up, i0, anthropometry, w_s, w_l, smooth, highpass_s, slip_hz, \
-min_range_deg
-        The options, each described (with the priors of ``"auto"``) in ``SkeletonOptions``;
-        ``up`` is array_like (3,), ``smooth`` None: only for ``"auto"``.
+    method : {"auto", "llsf", "gdke", "reduced"}, optional
+        Described by its options class (``METHOD_OPTIONS[method]``: :class:`AutoOptions`,
+        :class:`LlsfOptions`, :class:`GdkeOptions`, :class:`ReducedOptions`); default the
+        method of ``options``, else ``"auto"``.
     progress : callable, optional
         ``progress(fraction, stage)`` with stages ``gaps`` (filling, ranges of motion),
         ``slip`` (the shared slip model of ``"auto"``), ``torso``, ``limbs``,
         ``orientations`` (with the smoothing of the paths); within each, after every
         joint, limb, chunk of frames or smoothed path, so that a long take reports often.
+    options : SkeletonOptions, optional
+        The method's options as one object; default: from ``method_options``.
+    **method_options
+        Instead of ``options``, its fields as keywords (``up``, ``i0``, ``smooth``,
+        ``min_range_deg`` for every method; ``anthropometry``, ``w_s``, ``w_l`` for ``auto``
+        and ``reduced``; ``optimizer``, ``torso`` for ``reduced``; ``highpass_s``,
+        ``slip_hz`` for ``auto``).
 
     Returns
     -------
@@ -1035,7 +1179,8 @@ min_range_deg
     ------
     InputError
         A required sensor is missing (naming it and the sensors present), a sensor has no
-        valid sample, an unknown option.
+        valid sample, an unknown method, an option the method does not take, both
+        ``options`` and keywords, an option out of range (``field`` names it).
     EstimationError
         No sensor moves, or most joints rotate less than ``min_range_deg`` (too little
         motion in the recording as a whole), or bone lengths outside human range (wrong
@@ -1043,7 +1188,7 @@ min_range_deg
 
     Notes
     -----
-    The steps: ``skeleton_options``, ``locate_joints`` (``sensors_used``,
+    The steps: ``skeleton_options`` and ``check_recording``, ``locate_joints`` (``sensors_used``,
     ``skeleton_context``, ``locate_torso``, ``mirror_torso``, ``derived_torso``,
     ``locate_limbs``) and ``skeleton_result`` (smoothing, bone lengths, orientations).
 
@@ -1053,10 +1198,12 @@ min_range_deg
     """
     started = _time.perf_counter()
     report = progress or no_progress
-    options = skeleton_options(
-        recording, method=method, optimizer=optimizer, torso=torso, up=up, i0=i0,
-        anthropometry=anthropometry, w_s=w_s, w_l=w_l, smooth=smooth, highpass_s=highpass_s,
-        slip_hz=slip_hz, min_range_deg=min_range_deg)
+    if method is None:
+        method = "auto" if options is None else options.method
+    if "smooth" in method_options and method_options["smooth"] is None:
+        del method_options["smooth"]  # None: the method's default, as before the options
+    options = resolved_options(method, METHOD_OPTIONS, options, method_options)
+    check_recording(recording, options)
     sensors, located = locate_joints(recording, options, report)
     return skeleton_result(recording, options, sensors, located,
                            report=scaled(report, 0.9, 1.0), started=started)
@@ -1069,7 +1216,8 @@ def skeleton_result(recording: SensorRecording, options: SkeletonOptions,
     (``_smoothed``, ``_completed``: bone lengths, orientations; ``report(fraction,
     "orientations")``), ``started`` the ``time.perf_counter()`` of the call."""
     completed = _smoothed(located.joints, recording.fps, smooth=options.smooth, report=report)
-    bone_lengths, orientations = _completed(completed, sensors.rotations, up=options.up,
+    bone_lengths, orientations = _completed(completed, sensors.rotations,
+                                            up=np.asarray(options.up),
                                             i0=options.i0, warnings=located.warnings,
                                             report=report)
     return SkeletonResult(
@@ -1104,8 +1252,10 @@ def locate_joints(recording: SensorRecording, options: SkeletonOptions, report: 
     joints = located.joints
     lt = torso_length(joints["waist"], joints["l_hip"], joints["r_hip"], joints["chest"])
     _check_units({"torso": lt}, located.warnings)  # before the limbs: their priors assume metres
-    locate_limbs(ctx, located, standard_lengths(lt, options.anthropometry),
-                 scaled(report, 0.55, 0.9))
+    # llsf and gdke fit every limb joint between two sensors: no standard length is used
+    std = (standard_lengths(lt, options.anthropometry)
+           if isinstance(options, VarianceCostOptions) else {})
+    locate_limbs(ctx, located, std, scaled(report, 0.55, 0.9))
     located.release()
     return sensors, located
 

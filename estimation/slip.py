@@ -53,7 +53,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Final, NamedTuple
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,6 +62,7 @@ from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import quaternions as quat
 from .joints import slip_basis, white_variance
+from .params import check_number, resolved_options
 from .progress import Progress, no_progress, scaled
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
@@ -253,16 +254,42 @@ class Windows(NamedTuple):
         return fitted
 
 
-def estimate_slip(  # noqa: PLR0913
+@dataclass(frozen=True)
+class SlipOptions:
+    """The model options of :func:`estimate_slip` (its keywords of the same names).
+
+    Attributes
+    ----------
+    slip_hz : float
+        Highest slip frequency modelled, Hz (0: no slip, the joints' plain joint fit).
+    rotation_noise : float
+        Per-axis variance (rad²) of the white orientation noise of the measured rotations
+        (``rotation_noise_variance``); 0: no errors-in-variables correction.
+
+    Examples
+    --------
+    >>> SlipOptions(slip_hz=0.25)
+    SlipOptions(slip_hz=0.25, rotation_noise=0.0)
+    """
+
+    slip_hz: float = 0.5
+    rotation_noise: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_number(self.slip_hz, "slip_hz", low=0.0, unit=" Hz")
+        check_number(self.rotation_noise, "rotation_noise", low=0.0, unit=" rad²")
+
+
+def estimate_slip(
     positions: Mapping[str, NDArray[np.float64]],
     quaternions: Mapping[str, NDArray[np.float64]],
     valid: Mapping[str, NDArray[np.bool_]],
     pairs: Sequence[tuple[str, str]],
     *,
     fps: float,
-    slip_hz: float = 0.5,
-    rotation_noise: float = 0.0,
     progress: Progress | None = None,
+    options: SlipOptions | None = None,
+    **keywords: Any,
 ) -> SlipFit:
     """Slow displacement of every sensor against its bone, from all joints at once.
 
@@ -278,14 +305,13 @@ def estimate_slip(  # noqa: PLR0913
         The two sensors of each joint (a point fixed in both frames).
     fps : float
         Frame rate, Hz.
-    slip_hz : float
-        Highest slip frequency modelled, Hz.
-    rotation_noise : float
-        Per-axis variance (rad²) of the white orientation noise of the measured rotations
-        (``rotation_noise_variance``); 0: no errors-in-variables correction.
     progress : callable, optional
         ``progress(fraction, "slip")``: after the rotation filter (by windows refitted
         around gaps) and after each joint's rows, so that a long take reports often.
+    options : SlipOptions, optional
+        ``slip_hz`` and ``rotation_noise`` as one object; default: from ``keywords``.
+    **keywords
+        Instead of ``options``, its fields: ``slip_hz`` (0.5 Hz), ``rotation_noise`` (0).
 
     Returns
     -------
@@ -299,9 +325,10 @@ def estimate_slip(  # noqa: PLR0913
     The model, its weighting and the errors-in-variables correction are described in the
     module docstring.
     """
+    opt = resolved_options("estimate_slip", {"estimate_slip": SlipOptions}, options, keywords)
     sensors = sorted({s for pair in pairs for s in pair})
     n = next(iter(positions.values())).shape[0]
-    layout = SlipLayout.of(sensors, len(pairs), n, fps, slip_hz)
+    layout = SlipLayout.of(sensors, len(pairs), n, fps, opt.slip_hz)
     # component-major (4, F) per sensor: each component a contiguous row (the transposes
     # of skeleton.SensorPoses' quaternions are views of such rows)
     report = progress or no_progress
@@ -309,7 +336,7 @@ def estimate_slip(  # noqa: PLR0913
     smoothed = _smoothed_rotations([np.asarray(quaternions[s]).T for s in sensors],
                                    [valid[s] for s in sensors], fps, scaled(report, 0.0, 0.4))
     rot = dict(zip(sensors, smoothed, strict=True))
-    v_eiv = rotation_noise * _noise_gain(n, fps)
+    v_eiv = opt.rotation_noise * _noise_gain(n, fps)
     blocks = []
     for j, (a, b) in enumerate(pairs):
         blocks.append(joint_block(

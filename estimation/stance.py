@@ -1,5 +1,6 @@
-"""Foot geometry of the contact model: a toe point where the file has none, the foot's axes
-and the lever arm of a foot accelerometer strapped away from the ankle.
+"""Foot geometry of the contact model: a stance point that rolls over the ball of the foot
+where the file has no toe joint, the foot's axes and the lever arm of a foot accelerometer
+strapped away from the ankle.
 
 Suits strap the foot sensor on the instep, a few centimetres ahead of and above the ankle, so
 it reads the ankle's acceleration plus the foot's rotational terms α×r + ω×(ω×r) (r the
@@ -31,6 +32,12 @@ TOE_AHEAD: Final[float] = 0.13
 
 TOE_BELOW: Final[float] = 0.055
 """Ankle height above the ball of the flat foot, as a fraction of the leg length."""
+
+
+SHANK_RIGIDITY: Final[float] = 0.002
+"""A joint whose distance to the ankle varies by less than this fraction (std / mean) rides
+on the shank; the hip's distance varies with the knee's flexion (a 20° bend of a straight
+leg shortens it by 1.5 %; BVH and suit skeletons keep their bones rigid to rounding)."""
 
 
 def foot_axes(ankle: NDArray[np.float64], toe: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -121,42 +128,6 @@ def estimate_sensor_offset(base: NDArray[np.float64], axes_acc: NDArray[np.float
     return offset
 
 
-def extrapolated_toe(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64],
-                     forward: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]:
-    """Ball of the foot (F, 3) for a file without toe joints.
-
-    Parameters
-    ----------
-    ankle, other_ankle : ndarray, shape (F, 3)
-        This foot's and the other foot's ankle, metres, +Y up.
-    forward : ndarray, shape (F, 3)
-        Horizontal unit direction the foot points (the body's heading).
-    leg_m : float
-        Leg length (hips → ankle), metres: the foot's size scales with it
-        (:data:`TOE_AHEAD`, :data:`TOE_BELOW`).
-
-    Returns
-    -------
-    ndarray, shape (F, 3)
-
-    Notes
-    -----
-    The foot rolls about its ball at heel-off: an ankle raised h above the other ankle is
-    taken as a heel lifted by θ about the ball, L ahead of and d below the flat foot's ankle
-    (L sin θ + d cos θ = d + h), so the ball is ankle + forward (L cos θ − d sin θ) − up
-    (L sin θ + d cos θ) (the forefoot rocker, Perry & Burnfield ch. 3). A flat foot gives
-    the ball L ahead, d below.
-    """
-    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
-    reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
-    rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
-    theta = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt  # L sin θ + d cos θ = d + h
-    ahead = length * np.cos(theta) - drop * np.sin(theta)
-    below = length * np.sin(theta) + drop * np.cos(theta)
-    out: NDArray[np.float64] = ankle + forward * ahead[:, None] - UP * below[:, None]
-    return out
-
-
 def body_heading(left_hip: NDArray[np.float64], right_hip: NDArray[np.float64]
                  ) -> NDArray[np.float64]:
     """Horizontal unit direction (F, 3) the body faces: perpendicular to the hip line
@@ -179,7 +150,8 @@ def leg_joints(positions: NDArray[np.float64], ankle: int, leg_m: float
     if knee is None:
         return None
     to_ankle = np.linalg.norm(positions - positions[:, ankle:ankle + 1], axis=2)
-    on_shank = to_ankle.std(axis=0) < 0.05 * np.maximum(to_ankle.mean(axis=0), 1e-9)
+    on_shank = to_ankle.std(axis=0) < SHANK_RIGIDITY * np.maximum(to_ankle.mean(axis=0),
+                                                                  1e-9)
     hip = _most_rigid(positions, knee, leg_m, exclude=on_shank)
     return None if hip is None else (knee, hip)
 
@@ -193,7 +165,10 @@ def _most_rigid(positions: NDArray[np.float64], joint: int, leg_m: float,
     if not ok.any():
         return None
     score = np.where(ok, spread / np.maximum(mean, 1e-9), np.inf)
-    best = int(np.argmin(score))
+    # equally rigid joints (a leg that bends in one plane keeps its knee at a fixed distance
+    # from the other hip too): the nearest is the bone's own end
+    tied = score <= float(score.min()) + 1e-6
+    best = int(np.argmin(np.where(tied, mean, np.inf)))
     return best if score[best] < 0.05 else None
 
 
@@ -201,3 +176,45 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     out: NDArray[np.float64] = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True),
                                               1e-12)
     return out
+
+
+def roll_advance(tilt: NDArray[np.float64], leg_m: float) -> NDArray[np.float64]:
+    """How far (F,) the ankle moves forward, metres, as the heel lifts by ``tilt`` about the
+    ball of the foot (:data:`TOE_AHEAD` and :data:`TOE_BELOW` of the leg ahead and below):
+    L (1 − cos θ) + d sin θ, θ clipped to where the ankle is straight above the ball."""
+    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    theta = np.clip(tilt, 0.0, math.atan2(length, drop))
+    out: NDArray[np.float64] = length * (1.0 - np.cos(theta)) + drop * np.sin(theta)
+    return out
+
+
+def rise_tilt(ankle: NDArray[np.float64], other_ankle: NDArray[np.float64], leg_m: float
+              ) -> NDArray[np.float64]:
+    """Heel lift θ (F,) about the ball of the foot, radians, that raises the ankle by its
+    height h above the other ankle (F, 3 each, metres, +Y up).
+
+    The ball is L = :data:`TOE_AHEAD` and d = :data:`TOE_BELOW` leg lengths ahead of and
+    below the flat foot's ankle, so L sin θ + d cos θ = d + h (the forefoot rocker, Perry &
+    Burnfield ch. 3), at most where the ankle is straight above the ball. A foot planted on
+    a step above the other reads as lifted too (docs/translation.md, Limitations)."""
+    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    reach, tilt = math.hypot(length, drop), math.atan2(drop, length)
+    rise = np.clip(ankle[:, 1] - other_ankle[:, 1], 0.0, reach - drop)
+    out: NDArray[np.float64] = np.arcsin(np.minimum((drop + rise) / reach, 1.0)) - tilt
+    return out
+
+
+def heading_by_knees(heading: NDArray[np.float64], hips: list[NDArray[np.float64]],
+                     knees: list[NDArray[np.float64]], ankles: list[NDArray[np.float64]]
+                     ) -> NDArray[np.float64]:
+    """``heading`` (F, 3), reversed when the knees bend backwards along it: knees flex
+    forward, so a hip line whose left and right are swapped (a mirrored file, or hips found
+    on the wrong sides) still gives the way the feet point. Each leg's hip, knee and ankle
+    paths (F, 3), metres."""
+    ahead = 0.0
+    for hip, knee, ankle in zip(hips, knees, ankles, strict=True):
+        axis = _unit(ankle - hip)
+        bend = knee - hip
+        bend = bend - axis * np.sum(bend * axis, axis=1, keepdims=True)
+        ahead += float(np.median(np.sum(bend * heading, axis=1)))
+    return -heading if ahead < 0 else heading

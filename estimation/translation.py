@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time as _time
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Final, NamedTuple
 
 import numpy as np
@@ -40,15 +40,20 @@ from .params import (
     check_fps,
     check_integer,
     check_number,
+    options_of,
+    resolved_options,
 )
 from .progress import Progress, no_progress
+from .results import TranslationQuality
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
     body_heading,
     estimate_sensor_offset,
-    extrapolated_toe,
     foot_axes,
+    heading_by_knees,
     leg_joints,
+    rise_tilt,
+    roll_advance,
     sensor_track,
 )
 from .vocabulary import TRANSLATION_METHODS
@@ -145,6 +150,10 @@ class _Feet:
     toe: int | None
     drop: float  # heel height above the toe when the foot is flat, m
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor in foot_axes, m
+    # Without a toe: (F, 3) the ankle's forward advance as the heel rolls over the ball,
+    # summed along the foot's heading as it changes, m; the contact point is the ankle moved
+    # back by it (turning the heading moves nothing).
+    roll: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def sensor(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Path (F, 3) of the foot's accelerometer: the ankle moved by ``offset`` along the
@@ -169,16 +178,19 @@ class _Feet:
 
     def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if self.toe is None:
-            return p[:, self.heel].copy()
+            if self.roll is None:
+                return p[:, self.heel].copy()
+            out: NDArray[np.float64] = p[:, self.heel] - self.roll
+            return out
         w = self.weights(p)[:, None]
         return w * p[:, self.heel] + (1 - w) * p[:, self.toe]
 
     def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
         earlier frame (so switching heel→toe moves nothing)."""
-        d_heel = p[1:, self.heel] - p[:-1, self.heel]
         if self.toe is None:
-            return d_heel
+            return np.diff(self.point(p), axis=0)
+        d_heel = p[1:, self.heel] - p[:-1, self.heel]
         w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
         return w * d_heel + (1 - w) * (p[1:, self.toe] - p[:-1, self.toe])
 
@@ -221,8 +233,8 @@ def _swing_floor(level: NDArray[np.float64], floor: NDArray[np.float64]
     return np.where(np.isnan(out), floor, out)
 
 
-def translation_quality(positions: NDArray[np.float64], fps: float, root: int,  # noqa: PLR0917
-                        feet: tuple[_Feet, _Feet], contacts: NDArray[np.str_],
+def translation_quality(positions: NDArray[np.float64], fps: float, root: int,
+                        feet: tuple[_Feet, _Feet], *, contacts: NDArray[np.str_],
                         floor: NDArray[np.float64],
                         levels: NDArray[np.float64] | None = None) -> dict[str, Any]:
     """Quality figures of corrected positions (see :class:`TranslationResult`).
@@ -272,9 +284,10 @@ def translation_quality(positions: NDArray[np.float64], fps: float, root: int,  
 # --------------------------------------------------------------------------- hachaj2018
 
 
-def _hachaj(recording: KinematicsRecording, li: int, ri: int, left_foot: str, right_foot: str,  # noqa: PLR0913, PLR0917
-            progress: Progress, window: int = HACHAJ_WINDOW, eps: float = HACHAJ_EPS_M
+def _hachaj(recording: KinematicsRecording, joints: tuple[int, int], names: tuple[str, str],
+            progress: Progress, opt: HachajOptions
             ) -> tuple[NDArray[np.float64], NDArray[np.str_], float]:
+    (li, ri), (left_foot, right_foot), window, eps = joints, names, opt.window, opt.eps
     p0 = recording.positions
     a_l, a_r = recording.accelerations[left_foot], recording.accelerations[right_foot]
     mag_l = np.sqrt(np.einsum("ij,ij->i", a_l, a_l))
@@ -378,9 +391,11 @@ class ContactOptions:
     use_toes : bool
         Use heel/toe contact points when the recording names toe joints.
     extrapolate_toes : bool
-        Without toe joints, put a ball-of-the-foot point ahead of and below each ankle,
-        scaled by the leg and rolled by the heel's rise (``bonefit.estimation.stance``), so the
-        stance point rolls from heel to toe; needs ``use_toes``.
+        Without toe joints, roll each foot's stance point from the ankle over the ball of
+        the foot as the heel lifts (the ankle's rise above the other ankle, the foot's size
+        scaled by the leg, along the hip line's heading: ``bonefit.estimation.stance``);
+        needs ``use_toes``. Off by default: it fails the real recording's held-out check
+        (docs/translation.md).
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
         is fitted to the readings of the planted foot (``stance.estimate_sensor_offset``)
@@ -428,7 +443,7 @@ class ContactOptions:
 MethodOptions = ContactOptions | HachajOptions
 """Options of one translation method."""
 
-METHOD_OPTIONS: Final[dict[str, type[ContactOptions] | type[HachajOptions]]] = {
+METHOD_OPTIONS: Final[dict[str, type[MethodOptions]]] = {
     "contact": ContactOptions, "hachaj2018": HachajOptions}
 """The options dataclass of each method of :func:`estimate_translation`."""
 
@@ -452,15 +467,7 @@ def method_options(method: str, options: Mapping[str, Any]) -> MethodOptions:
         Unknown method, an unknown option (``field`` names the first) or a value out of
         range (``field`` names it).
     """
-    if method not in METHOD_OPTIONS:
-        raise InputError(f"unknown method {method!r}; use {', '.join(METHODS)}", field="method")
-    cls = METHOD_OPTIONS[method]
-    fields = set(cls.__dataclass_fields__)
-    unknown = sorted(set(options) - fields)
-    if unknown:
-        raise InputError(f"unknown option(s) for {method}: {', '.join(unknown)}; "
-                         f"options: {', '.join(sorted(fields))}", field=unknown[0])
-    return cls(**options)
+    return options_of(method, METHOD_OPTIONS, options)
 
 
 def _saturated(raw: NDArray[np.float64], clip_g: float | None,
@@ -515,7 +522,7 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
                     ) -> tuple[NDArray[np.int64], dict[str, Any]]:
     """States 0 none, 1 left, 2 right, 3 both per frame, by Viterbi decoding; with a lever
     arm prior, decoded again once the sensors' offsets are fitted to the first decoding."""
-    sigma = max(opt.smoothing_s * recording.fps, 0.5)
+    sigma = _smoothing_frames(opt, recording.fps)
     p = gaussian_filter1d(recording.positions, sigma, axis=0, mode="nearest")
     meas = [recording.accelerations[name] for name in names]
     sat = [_saturated(raw, opt.clip_g, recording.acceleration_frame) for raw in meas]
@@ -530,15 +537,22 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     return states, info
 
 
+def _smoothing_frames(opt: ContactOptions, fps: float) -> float:
+    """``smoothing_s`` in frames (at least half a frame): the Gaussian σ of the positions and
+    of the acceleration residuals."""
+    return max(opt.smoothing_s * fps, 0.5)
+
+
 def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
             feet: tuple[_Feet, _Feet], root: int, *,
             readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
             opt: ContactOptions) -> tuple[NDArray[np.int64], dict[str, Any]]:
     """Viterbi states of the smoothed positions ``p`` and the feet's ``readings``."""
     fps = recording.fps
-    sigma = max(opt.smoothing_s * fps, 0.5)
+    sigma = _smoothing_frames(opt, fps)
     points = [f.point(p) for f in feet]
-    cost = _acceleration_costs(recording, p, feet, points, root, readings, sigma, opt)
+    cost = _acceleration_costs(recording, p, feet, root, points=points, readings=readings,
+                               opt=opt)
     rel_speed = np.linalg.norm(_derivative(points[0], fps) - _derivative(points[1], fps),
                                axis=1)
     rel_scale = _relative_speed_scale(readings[0], recording.acceleration_frame, rel_speed,
@@ -573,18 +587,18 @@ def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet
     return out[0], out[1]
 
 
-def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],  # noqa: PLR0913, PLR0917
-                        feet: tuple[_Feet, _Feet], points: list[NDArray[np.float64]],
-                        root: int,
+def _acceleration_costs(recording: KinematicsRecording, p: NDArray[np.float64],
+                        feet: tuple[_Feet, _Feet], root: int, *,
+                        points: list[NDArray[np.float64]],
                         readings: tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]]],
-                        sigma: float, opt: ContactOptions) -> NDArray[np.float64]:
+                        opt: ContactOptions) -> NDArray[np.float64]:
     """Cost (F, 4) of each contact state: how far the foot accelerometers are from what the
     state predicts (a planted contact point does not accelerate; in flight the hips fall).
 
     ``p`` are the smoothed positions, ``points`` each foot's contact point in them,
-    ``readings`` each foot accelerometer's samples and saturated frames, ``sigma`` the
-    smoothing in frames."""
+    ``readings`` each foot accelerometer's samples and saturated frames."""
     fps = recording.fps
+    sigma = _smoothing_frames(opt, fps)
     meas, sat = readings
     a_sensor = [_second_derivative(f.sensor(p), fps) for f in feet]
     a_point = [_second_derivative(pt, fps) for pt in points]
@@ -705,8 +719,8 @@ def _support_weights(states: NDArray[np.int64]) -> NDArray[np.float64]:
     return w
 
 
-def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],  # noqa: PLR0917
-                         states: NDArray[np.int64], root: int, opt: ContactOptions,
+def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                         states: NDArray[np.int64], root: int, *, opt: ContactOptions,
                          progress: Progress
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                     NDArray[np.float64], int]:
@@ -715,7 +729,7 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
     p = recording.positions
     dt = 1.0 / recording.fps
     w_left = _support_weights(states)
-    translation = _horizontal_path(p, feet, states, w_left, root, dt)
+    translation = _horizontal_path(p, feet, states, w_left, root=root, dt=dt)
     progress(0.8, "path")
     # Vertical: each contact sits on its own floor level. A new contact starts at the level
     # that keeps the body's height continuous, then eases onto a known level within
@@ -730,8 +744,8 @@ def _contact_translation(recording: KinematicsRecording, feet: tuple[_Feet, _Fee
     return translation, floor, settled, n_levels
 
 
-def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],  # noqa: PLR0917
-                     states: NDArray[np.int64], w_left: NDArray[np.float64], root: int,
+def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
+                     states: NDArray[np.int64], w_left: NDArray[np.float64], *, root: int,
                      dt: float) -> NDArray[np.float64]:
     """Translation (F, 3) that keeps the supporting contact points still, with ballistic
     steps across flights (the take-off velocity of the last 50 ms held); its vertical
@@ -793,7 +807,8 @@ def _contact_levels(support: _Support, ramp: int, opt: ContactOptions
                        for s, e in _runs((states == 1 + k) | (states == 3))])
     last_level: float | None = None
     for start, stop, k in segments:
-        candidate = _contact_start_level(support, level, start, k, last_level, opt)
+        candidate = _contact_start_level(support, level, start, k, last_level=last_level,
+                                         opt=opt)
         near = [lv for lv in known if abs(lv - candidate) < opt.floor_tolerance]
         target = min(near, key=lambda lv: abs(lv - candidate)) if near else candidate
         if not near:
@@ -807,8 +822,8 @@ def _contact_levels(support: _Support, ramp: int, opt: ContactOptions
     return level, settled, len(known)
 
 
-def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,  # noqa: PLR0917
-                         last_level: float | None, opt: ContactOptions) -> float:
+def _contact_start_level(support: _Support, level: NDArray[np.float64], start: int, k: int,
+                         *, last_level: float | None, opt: ContactOptions) -> float:
     """Floor level of foot ``k``'s contact starting at ``start`` that keeps the body's height
     continuous: from the other foot's level, after a flight from the ballistic take-off,
     on the first contact the input's own height."""
@@ -977,22 +992,23 @@ def estimate_translation(
     if recording.n_frames < 3:
         raise EstimationError("need at least 3 frames to estimate a translation",
                               field="frames")
-    opt = _resolve_options(method, options, method_options)
+    opt = resolved_options(method, METHOD_OPTIONS, options, method_options)
     report(0.0, method)
     timings: dict[str, float] = {}
     if isinstance(opt, HachajOptions):
         path = _hachaj_path(recording, names, opt, report)
     else:
-        path = _contact_path(recording, names, root, opt, report, started)
+        path = _contact_path(recording, names, root, opt, report=report, started=started)
         timings["contacts_s"] = path.contacts_s
     quality = translation_quality(path.corrected, recording.fps, root, path.feet,
-                                  path.contacts, path.floor, path.levels)
+                                  contacts=path.contacts, floor=path.floor, levels=path.levels)
     quality.update(path.extra)
     timings["estimate_s"] = _time.perf_counter() - started
     report(1.0, "done")
     return TranslationResult(root=path.corrected[:, root].copy(), translation=path.translation,
-                             positions=path.corrected[:, :len(recording.joints)],  # no toe est.
-                             contacts=path.contacts, floor=path.floor, quality=quality,
+                             positions=path.corrected,
+                             contacts=path.contacts, floor=path.floor,
+                             quality=TranslationQuality.of(quality),
                              method=method, fps=recording.fps, timings=timings)
 
 
@@ -1008,22 +1024,6 @@ def _foot_names(recording: KinematicsRecording, left_foot: str | None,
             raise InputError(f"no accelerations for foot {foot!r}; sensors: "
                              f"{', '.join(recording.accelerations)}", sensor=foot)
     return lf, rf
-
-
-def _resolve_options(method: str, options: MethodOptions | None,
-                     values: Mapping[str, Any]) -> MethodOptions:
-    """``options`` when given (then no keyword values), else ``values`` checked."""
-    if options is None:
-        return method_options(method, values)
-    if values:
-        raise InputError("give the method's options either as an options object or as "
-                         f"keywords, not both (got {', '.join(sorted(values))} too)",
-                         field=sorted(values)[0])
-    expected = METHOD_OPTIONS[method]
-    if not isinstance(options, expected):
-        raise InputError(f"options of {method} must be a {expected.__name__}, got "
-                         f"{type(options).__name__}", field="options")
-    return options
 
 
 class _Path(NamedTuple):
@@ -1045,8 +1045,7 @@ def _hachaj_path(recording: KinematicsRecording, names: tuple[str, str], opt: Ha
     lf, rf = names
     li, ri = recording.index(lf), recording.index(rf)
     feet = _feet(recording, lf, rf, use_toes=True)
-    translation, contacts, ground = _hachaj(recording, li, ri, lf, rf, report,
-                                            window=opt.window, eps=opt.eps)
+    translation, contacts, ground = _hachaj(recording, (li, ri), names, report, opt)
     corrected = recording.positions + translation[:, None, :]
     soles = np.stack([f.sole(corrected) for f in feet], axis=1)
     planted = np.where(contacts == "right", soles[:, 1], soles[:, 0])
@@ -1056,14 +1055,14 @@ def _hachaj_path(recording: KinematicsRecording, names: tuple[str, str], opt: Ha
     return _Path(translation, corrected, contacts, floor, None, feet, extra)
 
 
-def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,  # noqa: PLR0917
-                  opt: ContactOptions, report: Progress, started: float) -> _Path:
+def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,
+                  opt: ContactOptions, *, report: Progress, started: float) -> _Path:
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
     lf, rf = names
-    if opt.use_toes and opt.extrapolate_toes:
-        recording = _with_estimated_toes(recording, names, root)
     feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
+    if opt.use_toes and opt.extrapolate_toes:
+        feet = _rolling_feet(recording, feet, names, root)
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
         states = _file_states(recording, names)
@@ -1075,7 +1074,7 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     report(0.6, "contacts")
     contacts_s = _time.perf_counter() - started
     translation, floor, levels, n_levels = _contact_translation(
-        recording, feet, states, root, opt, report)
+        recording, feet, states, root, opt=opt, progress=report)
     contacts = np.asarray(CONTACT_LABELS, dtype="<U5")[states]
     corrected = recording.positions + translation[:, None, :]
     extra["floor_levels"] = n_levels
@@ -1084,27 +1083,35 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)
 
 
-def _with_estimated_toes(recording: KinematicsRecording, names: tuple[str, str], root: int
-                         ) -> KinematicsRecording:
-    """``recording`` with a ball-of-the-foot joint ``<foot>_toe_estimated`` appended for
-    each foot without a toe joint (``stance.extrapolated_toe``, heading from the hip line);
-    unchanged when both feet have toes or the legs cannot be found."""
-    missing = [foot for foot in names if foot not in recording.toes]
-    if not missing:
-        return recording
+def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                  names: tuple[str, str], root: int) -> tuple[_Feet, _Feet]:
+    """``feet`` where a foot without a toe joint gets a contact point that rolls from the
+    ankle over the ball of the foot: the ankle moved back along the body's heading (the hip
+    line) by ``stance.roll_advance`` of the heel lift that raises it above the other ankle
+    (``stance.rise_tilt``). A flat foot's point is the ankle, and the point moves only while
+    the heel lifts (turning the heading with the heel up moves nothing), so a foot turning
+    on the spot does not sweep it. Unchanged when the legs cannot be found."""
+    if all(f.toe is not None for f in feet):
+        return feet
     p = recording.positions
-    ankles = [recording.index(foot) for foot in names]
+    ankles = [f.heel for f in feet]
     leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
-    legs = [leg_joints(p, ankle, leg) for ankle in ankles]
-    if legs[0] is None or legs[1] is None or leg <= 0:
-        return recording
-    heading = body_heading(p[:, legs[0][1]], p[:, legs[1][1]])
-    toes = dict(recording.toes)
-    extra = []
-    for k, foot in enumerate(names):
-        if foot in missing:
-            extra.append(extrapolated_toe(p[:, ankles[k]], p[:, ankles[1 - k]], heading, leg))
-            toes[foot] = f"{foot}_toe_estimated"
-    joints = recording.joints + tuple(toes[foot] for foot in missing)
-    return replace(recording, joints=joints, toes=toes,
-                   positions=np.concatenate([p, np.stack(extra, axis=1)], axis=1))
+    found = [leg_joints(p, ankle, leg) for ankle in ankles]
+    legs = [lg for lg in found if lg is not None]
+    if len(legs) < 2 or leg <= 0:
+        return feet
+    heading = heading_by_knees(body_heading(p[:, legs[0][1]], p[:, legs[1][1]]),
+                               [p[:, hip] for _knee, hip in legs],
+                               [p[:, knee] for knee, _hip in legs], [p[:, a] for a in ankles])
+    between = 0.5 * (heading[1:] + heading[:-1])
+    out = []
+    for k, foot in enumerate(feet):
+        if foot.toe is None:
+            tilt = rise_tilt(p[:, ankles[k]], p[:, ankles[1 - k]], leg)
+            shift = np.zeros((p.shape[0], 3))
+            np.cumsum(between * np.diff(roll_advance(tilt, leg))[:, None], axis=0,
+                      out=shift[1:])
+            foot = replace(foot, roll=shift)
+        out.append(foot)
+    return out[0], out[1]
+

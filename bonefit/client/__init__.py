@@ -25,6 +25,7 @@ from .results import (
     Recording,
     Result,
     SkeletonResult,
+    TranslationQuality,
     TranslationResult,
     result_from_dict,
 )
@@ -42,6 +43,7 @@ __all__ = [
     "Result",
     "RetryPolicy",
     "SkeletonResult",
+    "TranslationQuality",
     "TranslationResult",
     "result_from_dict",
 ]

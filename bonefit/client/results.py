@@ -17,6 +17,7 @@ from bonefit.estimation.io.result_json import result_from_dict as result_from_di
 from bonefit.estimation.results import JointOffset as JointOffset
 from bonefit.estimation.results import JointQuality as JointQuality
 from bonefit.estimation.results import SkeletonResult as SkeletonResult
+from bonefit.estimation.results import TranslationQuality as TranslationQuality
 from bonefit.estimation.results import TranslationResult as TranslationResult
 
 TERMINAL = frozenset({"succeeded", "failed", "cancelled"})

@@ -39,7 +39,7 @@ def acceleration_unit_key(units: str | None) -> str | None:
     return key
 
 
-def resolve_acceleration_units(  # noqa: C901
+def resolve_acceleration_units(
     raw: Mapping[str, NDArray[np.float64]],
     positions: Mapping[str, NDArray[np.float64]],
     declared: str | None,
@@ -54,16 +54,7 @@ def resolve_acceleration_units(  # noqa: C901
     worst = max(medians.values())
     least = min(medians.values())
     names = ", ".join(f"{k} {v:.3g}" for k, v in medians.items())
-    d2_like = []
-    for foot, acc in raw.items():
-        p = positions[foot]
-        if p.shape[0] >= 3:
-            d2 = p[2:] - 2 * p[1:-1] + p[:-2]
-            scale = float(np.linalg.norm(d2)) or 1.0
-            d2_like.append(float(np.linalg.norm(acc[1:-1] - d2)) / scale < 0.05
-                           or float(np.linalg.norm(acc[2:] - d2)) / scale < 0.05
-                           or float(np.linalg.norm(acc[:-2] - d2)) / scale < 0.05)
-    if d2_like and all(d2_like):
+    if _second_differences(raw, positions):
         if declared == "second-differences":
             return declared, "accelerations declared as second differences of positions"
         raise InputError(
@@ -71,14 +62,7 @@ def resolve_acceleration_units(  # noqa: C901
             "positions (exporter-computed), not accelerometer readings; declare "
             "acceleration_units='second-differences' to use them anyway", field="acceleration")
     if declared is not None:
-        scale, frame = ACCELERATION_UNITS[declared]
-        if frame == "sensor":
-            in_g = np.array([medians[k] * scale / GRAVITY for k in medians])
-            if np.any((in_g < 0.3) | (in_g > 3.0)):
-                raise InputError(
-                    f"acceleration declared as {declared} but the median |a| per foot is "
-                    f"{names}: accelerometer readings at rest are about 1 g; check the units",
-                    field="acceleration_units")
+        _check_declared(declared, medians, names)
         return declared, f"accelerations in {declared} (declared)"
     if least >= 0.6 and worst <= 1.6:
         return "g", f"accelerations in g (median |a| per foot: {names})"
@@ -96,9 +80,37 @@ def resolve_acceleration_units(  # noqa: C901
         f"{names}); declare acceleration_units", field="acceleration_units")
 
 
-def scaled_accelerations(raw: Mapping[str, NDArray[np.float64]],  # noqa: PLR0917
+def _second_differences(raw: Mapping[str, NDArray[np.float64]],
+                        positions: Mapping[str, NDArray[np.float64]]) -> bool:
+    """Every foot's raw accelerations equal (within 5 %) the second differences of its
+    positions, at any of three alignments (an exporter's computed column)."""
+    d2_like = []
+    for foot, acc in raw.items():
+        p = positions[foot]
+        if p.shape[0] >= 3:
+            d2 = p[2:] - 2 * p[1:-1] + p[:-2]
+            scale = float(np.linalg.norm(d2)) or 1.0
+            d2_like.append(float(np.linalg.norm(acc[1:-1] - d2)) / scale < 0.05
+                           or float(np.linalg.norm(acc[2:] - d2)) / scale < 0.05
+                           or float(np.linalg.norm(acc[:-2] - d2)) / scale < 0.05)
+    return bool(d2_like) and all(d2_like)
+
+
+def _check_declared(declared: str, medians: Mapping[str, float], names: str) -> None:
+    """Refuse declared accelerometer units whose median reading per foot is not about 1 g."""
+    scale, frame = ACCELERATION_UNITS[declared]
+    if frame == "sensor":
+        in_g = np.array([medians[k] * scale / GRAVITY for k in medians])
+        if np.any((in_g < 0.3) | (in_g > 3.0)):
+            raise InputError(
+                f"acceleration declared as {declared} but the median |a| per foot is "
+                f"{names}: accelerometer readings at rest are about 1 g; check the units",
+                field="acceleration_units")
+
+
+def scaled_accelerations(raw: Mapping[str, NDArray[np.float64]],
                          positions: Mapping[str, NDArray[np.float64]], declared: str | None,
-                         source: str, length_scale: float, fps: float
+                         source: str, *, length_scale: float, fps: float
                          ) -> tuple[dict[str, NDArray[np.float64]], str, str]:
     """Raw foot accelerations in m/s², their frame and a note, once their units are decided
     (:func:`resolve_acceleration_units`; second differences of positions in file length units

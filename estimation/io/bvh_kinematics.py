@@ -102,7 +102,7 @@ def read_bvh_kinematics(
         raw[foot] = _on_bvh_frames(a_raw[sensor], a_time, time, motion.fps)
     scaled, frame, note = scaled_accelerations(
         raw, {f: raw_pos[:, names.index(f)] for f in raw}, declared, Path(accelerations).name,
-        scale, motion.fps)
+        length_scale=scale, fps=motion.fps)
     notes += [note, f"root translation of {names[root]} ignored"]
     return KinematicsRecording(
         joints=names, positions=raw_pos * scale, fps=motion.fps, time=time,

@@ -23,12 +23,14 @@ from __future__ import annotations
 import csv
 import math
 import os
+from dataclasses import dataclass
 from typing import Any, Final
 
 from ..bvh import MAX_NODES
 from ..errors import InputError
 from ..kinematics import GRAVITY as GRAVITY  # re-exported: callers import it from here
 from ..kinematics import KinematicsRecording as KinematicsRecording
+from ..params import resolved_options
 from ..vocabulary import KINEMATICS_FORMATS
 from . import limits
 from .accelerations import ACCELERATION_UNITS as ACCELERATION_UNITS
@@ -59,7 +61,7 @@ FORMATS: Final[tuple[str, ...]] = KINEMATICS_FORMATS
 # --------------------------------------------------------------------------- dispatch
 
 
-def detect_format(path: PathLike) -> str:
+def detect_kinematics_format(path: PathLike) -> str:
     """``"kinematics-csv"``, ``"bvh"`` or ``"mvnx"`` from the file's first bytes."""
     with open(path, "rb") as handle:
         head = handle.read(4096).lstrip(b"\xef\xbb\xbf").lstrip()
@@ -78,33 +80,19 @@ def detect_format(path: PathLike) -> str:
 
 def _kinematics_format(path: PathLike, format: str) -> str:
     if format == "auto":
-        return detect_format(path)
+        return detect_kinematics_format(path)
     if format not in FORMATS:
         raise InputError(f"unknown format {format!r}; use auto, {', '.join(FORMATS)}",
                          field="format")
     return format
 
 
-def read_kinematics(  # noqa: PLR0913
-    path: PathLike,
-    *,
-    format: str = "auto",
-    accelerations: PathLike | None = None,
-    left_foot: str | None = None,
-    right_foot: str | None = None,
-    acceleration_units: str | None = None,
-    units: str | float | None = "auto",
-    subject: str | None = None,
-) -> KinematicsRecording:
-    """Read an inertial-suit recording for root-translation estimation.
+@dataclass(frozen=True)
+class KinematicsReadOptions:
+    """How :func:`read_kinematics` interprets a file (its keywords of the same names).
 
-    Parameters
+    Attributes
     ----------
-    path : path
-        Kinematics CSV, BVH or MVNX file.
-    format : {"auto", "kinematics-csv", "bvh", "mvnx"}
-    accelerations : path, optional
-        Foot accelerations CSV; required with a BVH.
     left_foot, right_foot : str, optional
         Foot joint names, overriding the ones found by name (and, in a BVH, topology); MVNX:
         segment names, default ``LeftFoot``/``RightFoot``.
@@ -116,6 +104,42 @@ def read_kinematics(  # noqa: PLR0913
     subject : str, optional
         MVNX: label or 1-based number of the subject to read (default the first).
 
+    Examples
+    --------
+    >>> KinematicsReadOptions(units="cm", acceleration_units="g").left_foot is None
+    True
+    """
+
+    left_foot: str | None = None
+    right_foot: str | None = None
+    acceleration_units: str | None = None
+    units: str | float | None = "auto"
+    subject: str | None = None
+
+
+def read_kinematics(
+    path: PathLike,
+    *,
+    format: str = "auto",
+    accelerations: PathLike | None = None,
+    options: KinematicsReadOptions | None = None,
+    **read_options: Any,
+) -> KinematicsRecording:
+    """Read an inertial-suit recording for root-translation estimation.
+
+    Parameters
+    ----------
+    path : path
+        Kinematics CSV, BVH or MVNX file.
+    format : {"auto", "kinematics-csv", "bvh", "mvnx"}
+    accelerations : path, optional
+        Foot accelerations CSV; required with a BVH.
+    options : KinematicsReadOptions, optional
+        Feet, units and subject as one object; default: from ``read_options``.
+    **read_options
+        Instead of ``options``, its fields: ``left_foot``, ``right_foot``,
+        ``acceleration_units``, ``units``, ``subject``.
+
     Returns
     -------
     KinematicsRecording
@@ -124,8 +148,13 @@ def read_kinematics(  # noqa: PLR0913
     ------
     InputError
         Unreadable file, missing foot (listing the joints present), unrecognised units, a
-        length unit that does not give a person's legs.
+        length unit that does not give a person's legs, an unknown keyword (``field`` names
+        it).
     """
+    opt = resolved_options("read_kinematics", {"read_kinematics": KinematicsReadOptions},
+                           options, read_options)
+    left_foot, right_foot, units = opt.left_foot, opt.right_foot, opt.units
+    acceleration_units = opt.acceleration_units
     fmt = _kinematics_format(path, format)
     if fmt == "kinematics-csv":
         return read_kinematics_csv(path, left_foot=left_foot, right_foot=right_foot,
@@ -143,7 +172,7 @@ def read_kinematics(  # noqa: PLR0913
         raise InputError(f"MVNX positions are in metres; units {units!r} does not apply",
                          field="units")
     return read_mvnx(path, left_foot=left_foot or "LeftFoot",
-                     right_foot=right_foot or "RightFoot", subject=subject)
+                     right_foot=right_foot or "RightFoot", subject=opt.subject)
 
 
 def sniff_kinematics(path: PathLike, format: str = "auto") -> dict[str, Any]:

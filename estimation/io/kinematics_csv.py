@@ -104,11 +104,11 @@ def read_kinematics_csv(
     fps = _kinematics_fps(time)
     raw = _csv_foot_accelerations(header, table, (feet.left, feet.right))
     accelerations, frame, note = scaled_accelerations(
-        raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name, scale,
-        fps)
+        raw, {f: raw_pos[:, joints.index(f)] for f in raw}, declared, Path(path).name,
+        length_scale=scale, fps=fps)
     notes = [feet.note(), unit_note, note]
     toes, contacts = _csv_toes_and_contacts(header, table, joints, positions,
-                                            (feet.left, feet.right), notes)
+                                            feet=(feet.left, feet.right), notes=notes)
     return KinematicsRecording(
         joints=joints, positions=positions, fps=fps, time=time, accelerations=accelerations,
         acceleration_frame=frame, left_foot=feet.left, right_foot=feet.right, toes=toes,
@@ -134,8 +134,8 @@ def _csv_foot_accelerations(header: list[str], table: NDArray[np.float64],
     return raw
 
 
-def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],  # noqa: PLR0917
-                           joints: tuple[str, ...], positions: NDArray[np.float64],
+def _csv_toes_and_contacts(header: list[str], table: NDArray[np.float64],
+                           joints: tuple[str, ...], positions: NDArray[np.float64], *,
                            feet: tuple[str, str], notes: list[str]
                            ) -> tuple[dict[str, str], dict[str, NDArray[np.bool_]]]:
     """Toe of each foot (by name) and contact flags from ``<Foot>.c``/``<Toe>.c`` columns;

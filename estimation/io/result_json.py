@@ -16,7 +16,13 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..model import JOINTS
-from ..results import JointOffset, JointQuality, SkeletonResult, TranslationResult
+from ..results import (
+    JointOffset,
+    JointQuality,
+    SkeletonResult,
+    TranslationQuality,
+    TranslationResult,
+)
 
 SKELETON_KIND: Final[str] = "skeleton"
 TRANSLATION_KIND: Final[str] = "translation"
@@ -235,7 +241,7 @@ def translation_from_dict(data: Mapping[str, Any]) -> TranslationResult:
     return TranslationResult(
         root=arrays["root"], translation=arrays["translation"], positions=None,
         contacts=_contacts(data["contacts"], frames), floor=arrays["floor"],
-        quality=dict(data.get("quality", {})), method=str(data["method"]),
+        quality=TranslationQuality.of(dict(data.get("quality", {}))), method=str(data["method"]),
         fps=read_number(data["fps"], "fps"), timings=_numbers(data, "timings"))
 
 

@@ -56,7 +56,7 @@ ROOT_POSITION_CHANNELS: Final[tuple[str, ...]] = ("Xposition", "Yposition", "Zpo
 # --------------------------------------------------------------------------- JSON
 
 
-def _json_safe(value: Any) -> Any:  # noqa: PLR0911
+def _json_safe(value: Any) -> Any:
     """Plain JSON types: numpy scalars and arrays converted, NaN/inf → None."""
     if isinstance(value, Mapping):
         return {str(k): _json_safe(v) for k, v in value.items()}
@@ -64,6 +64,12 @@ def _json_safe(value: Any) -> Any:  # noqa: PLR0911
         return _json_safe(value.tolist())
     if isinstance(value, (list, tuple)):
         return [_json_safe(v) for v in value]
+    return _json_scalar(value)
+
+
+def _json_scalar(value: Any) -> Any:
+    """A scalar as a plain JSON value: numpy numbers converted, NaN/inf → None, anything
+    else but None and strings as its ``str``."""
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):

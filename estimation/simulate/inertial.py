@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
 from ..io.body import longest_child, varying_root
 from ..kinematics import GRAVITY, KinematicsRecording
+from ..params import resolved_options
 
 FOOT_NAMES: Final[tuple[tuple[str, str], ...]] = (
     ("LeftFoot", "RightFoot"),
@@ -119,18 +120,43 @@ INSTEP_MOUNT: Final[FootMount] = FootMount(forward_m=(0.03, 0.08), up_m=(0.02, 0
 foot bone, ±1.5 cm sideways, a random mounting rotation, a bias of 0.01 g per axis."""
 
 
-def simulate_inertial(  # noqa: PLR0913
+@dataclass(frozen=True)
+class InertialSimulation:
+    """The foot accelerometers of :func:`simulate_inertial` (its keywords of the same names).
+
+    Attributes
+    ----------
+    left_foot, right_foot : str, optional
+        Foot joints carrying the accelerometers; default from :data:`FOOT_NAMES`.
+    noise_g : float
+        Standard deviation of white accelerometer noise per axis, g.
+    clip_g : float, optional
+        Accelerometer range: components saturate at ±clip_g (2 for the Shadow suit).
+    mount : FootMount
+        :data:`ANKLE_MOUNT` (default, at the joint) or :data:`INSTEP_MOUNT` (suits' placement).
+
+    Examples
+    --------
+    >>> InertialSimulation(noise_g=0.0, clip_g=2.0, mount=INSTEP_MOUNT).mount.bias_g
+    0.01
+    """
+
+    left_foot: str | None = None
+    right_foot: str | None = None
+    noise_g: float = 0.01
+    clip_g: float | None = None
+    mount: FootMount = ANKLE_MOUNT
+
+
+def simulate_inertial(
     motion: BvhMotion,
     *,
     fps: float | None = None,
     source_fps: float | None = None,
     length_units_m: float = 0.01,
-    left_foot: str | None = None,
-    right_foot: str | None = None,
-    noise_g: float = 0.01,
-    clip_g: float | None = None,
     seed: int = 0,
-    mount: FootMount = ANKLE_MOUNT,
+    options: InertialSimulation | None = None,
+    **settings: Any,
 ) -> tuple[KinematicsRecording, InertialTruth]:
     """Turn a BVH clip into an inertial-suit recording with a known root path.
 
@@ -144,15 +170,12 @@ def simulate_inertial(  # noqa: PLR0913
         True rate of the clip when its header is wrong (CMU salsa: 60, not 120).
     length_units_m : float
         Metres per BVH unit (0.01 for cm, 0.05644 for CMU units).
-    left_foot, right_foot : str, optional
-        Foot joints carrying the accelerometers; default from :data:`FOOT_NAMES`.
-    noise_g : float
-        Standard deviation of white accelerometer noise per axis, g.
-    clip_g : float, optional
-        Accelerometer range: components saturate at ±clip_g (2 for the Shadow suit).
     seed : int
-    mount : FootMount
-        :data:`ANKLE_MOUNT` (default, at the joint) or :data:`INSTEP_MOUNT` (suits' placement).
+    options : InertialSimulation, optional
+        The accelerometers as one object; default: from ``settings``.
+    **settings
+        Instead of ``options``, its fields (``left_foot``, ``right_foot``, ``noise_g``,
+        ``clip_g``, ``mount``).
 
     Returns
     -------
@@ -166,6 +189,9 @@ def simulate_inertial(  # noqa: PLR0913
     Second derivatives of a Savitzky–Golay fit (0.1 s, cubic) of the sensor point's path
     (ankle + R_foot r: lever-arm terms α×r + ω×(ω×r) exact), band-limited, then resampled.
     """
+    opt = resolved_options("simulate_inertial", {"simulate_inertial": InertialSimulation},
+                           options, settings)
+    left_foot, right_foot, mount = opt.left_foot, opt.right_foot, opt.mount
     if left_foot is None or right_foot is None:
         left_foot, right_foot = foot_names(motion)
     feet = (left_foot, right_foot)
@@ -186,8 +212,8 @@ def simulate_inertial(  # noqa: PLR0913
     positions = CubicSpline(t_src, stripped[:, keep], axis=0)(t_new)
     true_pos = CubicSpline(t_src, world, axis=0)(t_new)
     bias_rng = np.random.default_rng([seed, 2])
-    out_acc = {foot: _accelerometer_readings(CubicSpline(t_src, acc, axis=0)(t_new), noise_g,
-                                             clip_g, rng)
+    out_acc = {foot: _accelerometer_readings(CubicSpline(t_src, acc, axis=0)(t_new),
+                                             opt.noise_g, opt.clip_g, rng)
                + bias_rng.normal(0.0, mount.bias_g * GRAVITY, 3)
                for foot, acc in sensor.items()}
     recording = KinematicsRecording(

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from ..bvh import BvhMotion, forward_kinematics
 from ..errors import InputError
 from ..model import JOINT_SEGMENTS, JOINTS, LIMBS, REDUCED_SEGMENTS, SEGMENTS
+from ..params import resolved_options
 from ..recording import SensorRecording
 from ..skeleton import estimate_chest, estimate_root
 
@@ -327,21 +328,55 @@ def _drop_mask(rng: np.random.Generator, n_frames: int, n: int,
     return mask
 
 
-def simulate_sensors(  # noqa: PLR0913
+@dataclass(frozen=True)
+class SensorSimulation:
+    """How :func:`simulate_sensors` builds the body, places the sensors and makes them err
+    (its keywords of the same names).
+
+    Attributes
+    ----------
+    position_noise_m : float
+        Standard deviation of white position noise per axis, metres.
+    orientation_noise_deg : float
+        Standard deviation of white orientation noise per rotation-vector axis, degrees.
+    slip_m : float
+        RMS magnitude of the slow (0.05–0.5 Hz) soft-tissue displacement of each sensor along
+        its segment, metres.
+    drop_fraction : float
+        Fraction of samples per sensor set to NaN, in bursts of 1–5 frames.
+    offset_range_m : (float, float)
+        Range of the sensor distance from the bone, metres.
+    mapping : mapping of role to BVH node name, optional
+        For skeletons not in ``SKELETON_MAPS``.
+    rig : HingeRig, optional
+        Realistic knees and elbows (off their neighbours' line, axial rotation coupled to
+        flexion); by default the BVH's near-ideal hinges.
+
+    Examples
+    --------
+    >>> SensorSimulation(slip_m=0.0, drop_fraction=0.0).position_noise_m
+    0.002
+    """
+
+    position_noise_m: float = 0.002
+    orientation_noise_deg: float = 0.5
+    slip_m: float = 0.005
+    drop_fraction: float = 0.01
+    offset_range_m: tuple[float, float] = (0.03, 0.07)
+    mapping: Mapping[str, str] | None = None
+    rig: HingeRig | None = None
+
+
+def simulate_sensors(
     motion: BvhMotion,
     *,
     units_m: float,
     n_sensors: int = 15,
     segments: Sequence[str] | None = None,
-    position_noise_m: float = 0.002,
-    orientation_noise_deg: float = 0.5,
-    slip_m: float = 0.005,
-    drop_fraction: float = 0.01,
     seed: int | None = 0,
     fps: float | None = None,
-    mapping: Mapping[str, str] | None = None,
-    offset_range_m: tuple[float, float] = (0.03, 0.07),
-    rig: HingeRig | None = None,
+    options: SensorSimulation | None = None,
+    **settings: Any,
 ) -> tuple[SensorRecording, SimulationTruth]:
     """Virtual 6-DOF sensors on a rigid body driven by a BVH clip, with exact truth.
 
@@ -355,55 +390,53 @@ def simulate_sensors(  # noqa: PLR0913
         Full suit or the reduced suit without forearm and shank sensors.
     segments : sequence of str, optional
         Explicit sensor set; overrides ``n_sensors``.
-    position_noise_m : float
-        Standard deviation of white position noise per axis, metres.
-    orientation_noise_deg : float
-        Standard deviation of white orientation noise per rotation-vector axis, degrees.
-    slip_m : float
-        RMS magnitude of the slow (0.05–0.5 Hz) soft-tissue displacement of each sensor along
-        its segment, metres.
-    drop_fraction : float
-        Fraction of samples per sensor set to NaN, in bursts of 1–5 frames.
     seed : int or None
         Seed of the random generator (sensor placement, noise, slip, drops).
     fps : float, optional
         Frame rate overriding the BVH header (some clips declare a wrong one).
-    mapping : mapping of role to BVH node name, optional
-        For skeletons not in ``SKELETON_MAPS``.
-    offset_range_m : (float, float)
-        Range of the sensor distance from the bone, metres.
-    rig : HingeRig, optional
-        Realistic knees and elbows (off their neighbours' line, axial rotation coupled to
-        flexion); by default the BVH's near-ideal hinges.
+    options : SensorSimulation, optional
+        Body, placement and errors as one object; default: from ``settings``.
+    **settings
+        Instead of ``options``, its fields (``position_noise_m``, ``orientation_noise_deg``,
+        ``slip_m``, ``drop_fraction``, ``offset_range_m``, ``mapping``, ``rig``).
 
     Returns
     -------
     recording : SensorRecording
     truth : SimulationTruth
 
+    Raises
+    ------
+    InputError
+        An unknown setting (``field`` names it), both ``options`` and settings, unknown
+        segments or sensor count.
+
     Notes
     -----
     The body and the sensors' placement are described in the module docstring.
     """
+    opt = resolved_options("simulate_sensors", {"simulate_sensors": SensorSimulation}, options,
+                           settings)
     segments = _sensor_segments(n_sensors, segments)
     rng = np.random.default_rng(seed)
     origins, rotations, joints, bones = rigid_body_model(motion, units_m=units_m,
-                                                         mapping=mapping, rig=rig)
+                                                         mapping=opt.mapping, rig=opt.rig)
     rate = float(fps) if fps is not None else motion.fps
     n_frames = motion.n_frames
     time = np.arange(n_frames) / rate
-    local, offsets_rot = _place_sensors(bones, rng, offset_range_m)
-    slip = _smooth_slip(rng, time, slip_m, len(segments))
-    dropped = _drop_mask(rng, n_frames, len(segments), drop_fraction)
+    local, offsets_rot = _place_sensors(bones, rng, opt.offset_range_m)
+    slip = _smooth_slip(rng, time, opt.slip_m, len(segments))
+    dropped = _drop_mask(rng, n_frames, len(segments), opt.drop_fraction)
     positions, quats = _sensor_poses(segments, (origins, rotations), (local, offsets_rot),
-                                     slip, rng, orientation_noise_deg)
-    if position_noise_m > 0:
-        positions += rng.normal(scale=position_noise_m, size=positions.shape)
+                                     slip, rng=rng,
+                                     orientation_noise_deg=opt.orientation_noise_deg)
+    if opt.position_noise_m > 0:
+        positions += rng.normal(scale=opt.position_noise_m, size=positions.shape)
     positions[dropped] = np.nan
     quats[dropped] = np.nan
     recording = SensorRecording(segments, positions, quats, rate, time)
     truth = _truth(joints, rotations, local, bones,
-                   dataset=detect_skeleton(motion) if mapping is None else "custom")
+                   dataset=detect_skeleton(motion) if opt.mapping is None else "custom")
     return recording, truth
 
 
@@ -427,10 +460,10 @@ _TRUE_BONES: Final = ("l_upperarm", "l_forearm", "r_upperarm", "r_forearm",
 """Segments whose length ``SimulationTruth.bone_lengths`` gives."""
 
 
-def _sensor_poses(segments: Sequence[str],  # noqa: PLR0917
+def _sensor_poses(segments: Sequence[str],
                   body: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
                   placement: tuple[Mapping[str, NDArray[np.float64]], Mapping[str, Rotation]],
-                  slip: NDArray[np.float64], rng: np.random.Generator,
+                  slip: NDArray[np.float64], *, rng: np.random.Generator,
                   orientation_noise_deg: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Positions (F, S, 3, metres) and scalar-first quaternions (F, S, 4) of the sensors on

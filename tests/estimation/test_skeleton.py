@@ -272,7 +272,7 @@ def test_bad_options(sim15: Sim) -> None:
     with pytest.raises(InputError, match="method"):
         estimate_skeleton(rec, method="best")
     with pytest.raises(InputError, match="optimizer"):
-        estimate_skeleton(rec, optimizer="bfgs")
+        estimate_skeleton(rec, method="reduced", optimizer="bfgs")
     with pytest.raises(InputError, match="up"):
         estimate_skeleton(rec, up=(0, 0, 0))
     with pytest.raises(InputError, match="i0"):

@@ -24,8 +24,13 @@ from bonefit.estimation.recording import SensorRecording
 from bonefit.estimation.results import JointQuality
 from bonefit.estimation.simulate.sensors import SimulationTruth
 from bonefit.estimation.skeleton import (
+    AutoOptions,
+    GdkeOptions,
     JointPlan,
+    LlsfOptions,
     LocatedJoints,
+    ReducedOptions,
+    check_recording,
     estimate_skeleton,
     joint_motion,
     locate_joint,
@@ -68,18 +73,23 @@ def test_body_model_tables_agree() -> None:
 
 def test_options_are_checked_before_any_work(sim15: Sim) -> None:
     rec, _ = sim15
-    opt = skeleton_options(rec, method="reduced", torso="gdke")
+    opt = skeleton_options("reduced", {"torso": "gdke"})
+    assert isinstance(opt, ReducedOptions)
     assert (opt.estimator, opt.loss, opt.plain, opt.smooth) == ("gdke", "linear", False, False)
-    auto = skeleton_options(rec, highpass_s=0.5)
+    auto = AutoOptions(highpass_s=0.5)
     assert (auto.estimator, auto.loss, auto.smooth) == ("llsf", "huber", True)
     assert auto.highpass(rec.fps) == round(0.5 * rec.fps)
-    assert skeleton_options(rec, method="llsf", highpass_s=0.5).highpass(rec.fps) == 0
+    assert (LlsfOptions().highpass(rec.fps), LlsfOptions().plain) == (0, True)
+    assert GdkeOptions().estimator == "gdke"
     with pytest.raises(InputError) as err:
-        skeleton_options(rec, method="fastest")
+        skeleton_options("fastest", {})
     assert err.value.field == "method"
     with pytest.raises(InputError) as err:
-        skeleton_options(rec, i0=rec.n_frames)
+        check_recording(rec, AutoOptions(i0=rec.n_frames))
     assert err.value.field == "i0"
+    with pytest.raises(InputError) as err:  # at most half the frame rate: needs the recording
+        check_recording(rec, AutoOptions(slip_hz=rec.fps))
+    assert err.value.field == "slip_hz"
 
 
 def test_sensors_used_by_each_method(sim15: Sim, sim11: Sim) -> None:
@@ -107,7 +117,7 @@ def test_joint_motion_flags_still_joints_and_refuses_a_still_recording(sim15: Si
 
 def test_plan_and_shared_role_of_each_joint(sim15: Sim) -> None:
     rec, _ = sim15
-    opt = skeleton_options(rec)
+    opt = AutoOptions()
     ctx = skeleton_context(sensors_used(rec, "auto", []), opt, rec.fps)
     assert ctx.shared is not None
     assert shared_role(ctx, "waist") == "torso"
@@ -115,7 +125,7 @@ def test_plan_and_shared_role_of_each_joint(sim15: Sim) -> None:
         share = ctx.shared.fit.signal_share[ctx.shared.index[name]]
         assert shared_role(ctx, name) == ("limb" if share >= EIV_SIGNAL_SHARE else None)
     assert shared_role(ctx, "l_hip") == "torso"
-    plain = skeleton_context(sensors_used(rec, "llsf", []), skeleton_options(rec, method="llsf"),
+    plain = skeleton_context(sensors_used(rec, "llsf", []), LlsfOptions(),
                              rec.fps)
     assert plain.shared is None
     assert shared_role(plain, "waist") is None
@@ -133,7 +143,7 @@ def test_plan_and_shared_role_of_each_joint(sim15: Sim) -> None:
 
 def test_locate_joint_matches_the_estimate(sim15: Sim) -> None:
     rec, truth = sim15
-    ctx = skeleton_context(sensors_used(rec, "llsf", []), skeleton_options(rec, method="llsf"),
+    ctx = skeleton_context(sensors_used(rec, "llsf", []), LlsfOptions(),
                            rec.fps)
     found = locate_joint(ctx, JointPlan("l_hip", "llsf"))
     assert found.posterior is None

@@ -1,4 +1,5 @@
-"""Foot geometry of the contact model: axes, lever arm of the foot sensor, rolling toe."""
+"""Foot geometry of the contact model: axes, lever arm of the foot sensor, rolling stance
+point, legs and heading."""
 
 from __future__ import annotations
 
@@ -11,8 +12,11 @@ from bonefit.estimation.stance import (
     UP,
     body_heading,
     estimate_sensor_offset,
-    extrapolated_toe,
     foot_axes,
+    heading_by_knees,
+    leg_joints,
+    rise_tilt,
+    roll_advance,
     sensor_track,
 )
 
@@ -77,18 +81,50 @@ def test_lever_arm_estimate_needs_frames() -> None:
     np.testing.assert_array_equal(found, np.zeros(3))
 
 
-def test_extrapolated_toe_is_still_while_the_heel_rolls_about_it() -> None:
+def test_rolling_stance_point_stays_on_the_ball_while_the_heel_lifts() -> None:
     leg = 0.9
     length, drop = 0.13 * leg, 0.055 * leg
     theta = np.radians(np.linspace(0.0, 40.0, 50))
     ball = np.array([0.4, 0.0, 1.0])
-    forward = np.tile([0.6, 0.0, 0.8], (50, 1))
+    forward = np.array([0.6, 0.0, 0.8])
     # heel lifted by θ about the ball: the ankle rises on a circle around it
     ankle = (ball - forward * (length * np.cos(theta) - drop * np.sin(theta))[:, None]
              + UP * (length * np.sin(theta) + drop * np.cos(theta))[:, None])
     other = np.tile([0.0, drop, 0.5], (50, 1))  # the other foot flat on the same floor
-    found = extrapolated_toe(ankle, other, forward, leg)
-    np.testing.assert_allclose(found, np.broadcast_to(ball, found.shape), atol=1e-12)
+    tilt = rise_tilt(ankle, other, leg)
+    np.testing.assert_allclose(tilt, theta, atol=1e-12)
+    # moved back by its advance, the ankle stays where the flat foot's ankle was (across)
+    point = (ankle - forward * roll_advance(tilt, leg)[:, None])[:, [0, 2]]
+    np.testing.assert_allclose(point, np.broadcast_to(ankle[0, [0, 2]], point.shape),
+                               atol=1e-12)
+
+
+def test_roll_stops_where_the_ankle_is_above_the_ball() -> None:
+    leg = 1.0
+    ankle = np.array([[0.0, 0.055 + 0.5, 0.0]])  # far higher than a heel can roll
+    tilt = rise_tilt(ankle, np.array([[0.0, 0.055, 0.0]]), leg)
+    np.testing.assert_allclose(roll_advance(tilt, leg), [0.13], atol=1e-12)
+
+
+def test_legs_and_heading_of_a_planar_walker_with_mirrored_sides() -> None:
+    # legs bending in one plane keep each knee at a fixed distance from both hips: the
+    # nearer is its own; a file with left and right swapped still faces the knees' way
+    t = np.linspace(0.0, 2.0, 200)
+    hips, knees, ankles, joints = [], [], [], []
+    for side, phase in ((-0.1, 0.0), (0.1, np.pi)):
+        flex = 0.3 + 0.25 * np.sin(2 * np.pi * t + phase)
+        hip = np.column_stack([0 * t, 0.9 + 0 * t, side + 0 * t])
+        knee = hip + np.column_stack([0.42 * np.sin(flex), -0.42 * np.cos(flex), 0 * t])
+        ankle = knee + np.column_stack([-0.42 * np.sin(flex), -0.42 * np.cos(flex), 0 * t])
+        hips.append(hip), knees.append(knee), ankles.append(ankle)
+        joints += [hip, knee, ankle]
+    positions = np.stack([np.column_stack([0 * t, 1.0 + 0 * t, 0 * t]), *joints], axis=1)
+    assert leg_joints(positions, 3, 0.8) == (2, 1)
+    assert leg_joints(positions, 6, 0.8) == (5, 4)
+    swapped = body_heading(hips[1], hips[0])  # the +Z hip taken as the left one
+    np.testing.assert_allclose(swapped[0], [-1.0, 0.0, 0.0], atol=1e-12)
+    fixed = heading_by_knees(swapped, hips, knees, ankles)
+    np.testing.assert_allclose(fixed, np.tile([1.0, 0.0, 0.0], (t.size, 1)), atol=1e-12)
 
 
 def test_body_heading_is_horizontal_and_faces_forward() -> None:
