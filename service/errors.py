@@ -112,13 +112,19 @@ def translated(translate: Translate) -> Callable[[Callable[P, R]], Callable[P, R
     return decorate
 
 
-def translate_methods(translate: Translate) -> Callable[[C], C]:
-    """Class decorator: :func:`translated` on every public method defined in the class."""
+def decorate_methods(decorator: Callable[[Callable[..., object]], Callable[..., object]]
+                     ) -> Callable[[C], C]:
+    """Class decorator: ``decorator`` on every public method defined in the class."""
 
     def decorate(cls: C) -> C:
         for name, value in list(vars(cls).items()):
             if not name.startswith("_") and inspect.isfunction(value):
-                setattr(cls, name, translated(translate)(value))
+                setattr(cls, name, decorator(value))
         return cls
 
     return decorate
+
+
+def translate_methods(translate: Translate) -> Callable[[C], C]:
+    """Class decorator: :func:`translated` on every public method defined in the class."""
+    return decorate_methods(translated(translate))

@@ -145,8 +145,11 @@ class JobStore(Protocol):
         only through those, which own their preconditions.
         """
 
-    def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:
-        """Run ``job`` (queued, as read) on ``worker`` under a lease, counting an attempt."""
+    def claim(self, job_id: str, worker: str, now: float, lease_seconds: float) -> Job | None:
+        """Run the job on ``worker`` under a lease, counting an attempt, if it is queued; the
+        running job, or None (cancelled, finished, running elsewhere: a duplicate message).
+        One compare-and-set, with no read before it: the worker's way from a queue message to
+        a started job is a single round trip to the store."""
 
     def renew(self, job_id: str, worker: str, lease_until: float, *,
               fraction: float | None = None, stage: str | None = None) -> Job | None:

@@ -3,15 +3,24 @@ errors as the service's, and the transitions as compare-and-set updates."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, fields
 from typing import Any, Final
 
 import sqlalchemy as sa
 from sqlalchemy.engine import Engine
 
-from .errors import BackendError, StorageFull, StoreUnavailable, says_disk_full, translate_methods
+from .errors import (
+    BackendError,
+    StorageFull,
+    StoreUnavailable,
+    decorate_methods,
+    says_disk_full,
+    translate_methods,
+)
 from .jobs import PURGE_BATCH, Expect, Histogram, Job, JobStore, Recording, Status
 
 _metadata = sa.MetaData()
@@ -108,12 +117,41 @@ def sql_error(exc: Exception) -> BackendError | None:
     return None
 
 
+RECYCLE_SECONDS: Final = 1800.0
+"""A pooled server connection is replaced after this long (idle timeouts of servers and
+firewalls end older ones silently)."""
+
+
+def resent_once(method: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate a store method so that it runs once more when its connection turned out dead.
+
+    The pool is not pinged before each use (``pool_pre_ping`` costs one more round trip on
+    every call, twice on a job's way to its worker); instead a connection the server closed (a
+    restart, an idle timeout) fails its first statement, SQLAlchemy invalidates the pool and
+    the call is made again on a new connection. That statement never ran, so sending it again
+    is safe. Should a connection die after the server committed but before the answer came
+    back, a compare-and-set sent again finds its condition false (None, as for any lost race)
+    and an insert finds its key taken.
+    """
+
+    @functools.wraps(method)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(*args, **kwargs)
+        except sa.exc.DBAPIError as exc:
+            if not exc.connection_invalidated:
+                raise
+        return method(*args, **kwargs)
+
+    return wrapper
+
+
 def create_engine(url: str) -> Engine:
     """An engine for ``url``; SQLite gets WAL mode and a long busy timeout for many processes."""
     if url.startswith("postgresql://"):
         url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
     if not url.startswith("sqlite"):
-        return sa.create_engine(url, pool_pre_ping=True)
+        return sa.create_engine(url, pool_recycle=RECYCLE_SECONDS)
     if url in ("sqlite://", "sqlite:///:memory:"):
         return sa.create_engine(url, poolclass=sa.pool.StaticPool,
                                 connect_args={"check_same_thread": False})
@@ -130,13 +168,25 @@ def create_engine(url: str) -> Engine:
 
 
 @translate_methods(sql_error)
+@decorate_methods(resent_once)
 class SqlJobStore:
     """The job store in SQLite or PostgreSQL through SQLAlchemy 2 Core; its methods raise
     :class:`~bonefit.service.errors.StorageFull` and
-    :class:`~bonefit.service.errors.StoreUnavailable`."""
+    :class:`~bonefit.service.errors.StoreUnavailable`.
+
+    The calls on a job's way from submission to a worker (insert, read, compare-and-set) are
+    one statement each, sent in autocommit mode: one round trip, where a transaction costs a
+    BEGIN, the statement, a re-read and a COMMIT.
+    """
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
+
+    @contextlib.contextmanager
+    def _single(self) -> Iterator[sa.Connection]:
+        """A connection for one statement, in autocommit mode (its own transaction)."""
+        with self.engine.connect() as conn:
+            yield conn.execution_options(isolation_level="AUTOCOMMIT")
 
     @classmethod
     def from_url(cls, url: str) -> SqlJobStore:
@@ -157,13 +207,13 @@ class SqlJobStore:
 
     def add_recording(self, recording: Recording) -> None:
         """Insert a recording."""
-        with self.engine.begin() as conn:
+        with self._single() as conn:
             conn.execute(recordings_table.insert().values(**asdict(recording)))
 
     def get_recording(self, tenant: str, recording_id: str) -> Recording | None:
         """The tenant's recording, or None."""
         t = recordings_table
-        with self.engine.connect() as conn:
+        with self._single() as conn:
             row = conn.execute(sa.select(t).where(t.c.id == recording_id,
                                                   t.c.tenant == tenant)).first()
         return _recording(row) if row else None
@@ -192,7 +242,7 @@ class SqlJobStore:
         """Insert a job, or return the one already holding its idempotency key."""
         t = jobs_table
         try:
-            with self.engine.begin() as conn:
+            with self._single() as conn:
                 conn.execute(t.insert().values(**asdict(job)))
             return job
         except sa.exc.IntegrityError:
@@ -209,7 +259,7 @@ class SqlJobStore:
         query = sa.select(t).where(t.c.id == job_id)
         if tenant is not None:
             query = query.where(t.c.tenant == tenant)
-        with self.engine.connect() as conn:
+        with self._single() as conn:
             row = conn.execute(query).first()
         return _job(row) if row else None
 
@@ -228,24 +278,21 @@ class SqlJobStore:
             return [_job(row) for row in conn.execute(query)]
 
     def update_job(self, job_id: str, changes: Mapping[str, Any], *, expect: Expect) -> Job | None:
-        """Compare and set in one transaction."""
+        """Compare and set in one statement (UPDATE ... RETURNING)."""
         t = jobs_table
         values = {**changes, "version": t.c.version + 1, "updated_at": time.time()}
-        with self.engine.begin() as conn:
-            done = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
-                                .values(**values))
-            if done.rowcount != 1:
-                return None
-            row = conn.execute(sa.select(t).where(t.c.id == job_id)).first()
+        with self._single() as conn:
+            row = conn.execute(t.update().where(t.c.id == job_id, *_conditions(t, expect))
+                               .values(**values).returning(*t.c)).first()
         return _job(row) if row else None
 
-    def claim(self, job: Job, worker: str, now: float, lease_seconds: float) -> Job | None:
-        """Queued, with the attempts read → running on ``worker``, one more attempt."""
-        return self.update_job(job.id, {
-            "status": Status.RUNNING, "worker": worker, "attempts": job.attempts + 1,
+    def claim(self, job_id: str, worker: str, now: float, lease_seconds: float) -> Job | None:
+        """Queued → running on ``worker``, one more attempt (counted by the database)."""
+        return self.update_job(job_id, {
+            "status": Status.RUNNING, "worker": worker, "attempts": jobs_table.c.attempts + 1,
             "started_at": now, "lease_until": now + lease_seconds, "stage": "starting",
             "message": None, "fraction": 0.0,
-        }, expect={"status": Status.QUEUED, "attempts": job.attempts})
+        }, expect={"status": Status.QUEUED})
 
     def renew(self, job_id: str, worker: str, lease_until: float, *,
               fraction: float | None = None, stage: str | None = None) -> Job | None:

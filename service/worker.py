@@ -123,13 +123,11 @@ class Worker:
     def run_job(self, job_id: str) -> None:
         """Claim the job and run it to an end (or hand it back); never raises."""
         store, settings = self.runtime.store, self.runtime.settings
-        job = store.get_job(job_id)
-        if job is None or job.status is not Status.QUEUED:
-            return  # cancelled, finished, or a duplicate message
-        claimed = store.claim(job, self.id, self.clock(), settings.lease_seconds)
+        claimed = store.claim(job_id, self.id, self.clock(), settings.lease_seconds)
         if claimed is None:
-            return
-        log.info("job %s (%s): attempt %d on %s", job_id, job.kind, claimed.attempts, self.id)
+            return  # gone, cancelled, finished, or a duplicate message
+        log.info("job %s (%s): attempt %d on %s", job_id, claimed.kind, claimed.attempts,
+                 self.id)
         lease = JobLease(self, claimed)
         lease.start()
         try:

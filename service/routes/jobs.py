@@ -58,28 +58,35 @@ async def create_job(
               params=payload["params"], inputs=inputs, created_at=now, updated_at=now,
               idempotency_key=idempotency_key, request_hash=digest if idempotency_key else None)
     with refuse_when_full("job database"):
-        stored = await run_in_threadpool(runtime.store.add_job, job)
+        stored, refused = await run_in_threadpool(_store_and_enqueue, runtime, job)
     if stored.id != job.id:
         if stored.request_hash != digest:
             raise Problem(422, "Idempotency key reused",
                           "this Idempotency-Key was used with a different request body",
                           slug="idempotency-key-reused", field="Idempotency-Key")
         return _job_response(stored, 202, {"Location": _job_url(stored.id)})
-    await _enqueue(runtime, job.id)
-    return _job_response(job, 202, {"Location": _job_url(job.id)})
-
-
-async def _enqueue(runtime: Runtime, job_id: str) -> None:
-    """Put the stored job on the queue; if the queue refuses, withdraw the job and answer
-    507 (a full queue) or 503."""
-    try:
-        await run_in_threadpool(runtime.queue.enqueue, job_id)
-    except Exception as exc:
-        await _not_queued(runtime, job_id)
-        if is_storage_full(exc):
+    if refused is not None:
+        await _not_queued(runtime, job.id)
+        if is_storage_full(refused):
             raise storage_full("job queue") from None
         raise Problem(503, "Queue unavailable", "the job could not be queued; retry later",
                       slug="queue-unavailable", headers={"Retry-After": "5"}) from None
+    return _job_response(job, 202, {"Location": _job_url(job.id)})
+
+
+def _store_and_enqueue(runtime: Runtime, job: Job) -> tuple[Job, Exception | None]:
+    """Store the job, then (a new one) queue its id, in one trip to a worker thread (each
+    trip waits for a thread and the interpreter lock: milliseconds on a loaded host, all of
+    it in the job's queue wait). The stored job (another one for a reused Idempotency-Key,
+    not queued again) and the queue's error, if it refused; the store's errors are raised."""
+    stored = runtime.store.add_job(job)
+    if stored.id != job.id:
+        return stored, None
+    try:
+        runtime.queue.enqueue(job.id)
+    except Exception as exc:
+        return stored, exc
+    return stored, None
 
 
 async def _not_queued(runtime: Runtime, job_id: str) -> None:

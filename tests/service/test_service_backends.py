@@ -149,23 +149,29 @@ def test_jobs_compare_and_set(store: JobStore) -> None:
 def claimed(store: JobStore, worker: str = "w1", now: float = 100.0) -> Job:
     """A new job, claimed by ``worker`` at ``now`` with a 30 s lease."""
     j = store.add_job(job())
-    running = store.claim(j, worker, now, 30.0)
+    running = store.claim(j.id, worker, now, 30.0)
     assert running is not None
     return running
 
 
 def test_a_claim_is_won_once_and_counts_an_attempt(store: JobStore) -> None:
     j = store.add_job(job())
-    running = store.claim(j, "w1", 100.0, 30.0)
+    running = store.claim(j.id, "w1", 100.0, 30.0)
     assert running is not None
     assert (running.status, running.worker, running.attempts) == (Status.RUNNING, "w1", 1)
     assert (running.started_at, running.lease_until, running.stage) == (100.0, 130.0,
                                                                          "starting")
-    assert store.claim(j, "w2", 101.0, 30.0) is None  # running: the second claim loses
+    assert store.claim(j.id, "w2", 101.0, 30.0) is None  # running: the second claim loses
     back = store.requeue(j.id, "w1", "again")
     assert back is not None
-    assert store.claim(j, "w2", 101.0, 30.0) is None  # read before the first attempt
-    assert store.claim(back, "w2", 101.0, 30.0) is not None
+    again = store.claim(j.id, "w2", 101.0, 30.0)  # queued again: claimed, attempt 2
+    assert again is not None
+    assert (again.worker, again.attempts) == ("w2", 2)
+    assert store.claim(j.id, "w1", 102.0, 30.0) is None
+    assert store.claim("no-such-job", "w1", 102.0, 30.0) is None
+    cancelled = store.add_job(job())
+    assert store.cancel_queued(cancelled.id, 103.0) is not None
+    assert store.claim(cancelled.id, "w1", 104.0, 30.0) is None
 
 
 def test_only_the_holder_renews_its_lease(store: JobStore) -> None:
@@ -185,7 +191,7 @@ def test_a_requeue_counts_the_attempt_and_a_hand_back_does_not(store: JobStore) 
     assert again is not None
     assert (again.status, again.attempts, again.worker, again.lease_until, again.message) == (
         Status.QUEUED, 1, None, None, "crashed")
-    j = store.claim(again, "w1", 100.0, 30.0)
+    j = store.claim(again.id, "w1", 100.0, 30.0)
     assert j is not None
     assert store.hand_back(j, "w2", "shut down") is None  # not its job
     back = store.hand_back(j, "w1", "shut down")
@@ -298,6 +304,30 @@ def test_an_unreachable_database_is_unavailable(tmp_path: Path) -> None:
     assert caught.value.cause_name == "OperationalError"
     with pytest.raises(StoreUnavailable):
         store.get_job("x")
+    store.engine.dispose()
+
+
+def test_a_connection_the_server_closed_is_replaced_within_the_call(postgres_url: str) -> None:
+    """No ping before each use: a pooled connection the server dropped (a restart) fails its
+    first statement, and the store makes the call again on a new connection."""
+    store = SqlJobStore.from_url(postgres_url)
+    store.init()
+    stored = store.add_job(job())
+    pids = set()
+    for _ in range(3):  # fill the pool with connections of this engine
+        with store.engine.connect() as conn:
+            pids.add(conn.execute(sa.text("SELECT pg_backend_pid()")).scalar_one())
+    admin = sa.create_engine(postgres_url, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        for pid in pids:
+            conn.execute(sa.text("SELECT pg_terminate_backend(:pid)"), {"pid": pid})
+    admin.dispose()
+    found = store.get_job(stored.id)
+    assert found is not None
+    assert found.id == stored.id
+    claimed = store.claim(stored.id, "w", time.time(), 30.0)  # a write after the outage
+    assert claimed is not None
+    assert claimed.status is Status.RUNNING
     store.engine.dispose()
 
 
