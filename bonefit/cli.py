@@ -30,14 +30,17 @@ class Command:
     register: str
     extra: str
     summary: str
+    one_blas_thread: bool = False
+    """Run with one BLAS thread (``estimation.threads``): the estimating commands."""
 
 
 COMMANDS = {
     "skeleton": Command("bonefit.estimation.cli.skeleton", "register", "estimation",
                         "estimate joint centres, bone lengths and orientations from 6-DOF "
-                        "sensors"),
+                        "sensors", one_blas_thread=True),
     "translate": Command("bonefit.estimation.cli.translate", "register", "estimation",
-                         "root path of an inertial-suit recording from its foot accelerometers"),
+                         "root path of an inertial-suit recording from its foot accelerometers",
+                         one_blas_thread=True),
     "serve": Command("bonefit.service.cli", "register_serve", "service",
                      "run the REST API (with embedded workers unless --no-worker)"),
     "worker": Command("bonefit.service.cli", "register_worker", "service",
@@ -132,11 +135,16 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bonefit`` and ``python -m bonefit``; returns the exit code."""
     arguments = sys.argv[1:] if argv is None else list(argv)
+    chosen = chosen_command(arguments)
     try:
+        if chosen is not None and COMMANDS[chosen].one_blas_thread:
+            from .estimation.threads import limit_blas_threads
+
+            limit_blas_threads()  # before the command's module imports numpy
         parser = build_parser(arguments)
     except ModuleNotFoundError as exc:  # the chosen command's extra is not installed
         extra = missing_extra(exc)
         if extra is None:
             raise
-        return report_missing(chosen_command(arguments) or "", extra)
+        return report_missing(chosen or "", extra)
     return run(parser.parse_args(arguments))

@@ -526,19 +526,48 @@ def _twin_states(angles: NDArray[np.float64]) -> NDArray[np.intp]:
     """Per frame (F, ...), 0 for the given Tait–Bryan triple, 1 for its twin, choosing at each
     frame the one nearest (sum of wrapped differences) to the previous frame's choice.
 
-    The choice at frame i depends on frame i−1's only: a map of {0, 1} onto itself per frame,
-    composed over the take by a prefix scan in log₂ F vectorised steps."""
-    twin = _twin(angles)
-    cand = np.stack([angles, twin], axis=-2)  # (F, ..., 2, 3)
-    dist = np.abs(_wrap(cand[1:, ..., None, :, :] - cand[:-1, ..., :, None, :])).sum(axis=-1)
-    maps = (dist[..., 1] < dist[..., 0]).astype(np.intp)  # (F-1, ..., previous state)
-    span = 1
-    while span < len(maps):
-        maps[span:] = np.take_along_axis(maps[span:], maps[:-span], axis=-1)
-        span *= 2
+    The choice at frame i depends on frame i−1's only: a map of {0, 1} onto itself per frame.
+    A map that sends both states to one decides the state by itself; the others keep or swap
+    it. So a frame's state is that of the last deciding step before it (0 at the first frame),
+    swapped once per swapping step since: two cumulative passes over the take."""
+    maps = _twin_maps(angles)  # (F-1, ..., previous state): the next state
+    deciding = maps[..., 0] == maps[..., 1]
+    swaps = np.cumsum(maps[..., 0] & ~deciding, axis=0)
+    step = np.arange(len(maps)).reshape(-1, *([1] * (maps.ndim - 2)))
+    last = np.maximum.accumulate(np.where(deciding, step, -1), axis=0)
+    at = np.maximum(last, 0)
+    decided = np.where(last >= 0, np.take_along_axis(maps[..., 0], at, axis=0), False)
+    since = swaps - np.where(last >= 0, np.take_along_axis(swaps, at, axis=0), 0)
     states = np.zeros(angles.shape[:-1], dtype=np.intp)
-    states[1:] = maps[..., 0]
+    states[1:] = decided ^ (since % 2 == 1)
     return states
+
+
+SMALL_STEP_DEG: Final[float] = 90.0
+"""Sum of the wrapped changes of a Tait–Bryan triple between two frames below which the
+triple's twin is certainly further away (by at least 360° minus twice this, far beyond
+rounding), so the step keeps whichever of the two the previous frame had."""
+
+
+def _twin_maps(angles: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Per step (F-1, ..., 2): from each state of the previous frame (0: the given triple,
+    1: its twin), whether this frame is nearer as its twin (sum of wrapped differences).
+
+    Only the steps whose given triples change by :data:`SMALL_STEP_DEG` or more are measured
+    all four ways; every other step keeps the state (its twin is at least 270° off)."""
+    same = np.abs(_wrap(angles[1:] - angles[:-1])).sum(axis=-1)
+    maps = np.zeros((*same.shape, 2), dtype=bool)
+    maps[..., 1] = True
+    big = np.nonzero(same >= SMALL_STEP_DEG)
+    if big[0].size:
+        later = angles[1:][big]
+        earlier = angles[:-1][big]
+        cand_later = np.stack([later, _twin(later)], axis=-2)  # (B, 2, 3)
+        cand_earlier = np.stack([earlier, _twin(earlier)], axis=-2)
+        dist = np.abs(_wrap(cand_later[:, None, :, :] - cand_earlier[:, :, None, :])
+                      ).sum(axis=-1)
+        maps[big] = dist[..., 1] < dist[..., 0]
+    return maps
 
 
 def _twin(angles: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -683,12 +712,13 @@ class _Steps:
     after: NDArray[np.float64]
     turn: NDArray[np.float64]
     keep: NDArray[np.bool_]
-    halfway: NDArray[np.float64]
+    halfway: NDArray[np.float64]  # (4, S): a contiguous row per component
 
     @classmethod
     def of(cls, before: NDArray[np.float64], after: NDArray[np.float64]) -> _Steps:
         turn = _quat_angle(before, after)
-        return cls(before, after, turn, turn <= JUMP_DEG, _halfway(before, after))
+        return cls(before, after, turn, turn <= JUMP_DEG,
+                   np.ascontiguousarray(_halfway(before, after).T))
 
 
 def _step_cost(steps: _Steps, order: str) -> float:
@@ -699,12 +729,54 @@ def _step_cost(steps: _Steps, order: str) -> float:
 
     if len(steps.turn) == 0:
         return 0.0
-    angles = continuous_euler(np.stack([euler_degrees(Rotation.from_quat(steps.before), order),
-                                        euler_degrees(Rotation.from_quat(steps.after), order)]))
-    swing = np.maximum(np.abs(angles[1] - angles[0]).max(axis=1) - steps.turn, 0.0)
-    half = _quat_angle(_euler_quaternions(order, (angles[0] + angles[1]) / 2), steps.halfway)
+    before = euler_degrees(Rotation.from_quat(steps.before), order)
+    after = _next_euler(before, euler_degrees(Rotation.from_quat(steps.after), order))
+    swing = np.maximum(np.abs(after - before).max(axis=1) - steps.turn, 0.0)
+    half = _angle_between(_euler_rows(order, (before + after) / 2), steps.halfway)
     keep = steps.keep
     return float(np.sum(half[keep] ** 2) + SWING_WEIGHT * np.sum(swing[keep] ** 2))
+
+
+def _euler_rows(order: str, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`_euler_quaternions` as rows (4, S) (x, y, z, w), each turn about one axis
+    applied in closed form: the choice's hot loop, on contiguous rows."""
+    half = np.radians(angles.T) / 2
+    sin, cos = np.sin(half), np.cos(half)
+    q = np.zeros((4, angles.shape[0]))
+    q[_UNIT_AXES[order[0]]] = sin[0]
+    q[3] = cos[0]
+    for k in (1, 2):  # q · (sin · axis, cos)
+        a = _UNIT_AXES[order[k]]
+        b, c = (a + 1) % 3, (a + 2) % 3
+        q = np.stack([cos[k] * q[a] + sin[k] * q[3], cos[k] * q[b] + sin[k] * q[c],
+                      cos[k] * q[c] - sin[k] * q[b], cos[k] * q[3] - sin[k] * q[a]]
+                     )[np.argsort([a, b, c, 3])]
+    return q
+
+
+def _angle_between(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`_quat_angle` of unit quaternions given as rows (4, S) (x, y, z, w)."""
+    px, py, pz, pw = p
+    qx, qy, qz, qw = q
+    vx = pw * qx - qw * px - (py * qz - pz * qy)
+    vy = pw * qy - qw * py - (pz * qx - px * qz)
+    vz = pw * qz - qw * pz - (px * qy - py * qx)
+    w = px * qx + py * qy + pz * qz + pw * qw
+    return np.asarray(np.degrees(2.0 * np.arctan2(np.sqrt(vx * vx + vy * vy + vz * vz),
+                                                  np.abs(w))))
+
+
+def _next_euler(before: NDArray[np.float64], after: NDArray[np.float64]
+                ) -> NDArray[np.float64]:
+    """``continuous_euler(np.stack([before, after]))[1]`` for many two-frame takes (S, 3) at
+    once: ``after`` or its twin, whichever is nearer ``before``, moved by whole turns to
+    within 180° of it (the same operations, without the prefix scan's temporaries)."""
+    twin = _twin(after)
+    near_twin = (np.abs(_wrap(twin - before)).sum(axis=-1)
+                 < np.abs(_wrap(after - before)).sum(axis=-1))
+    chosen = np.where(near_twin[:, None], twin, after)
+    out: NDArray[np.float64] = chosen - 360.0 * np.round((chosen - before) / 360.0)
+    return out
 
 
 def _choice_steps(n_frames: int, max_steps: int = MAX_CHOICE_STEPS) -> NDArray[np.intp]:
@@ -765,7 +837,8 @@ def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: b
     return options[int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0])]
 
 
-def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Rotation],
+def rest_euler_channels(parents: tuple[int, ...] | list[int],
+                        rotations: list[Rotation] | list[NDArray[np.float64]],
                         order: str | None = None, *, centre: bool = True) -> NodeChannels:
     """BVH rotation channels of a tree of nodes, with an Euler order and a constant rest
     rotation per node chosen so that players interpolating the channels follow the motion.
@@ -785,8 +858,9 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Ro
     ----------
     parents : sequence of int
         Parent of each node (an earlier index), -1 for a root.
-    rotations : list of Rotation
-        Per node, its rotation (length F) relative to its parent's given frame.
+    rotations : list of Rotation or of ndarray, shape (F, 4)
+        Per node, its rotation (length F) relative to its parent's given frame (a Rotation
+        or its scalar-last unit quaternions).
     order : str, optional
         One intrinsic order for every node instead of the choice per node.
     centre : bool
@@ -811,7 +885,8 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int], rotations: list[Ro
     chosen: list[tuple[NDArray[np.float64], str]] = []
     for n, rotation in enumerate(rotations):
         above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
-        seen = _quat_multiply(_conjugate(above)[None], rotation.as_quat())
+        given = rotation if isinstance(rotation, np.ndarray) else rotation.as_quat()
+        seen = _quat_multiply(_conjugate(above)[None], given)
         rest, best = _best_channels(seen, orders, centre)
         rests.append(rest)
         chosen.append((_quat_multiply(seen, rest[None]), best))
@@ -965,12 +1040,37 @@ def _shortest_arc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
 
 
 def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Hamilton products p·q of scalar-last quaternions (N, 4) (either may be (1, 4))."""
-    pv, pw = p[:, :3], p[:, 3:]
-    qv, qw = q[:, :3], q[:, 3:]
-    vector = pw * qv + qw * pv + np.cross(pv, qv)
-    scalar = pw * qw - np.einsum("...j,...j->...", pv, qv)[:, None]
-    out: NDArray[np.float64] = np.concatenate([vector, scalar], axis=1)
+    """Hamilton products p·q of scalar-last quaternions (N, 4) (either may be (1, 4)).
+
+    Component by component (``pw qv + qw pv + pv × qv``, ``pw qw − pv · qv`` in that order of
+    operations, so the same bits as with ``np.cross``, whose overhead was most of the cost)."""
+    px, py, pz, pw = p.T
+    qx, qy, qz, qw = q.T
+    out = np.empty((max(len(p), len(q)), 4))
+    out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
+    out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
+    out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
+    out[:, 3] = pw * qw - np.einsum("...j,...j->...", p[:, :3], q[:, :3])
+    return out
+
+
+def compose_quaternions(p: NDArray[np.float64], q: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+    """Rotations ``p · q`` (``q`` first) of scalar-last unit quaternions (N, 4) (either may
+    be (1, 4)), normalised.
+
+    The same formula and normalisation as scipy's ``Rotation.__mul__``: bit for bit
+    ``(P * Q).as_quat()`` for Rotations P, Q holding ``p`` and ``q``, without the cost of
+    building Rotation objects (most of a long take's BVH hierarchy).
+    """
+    px, py, pz, pw = p.T
+    qx, qy, qz, qw = q.T
+    out = np.empty((max(len(p), len(q)), 4))
+    out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
+    out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
+    out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
+    out[:, 3] = pw * qw - px * qx - py * qy - pz * qz
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
     return out
 
 

@@ -19,9 +19,10 @@ Examples
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import os
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -207,10 +208,28 @@ class JsonArray:
         yield "]"
 
 
+@dataclass(frozen=True, eq=False)
+class JsonLater:
+    """A value of a JSON document known only when the writer reaches it: ``value()`` is
+    called then and its JSON written in its place (the timings at the end of a result whose
+    other files are written meanwhile).
+
+    Attributes
+    ----------
+    value : callable
+        Returns plain JSON data (no :class:`JsonArray`); what it raises, the writer raises.
+    """
+
+    value: Callable[[], Any]
+
+
 def plain(document: Any) -> Any:
-    """``document`` with every :class:`JsonArray` replaced by its lists."""
+    """``document`` with every :class:`JsonArray` replaced by its lists and every
+    :class:`JsonLater` by its value."""
     if isinstance(document, JsonArray):
         return document.tolist()
+    if isinstance(document, JsonLater):
+        return plain(document.value())
     if isinstance(document, Mapping):
         return {k: plain(v) for k, v in document.items()}
     if isinstance(document, list | tuple):
@@ -222,11 +241,12 @@ def json_blocks(document: Any, *, indent: int | None = None,
                 separators: tuple[str, str] | None = None) -> Iterator[str]:
     """The text of ``json.dumps(plain(document), indent=..., separators=...)`` up to the
     layout inside the arrays, piece by piece: the document around its :class:`JsonArray`
-    values is dumped by ``json`` (``allow_nan=False``), each array in bulk."""
-    arrays: list[JsonArray] = []
+    values is dumped by ``json`` (``allow_nan=False``), each array in bulk, each
+    :class:`JsonLater` when its turn comes."""
+    arrays: list[JsonArray | JsonLater] = []
 
     def mark(value: Any) -> Any:
-        if isinstance(value, JsonArray):
+        if isinstance(value, JsonArray | JsonLater):
             arrays.append(value)
             return f"{_MARK}{len(arrays) - 1}{_MARK}"
         if isinstance(value, Mapping):
@@ -240,9 +260,16 @@ def json_blocks(document: Any, *, indent: int | None = None,
     marker = json.dumps(_MARK)[1:-1]  # as json escapes it
     parts = text.split(f'"{marker}')
     yield parts[0]
-    for part in parts[1:]:
+    for before, part in itertools.pairwise(parts):
         number, _, rest = part.partition(f'{marker}"')
-        yield from arrays[int(number)].blocks(item_sep)
+        item = arrays[int(number)]
+        if isinstance(item, JsonArray):
+            yield from item.blocks(item_sep)
+        else:  # at the depth of its line, as json.dumps would have indented it
+            depth = before[before.rfind("\n") + 1:]
+            depth = depth[:len(depth) - len(depth.lstrip(" "))]
+            yield json.dumps(item.value(), indent=indent, separators=separators,
+                             allow_nan=False).replace("\n", "\n" + depth)
         yield rest
 
 

@@ -9,13 +9,11 @@ import sys
 import threading
 import time
 
+from bonefit.estimation.threads import BLAS_LIMITS  # one per worker: the pool uses the cores
+
 from .settings import Settings
 
 log = logging.getLogger("bonefit.worker")
-
-BLAS_LIMITS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-               "NUMEXPR_NUM_THREADS": "1", "VECLIB_MAXIMUM_THREADS": "1"}
-"""One BLAS thread per worker process: the pool, not BLAS, uses the cores."""
 
 
 class WorkerPool:

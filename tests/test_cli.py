@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from importlib.metadata import version
@@ -59,3 +60,26 @@ def test_a_missing_module_that_no_extra_installs_is_a_bug(monkeypatch: pytest.Mo
     monkeypatch.setattr(bonefit.cli.importlib, "import_module", lambda _: _missing("no_such"))
     with pytest.raises(ModuleNotFoundError):
         main(["skeleton"])
+
+
+@pytest.mark.parametrize("command", ["skeleton", "translate"])
+def test_estimating_commands_run_with_one_blas_thread_unless_told(
+        command: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bonefit.estimation.threads import BLAS_LIMITS
+
+    for name in BLAS_LIMITS:  # recorded by monkeypatch, so restored after the test
+        monkeypatch.setenv(name, "")
+        monkeypatch.delenv(name)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    assert {name: os.environ.get(name) for name in BLAS_LIMITS} == {
+        **BLAS_LIMITS, "MKL_NUM_THREADS": "3"}
+
+
+def test_other_commands_leave_blas_threads_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "")
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS")
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert "OPENBLAS_NUM_THREADS" not in os.environ

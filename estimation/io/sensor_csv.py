@@ -271,21 +271,33 @@ def _line_blocks(handle: IO[str], first: int) -> Iterator[tuple[int, str]]:
 def _parse_block(text: str, first: int, header: list[str]
                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Cells (n, C) and line numbers (n,) of the data rows of ``text``, whose first line is
-    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers and empty cells,
-    row by row otherwise (naming the line and column of a fault). loadtxt refuses a comment,
-    a quote or a malformed cell and skips a blank line (one row short): either sends the
-    block to the row-by-row parse."""
+    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers (a second try
+    with empty cells written ``nan`` when there are some), row by row otherwise (naming the
+    line and column of a fault). loadtxt refuses a comment, a quote or a malformed cell and
+    skips a blank line (one row short): either sends the block to the row-by-row parse."""
     n_lines = text.count("\n")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
-            cells = np.loadtxt(io.StringIO(_empty_cells_as_nan(text)), delimiter=",",
-                               dtype=float, ndmin=2, comments=None, quotechar=None)
-    except (ValueError, UserWarning):
-        cells = None
+    cells = _loadtxt(text)
+    if cells is None and (",," in text or ",\n" in text or "\n," in text
+                          or text.startswith(",")):
+        cells = _loadtxt(_empty_cells_as_nan(text))
     if cells is not None and cells.shape == (n_lines, len(header)):
         return cells, np.arange(first, first + n_lines, dtype=np.int64)
     return _parse_rows(text, first, header)
+
+
+def _loadtxt(text: str) -> NDArray[np.float64] | None:
+    """``numpy.loadtxt`` of comma-separated numbers (n, C); None where it refuses the text
+    (an empty cell among them: a block without dropped samples, the common case, is parsed
+    in one pass, and only the others are rewritten with ``nan``)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            cells: NDArray[np.float64] = np.loadtxt(io.StringIO(text), delimiter=",",
+                                                    dtype=float, ndmin=2, comments=None,
+                                                    quotechar=None)
+    except (ValueError, UserWarning):
+        return None
+    return cells
 
 
 def _empty_cells_as_nan(text: str) -> str:

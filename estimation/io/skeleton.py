@@ -15,6 +15,7 @@ import math
 import os
 import time
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
@@ -23,10 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from ..bvh import BvhMotion, rest_euler_channels, write_bvh
+from ..bvh import BvhMotion, compose_quaternions, rest_euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
-from ..numtext import JsonArray, fixed_blocks, json_blocks, plain, write_text_blocks
+from ..numtext import JsonArray, JsonLater, fixed_blocks, json_blocks, plain, write_text_blocks
 from ..results import JointOffset, SkeletonResult, timings_document
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
@@ -182,7 +183,12 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
 def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None = None,
                          bvh_path: PathLike | None = None, csv_path: PathLike | None = None,
                          npz_path: PathLike | None = None, decimals: int = 6) -> SkeletonResult:
-    """Write the BVH, the CSV, the NPZ, then the JSON whose ``timings.write_s`` covers all.
+    """Write the BVH, the CSV and the NPZ and, meanwhile, the JSON, whose ``timings.write_s``
+    covers all.
+
+    The JSON is streamed in this thread while the others are written in a second one (numpy
+    formats and computes outside the interpreter lock, so on two cores the two overlap); its
+    timings, written last, wait for the others.
 
     Parameters
     ----------
@@ -197,9 +203,40 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
     -------
     SkeletonResult
         ``result`` with ``timings["write_s"]``: seconds from the start to the end of the
-        writes (in the JSON: up to building its document; the final dump is not timed).
+        writes (in the JSON: up to its timings, the last thing in it).
+
+    Raises
+    ------
+    OSError
+        A file could not be written (a JSON left unfinished by it is removed).
     """
     started = time.perf_counter()
+    if json_path is None:
+        _write_others(result, bvh_path, csv_path, npz_path, started)
+        return replace(result, timings={**result.timings,
+                                        "write_s": time.perf_counter() - started})
+    with ThreadPoolExecutor(1, thread_name_prefix="bonefit-write") as pool:
+        others = pool.submit(_write_others, result, bvh_path, csv_path, npz_path, started)
+
+        def timings() -> dict[str, float]:
+            others.result()  # raises what the other writes raised
+            return timings_document({**result.timings,
+                                     "write_s": time.perf_counter() - started})
+
+        document = skeleton_document(result, decimals=decimals)
+        document["timings"] = JsonLater(timings)
+        try:
+            _dump(document, json_path, None)
+        except BaseException:
+            Path(json_path).unlink(missing_ok=True)
+            raise
+    return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
+
+
+def _write_others(result: SkeletonResult, bvh_path: PathLike | None,
+                  csv_path: PathLike | None, npz_path: PathLike | None,
+                  started: float) -> None:
+    """The BVH, CSV and NPZ of :func:`write_skeleton_files` (those not None)."""
     if bvh_path is not None:
         write_skeleton_bvh(result, bvh_path)
     if csv_path is not None:
@@ -207,11 +244,6 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
     if npz_path is not None:
         timed = {**result.timings, "write_s": time.perf_counter() - started}
         write_skeleton_npz(replace(result, timings=timed), npz_path)
-    if json_path is not None:
-        document = skeleton_document(result, decimals=decimals)
-        document["timings"]["write_s"] = time.perf_counter() - started
-        _dump(document, json_path, None)
-    return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
 
 
 def _dump(document: Mapping[str, Any], path: PathLike | io.TextIOBase,
@@ -344,12 +376,12 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
 class _Nodes:
     """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
     segment frame (metres) and, per node that turns, its rotation relative to its parent's
-    segment."""
+    segment (scalar-last quaternions, F × 4)."""
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
     offsets: NDArray[np.float64]
-    local: dict[str, Rotation]
+    local: dict[str, NDArray[np.float64]]
 
 
 def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
@@ -363,7 +395,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     names: list[str] = []
     parents: list[int] = []
     offsets: list[NDArray[np.float64]] = []
-    local: dict[str, Rotation] = {"root": rotations["root"]}
+    quats = {node: rotation.as_quat() for node, rotation in rotations.items()}
+    local: dict[str, NDArray[np.float64]] = {"root": quats["root"]}
     stack: list[tuple[str, str | None]] = [("root", None)]
     while stack:
         node, parent = stack.pop()
@@ -379,7 +412,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         else:
             delta = positions[node] - positions[parent]
             offsets.append(rotations[parent].inv().apply(delta).mean(axis=0))
-            local[node] = rotations[parent].inv() * rotations[node]
+            local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
+                                              quats[node])
         after = [*children[node], *([f"{node}_end"] if node in END_SITES else [])]
         stack.extend((child, node) for child in reversed(after))
     return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local)

@@ -21,6 +21,7 @@ from bonefit.estimation.bvh import (
     EULER_ORDERS,
     JUMP_DEG,
     BvhMotion,
+    compose_quaternions,
     continuous_euler,
     euler_channels,
     fold_position_channels,
@@ -307,6 +308,28 @@ def test_vectorised_continuous_euler_matches_frame_by_frame(order: str) -> None:
     back = Rotation.from_euler(order, out.reshape(-1, 3), degrees=True)
     np.testing.assert_allclose(
         (back.inv() * Rotation.from_rotvec(walk.reshape(-1, 3))).magnitude(), 0.0, atol=1e-9)
+
+
+def test_continuous_euler_of_slow_motion_with_jumps_matches_frame_by_frame() -> None:
+    # small steps (the twin is never nearer: the fast path) near gimbal lock, and a few
+    # jumps of up to 180 degrees (measured four ways)
+    rng = np.random.default_rng(11)
+    steps = rng.normal(scale=0.01, size=(3000, 3))
+    steps[rng.choice(3000, 12, replace=False)] = rng.normal(scale=1.5, size=(12, 3))
+    walk = np.cumsum(steps, axis=0)
+    walk[:, 0] += 1.55  # about x: Z-X-Y's middle angle near 90 degrees
+    angles = Rotation.from_rotvec(walk).as_euler("ZXY", degrees=True)
+    assert np.abs(angles[:, 1]).max() > 85.0
+    np.testing.assert_allclose(continuous_euler(angles), sequential_continuous_euler(angles),
+                               atol=1e-9)
+
+
+def test_compose_quaternions_is_scipys_product_bit_for_bit() -> None:
+    p, q = Rotation.random(500, rng=1), Rotation.random(500, rng=2)
+    assert np.array_equal(compose_quaternions(p.inv().as_quat(), q.as_quat()),
+                          (p.inv() * q).as_quat())
+    assert np.array_equal(compose_quaternions(p.as_quat()[:1], q.as_quat()),
+                          (p[:1] * q).as_quat())
 
 
 def test_the_segment_rest_pose_keeps_segment_frames_and_a_bad_rest_is_refused() -> None:

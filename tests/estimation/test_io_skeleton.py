@@ -371,3 +371,11 @@ def test_write_skeleton_files_times_every_write_in_the_json(tmp_path: Path) -> N
     assert 0 < doc["timings"]["write_s"] <= out.timings["write_s"]  # BVH and CSV before it
     assert (tmp_path / "s.bvh").read_text().startswith("HIERARCHY")
     assert (tmp_path / "s.csv").is_file()
+
+
+def test_a_failed_write_beside_the_json_is_raised_and_the_json_removed(tmp_path: Path) -> None:
+    result = rigid_result(n_frames=9, seed=2)
+    with pytest.raises(FileNotFoundError, match=r"missing/s\.bvh"):
+        write_skeleton_files(result, json_path=tmp_path / "s.json",
+                             bvh_path=tmp_path / "missing" / "s.bvh")
+    assert not (tmp_path / "s.json").exists()

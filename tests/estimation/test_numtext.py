@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import io
 import json
+from typing import Any
 
 import numpy as np
 import pytest
 
 from bonefit.estimation import numtext
-from bonefit.estimation.numtext import JsonArray, fixed_text, json_blocks, plain
+from bonefit.estimation.numtext import JsonArray, JsonLater, fixed_text, json_blocks, plain
 
 
 def printf_rows(table: np.ndarray, decimals: int, sep: str, nan: str | None = None) -> str:
@@ -76,3 +77,24 @@ def test_json_document_has_the_values_of_rounded_lists(separators: tuple[str, st
                  "t": np.round(pos[:, 0], 5).tolist(), "s": "x\u0000y", "e": []}
     assert json.loads(text) == reference == plain(doc)
     assert "e-" not in text  # no exponent notation for small values
+
+
+@pytest.mark.parametrize("layout", [{}, {"indent": 2}, {"separators": (",", ":")}])
+def test_a_later_value_is_computed_when_reached_and_laid_out_as_json_dumps(
+        layout: dict[str, Any]) -> None:
+    calls: list[str] = []
+
+    def timings() -> dict[str, object]:
+        calls.append("timings")
+        return {"read_s": 0.5, "nested": [1, {"x": 2.0}]}
+
+    doc = {"a": JsonArray(np.arange(4.0), 1), "b": {"c": [1, 2], "t": JsonLater(timings)}}
+    blocks = json_blocks(doc, **layout)
+    head = next(blocks)
+    assert calls == []  # not computed before its turn
+    text = head + "".join(blocks)
+    assert calls == ["timings"]
+    assert json.loads(text) == plain(doc)
+    without_arrays = {"b": doc["b"]}
+    assert "".join(json_blocks(without_arrays, **layout)) == json.dumps(plain(without_arrays),
+                                                                        **layout)
