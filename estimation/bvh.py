@@ -1044,13 +1044,20 @@ def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np
 
     Component by component (``pw qv + qw pv + pv × qv``, ``pw qw − pv · qv`` in that order of
     operations, so the same bits as with ``np.cross``, whose overhead was most of the cost)."""
+    out = _vector_parts(p, q)
+    out[:, 3] = p[:, 3] * q[:, 3] - np.einsum("...j,...j->...", p[:, :3], q[:, :3])
+    return out
+
+
+def _vector_parts(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 4) holding the vector parts ``pw qv + qw pv + pv × qv`` of the products p·q, the
+    scalar part left for the caller (whose order of operations sets its last bits)."""
     px, py, pz, pw = p.T
     qx, qy, qz, qw = q.T
     out = np.empty((max(len(p), len(q)), 4))
     out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
     out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
     out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
-    out[:, 3] = pw * qw - np.einsum("...j,...j->...", p[:, :3], q[:, :3])
     return out
 
 
@@ -1065,10 +1072,7 @@ def compose_quaternions(p: NDArray[np.float64], q: NDArray[np.float64]
     """
     px, py, pz, pw = p.T
     qx, qy, qz, qw = q.T
-    out = np.empty((max(len(p), len(q)), 4))
-    out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
-    out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
-    out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
+    out = _vector_parts(p, q)
     out[:, 3] = pw * qw - px * qx - py * qy - pz * qz
     out /= np.linalg.norm(out, axis=1, keepdims=True)
     return out
