@@ -22,10 +22,11 @@ class ProgressBar:
     """Callable progress reporter drawing ``stage [#####     ]  42%  9,800 frames/s  ETA 0:07``
     on a terminal (``42% stage  9,800 frames/s  ETA 0:07`` lines elsewhere).
 
-    The rate and the remaining time are those of the work reported through the callback (the
-    estimate), from its first report on; the rate needs the take's length (:attr:`frames`,
-    set once the recording is read). :meth:`stage` shows a stage that reports no fraction
-    (reading, writing) on a terminal, with the take's length once known. On a non-terminal
+    The rate and the remaining time are those of the work reported through the callback
+    (a whole run of ``pipeline``: read, estimate, writes), from its first report on; the rate
+    needs the take's length (:attr:`frames`, set once the recording is read). :meth:`stage`
+    shows a stage that reports no fraction on a terminal, with the take's length once
+    known. On a non-terminal
     stream it prints a line per reported stage, and every :data:`LOG_INTERVAL` seconds within
     one, instead of redrawing.
     """
