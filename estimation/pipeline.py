@@ -141,11 +141,11 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     recording = read_recording(source.path, format=source.format, units=source.units,
                                fps=source.fps, stations=source.stations,
                                tracker_layout=source.tracker_layout,
-                               progress=scaled(report, 0.0, READ_SHARE))
+                               progress=_share(progress, 0.0, READ_SHARE))
     read_s = time.perf_counter() - started
     if on_read is not None:
         on_read(recording)
-    estimating = scaled(report, READ_SHARE, 1.0 - WRITE_SHARE)
+    estimating = _share(progress, READ_SHARE, 1.0 - WRITE_SHARE)
     if options.offsets is None:
         result = estimate_skeleton(recording, method=options.method, progress=estimating,
                                    **_method_values(options))
@@ -158,7 +158,7 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     result = replace(result, timings={**result.timings, "read_s": read_s})
     result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,
                                   csv_path=outputs.csv, npz_path=outputs.npz,
-                                  progress=scaled(report, 1.0 - WRITE_SHARE, 1.0))
+                                  progress=_share(progress, 1.0 - WRITE_SHARE, 1.0))
     return SkeletonRun(result, recording)
 
 
@@ -242,7 +242,7 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
         on_read(recording)
     result = estimate_translation(recording, method=options.method,
                                   left_foot=recording.left_foot, right_foot=recording.right_foot,
-                                  progress=scaled(report, READ_SHARE, 1.0 - WRITE_SHARE),
+                                  progress=_share(progress, READ_SHARE, 1.0 - WRITE_SHARE),
                                   **options.options)
     _stage(stages, "writing")
     report(1.0 - WRITE_SHARE, "writing")
@@ -264,6 +264,11 @@ def _method_values(options: SkeletonRunOptions) -> dict[str, Any]:
     names = {f.name for f in fields(cls)} if cls is not None else set()
     return {f.name: getattr(options, f.name) for f in fields(options)
             if f.name in names}
+
+
+def _share(progress: Progress | None, start: float, stop: float) -> Progress | None:
+    """``progress`` mapped onto [start, stop] of the run; None without one."""
+    return None if progress is None else scaled(progress, start, stop)
 
 
 def _stage(stages: Stages | None, name: str) -> None:

@@ -10,6 +10,10 @@ from typing import TextIO
 LOG_INTERVAL = 10.0
 """Seconds between the lines of an unchanged stage on a non-terminal stream (a log)."""
 
+QUIET_START = frozenset({"reading"})
+"""Stages whose report at 0 a log gets no line for (a run's first report, before anything
+is known: a bad input's error message then stays the log's only line)."""
+
 
 def clock(seconds: float) -> str:
     """``m:ss`` (or ``h:mm:ss``) of a duration."""
@@ -51,6 +55,9 @@ class ProgressBar:
         new_stage = stage != self._stage
         interval = self.min_interval if self._tty else LOG_INTERVAL
         if not new_stage and fraction < 1.0 and now - self._last < interval:
+            return
+        if not self._tty and fraction <= 0.0 and stage in QUIET_START:
+            self._last, self._stage = now, stage
             return
         self._last = now
         self._stage = stage
