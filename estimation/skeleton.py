@@ -10,7 +10,6 @@ from typing import Any, ClassVar, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
 from . import _rows as rows
@@ -37,6 +36,7 @@ from .params import (
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
+from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 

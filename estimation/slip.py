@@ -58,12 +58,12 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import quaternions as quat
 from .joints import slip_basis, white_variance
 from .params import check_number, resolved_options
 from .progress import Progress, no_progress, scaled
+from .savgol import savgol_coeffs, savgol_filter
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
