@@ -42,8 +42,8 @@ def test_every_stage_reports_inside_the_run(take: Path, tmp_path: Path,
         reports.append((fraction, stage))
         threads.add(threading.get_ident())
 
-    outputs = pipeline.SkeletonOutputs(json=tmp_path / "s.json", bvh=tmp_path / "s.bvh",
-                                       csv=tmp_path / "s.csv", npz=tmp_path / "s.npz")
+    files = {fmt: tmp_path / f"s.{fmt}" for fmt in ("json", "bvh", "csv", "npz")}
+    outputs = pipeline.SkeletonOutputs(**files)
     run = pipeline.run_skeleton(pipeline.SensorSource(take), pipeline.SkeletonRunOptions(),
                                 outputs, progress=record)
     fractions = [f for f, _ in reports]
@@ -60,5 +60,5 @@ def test_every_stage_reports_inside_the_run(take: Path, tmp_path: Path,
     # the read shares the run's first tenth, the writes its last fifth
     assert max(f for f, s in reports if s == "reading") <= pipeline.READ_SHARE
     assert min(f for f, s in reports if s == "writing") >= 1.0 - pipeline.WRITE_SHARE
-    assert read_skeleton_json(outputs.json).n_frames == run.recording.n_frames == 2400
-    assert all(Path(p).stat().st_size > 0 for p in (outputs.bvh, outputs.csv, outputs.npz))
+    assert read_skeleton_json(files["json"]).n_frames == run.recording.n_frames == 2400
+    assert all(files[fmt].stat().st_size > 0 for fmt in ("bvh", "csv", "npz"))
