@@ -132,10 +132,8 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     """
     report = progress or no_progress
     _stage(stages, "reading")
-    report(0.0, "reading")  # before the imports (scipy): a second or two on a busy machine
+    report(0.0, "reading")
     from .io.sensors import read_recording
-    from .io.skeleton import write_skeleton_files
-    from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
 
     started = time.perf_counter()
     recording = read_recording(source.path, format=source.format, units=source.units,
@@ -143,6 +141,12 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
                                tracker_layout=source.tracker_layout,
                                progress=_share(progress, 0.0, READ_SHARE))
     read_s = time.perf_counter() - started
+    # scipy and the estimators, once the read has reported: two imports of about equal
+    # cost (a second each on a busy machine), a report after the first
+    from .io.skeleton import write_skeleton_files
+    report(READ_SHARE, "reading")
+    from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
+
     if on_read is not None:
         on_read(recording)
     estimating = _share(progress, READ_SHARE, 1.0 - WRITE_SHARE)

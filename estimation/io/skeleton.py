@@ -191,7 +191,8 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
 
 JSON_WEIGHT: Final[float] = 2.0
 """Weight of the JSON in the progress of :func:`write_skeleton_files` against 1 for each other
-file (on a 144k-frame take the JSON took about as long as the BVH, CSV and NPZ together)."""
+file (at 144k frames the JSON took 1.37× ``numpy.loadtxt`` of the take, the BVH 0.28×, the
+CSV 0.53×, the NPZ 0.18×)."""
 
 
 class _WriteProgress:
