@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from ..errors import InputError, LimitError
 from ..model import SEGMENTS
 from ..numtext import fixed_blocks, write_text_blocks
-from ..progress import Progress, no_progress
+from ..progress import Progress, no_progress, scaled
 from ..recording import SensorRecording
 from . import limits
 
@@ -163,8 +163,9 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         Frame rate, Hz. Required if there is no ``time`` column; otherwise overrides the rate
         measured from the median time step.
     progress : callable, optional
-        ``progress(fraction, "reading")`` after each parsed block: the share of the file's
-        bytes read so far (below 1 until the whole recording is checked).
+        ``progress(fraction, "reading")`` after each parsed block (up to 0.9: the share of
+        the file's bytes read so far) and between the checks of the whole recording after
+        them (below 1).
 
     Returns
     -------
@@ -190,16 +191,20 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         header, header_line = csv_header(csv_rows(handle), meta)
         time_col, sensors, index = parse_csv_header(header, header_line)
         table = _Table(header, header_line, time_col, sensors, index)
-        blocks = list(_row_blocks(handle, table, progress or no_progress))
+        report = progress or no_progress
+        blocks = list(_row_blocks(handle, table, scaled(report, 0.0, 0.9)))
         values, times, lines = _join_blocks(blocks, table)
+    report(0.92, "reading")
     units = units if units is not None else meta.get("units", "m")
     positions = values[..., :3] * unit_scale(units)
     quats = normalise_quaternions(values[..., 3:], tuple(sensors), lines)
     del values
+    report(0.95, "reading")
     if fps is None and "fps" in meta:
         fps = parse_fps(meta["fps"])
     time, rate = _frame_times(times, lines, fps, time_col)
     rec = SensorRecording(tuple(sensors), positions, quats, rate, time)
+    report(0.97, "reading")
     return check_recording(rec, units)
 
 
@@ -256,9 +261,8 @@ def _row_blocks(handle: io.TextIOWrapper, table: _Table, report: Progress) -> It
         if lines.size:
             yield _by_sensor(cells, lines, table)
         if size:
-            # the file's position (a block's read-ahead at most ahead of the parse); short
-            # of 1 until the recording is checked whole
-            report(min(os.lseek(handle.fileno(), 0, os.SEEK_CUR) / size, 0.99), "reading")
+            # the file's position (a block's read-ahead at most ahead of the parse)
+            report(min(os.lseek(handle.fileno(), 0, os.SEEK_CUR) / size, 1.0), "reading")
 
 
 def _file_size(handle: io.TextIOWrapper) -> int:
