@@ -204,8 +204,10 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         fps = parse_fps(meta["fps"])
     time, rate = _frame_times(times, lines, fps, time_col)
     rec = SensorRecording(tuple(sensors), positions, quats, rate, time)
-    report(0.97, "reading")
-    return check_recording(rec, units)
+    report(0.96, "reading")
+    rec = check_recording(rec, units)
+    report(0.99, "reading")
+    return rec
 
 
 def _frame_times(times: NDArray[np.float64] | None, lines: NDArray[np.int64],
