@@ -190,8 +190,9 @@ class JsonArray:
         out: list[Any] = np.round(np.asarray(self.values, dtype=float), self.decimals).tolist()
         return out
 
-    def blocks(self, sep: str) -> Iterator[str]:
-        """The JSON text of the array, block by block, items separated by ``sep``."""
+    def blocks(self, sep: str, done: Callable[[int], None] | None = None) -> Iterator[str]:
+        """The JSON text of the array, block by block, items separated by ``sep``;
+        ``done(n)`` is told the count of numbers of each block once it is yielded."""
         values = np.asarray(self.values, dtype=float)
         flat = values.ndim == 1
         table = values.reshape(-1, 1) if flat else values
@@ -205,6 +206,8 @@ class JsonArray:
                                      row_end="" if flat else "]"):
                 yield text[len(sep):] if first else text
                 first = False
+            if done is not None:
+                done(rounded.size)
         yield "]"
 
 
@@ -237,12 +240,26 @@ def plain(document: Any) -> Any:
     return document
 
 
+def array_values(document: Any) -> int:
+    """The count of numbers in the :class:`JsonArray` values of ``document`` (what
+    :func:`json_blocks` tells its ``done``)."""
+    if isinstance(document, JsonArray):
+        return int(np.size(document.values))
+    if isinstance(document, Mapping):
+        return sum(array_values(v) for v in document.values())
+    if isinstance(document, list | tuple):
+        return sum(array_values(v) for v in document)
+    return 0
+
+
 def json_blocks(document: Any, *, indent: int | None = None,
-                separators: tuple[str, str] | None = None) -> Iterator[str]:
+                separators: tuple[str, str] | None = None,
+                done: Callable[[int], None] | None = None) -> Iterator[str]:
     """The text of ``json.dumps(plain(document), indent=..., separators=...)`` up to the
     layout inside the arrays, piece by piece: the document around its :class:`JsonArray`
     values is dumped by ``json`` (``allow_nan=False``), each array in bulk, each
-    :class:`JsonLater` when its turn comes."""
+    :class:`JsonLater` when its turn comes. ``done(n)``, optional, is told the count of
+    numbers of each array block written (they add up to :func:`array_values`)."""
     arrays: list[JsonArray | JsonLater] = []
 
     def mark(value: Any) -> Any:
@@ -264,7 +281,7 @@ def json_blocks(document: Any, *, indent: int | None = None,
         number, _, rest = part.partition(f'{marker}"')
         item = arrays[int(number)]
         if isinstance(item, JsonArray):
-            yield from item.blocks(item_sep)
+            yield from item.blocks(item_sep, done)
         else:  # at the depth of its line, as json.dumps would have indented it
             depth = before[before.rfind("\n") + 1:]
             depth = depth[:len(depth) - len(depth.lstrip(" "))]

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from .progress import Progress
+from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
 
@@ -31,7 +31,14 @@ PathLike = str | Path
 
 Stages = Callable[[str], None]
 """``stages(name)``: called with ``"reading"`` before the read and ``"writing"`` before the
-writes (the estimate reports through ``progress``)."""
+writes (``progress`` reports them too, with fractions)."""
+
+READ_SHARE: Final[float] = 0.1
+"""Share of a run's ``progress`` the read takes (0 to it), on a long take about its share of
+the time."""
+
+WRITE_SHARE: Final[float] = 0.2
+"""Share of a run's ``progress`` the writes take (the last one); the estimate has the rest."""
 
 SAME_AS_INPUT: Final[str] = "input"
 """Output format of a translation meaning "the recording's own format"."""
@@ -102,7 +109,10 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     options : SkeletonRunOptions
     outputs : SkeletonOutputs
     progress : callable, optional
-        ``progress(fraction, stage)`` of the estimate.
+        ``progress(fraction, stage)`` of the whole run, from the calling thread, fraction
+        non-decreasing: stage ``reading`` from 0 to :data:`READ_SHARE` (per parsed block of a
+        sensor CSV), the estimate's stages, then ``writing`` from ``1 -``
+        :data:`WRITE_SHARE` to 1 (per block of JSON numbers and per file).
     stages : callable, optional
         Told ``"reading"`` and ``"writing"`` as those stages start.
     on_read : callable, optional
@@ -120,30 +130,39 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     OSError
         A file could not be read or written.
     """
-    from .io.sensors import read_recording
-    from .io.skeleton import write_skeleton_files
-    from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
-
+    report = progress or no_progress
     _stage(stages, "reading")
+    report(0.0, "reading")
+    from .io.sensors import read_recording
+
     started = time.perf_counter()
     recording = read_recording(source.path, format=source.format, units=source.units,
                                fps=source.fps, stations=source.stations,
-                               tracker_layout=source.tracker_layout)
+                               tracker_layout=source.tracker_layout,
+                               progress=_share(progress, 0.0, READ_SHARE))
     read_s = time.perf_counter() - started
+    # scipy and the estimators, once the read has reported: two imports of about equal
+    # cost (a second each on a busy machine), a report after the first
+    from .io.skeleton import write_skeleton_files
+    report(READ_SHARE, "reading")
+    from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
+
     if on_read is not None:
         on_read(recording)
+    estimating = _share(progress, READ_SHARE, 1.0 - WRITE_SHARE)
     if options.offsets is None:
-        result = estimate_skeleton(recording, method=options.method, progress=progress,
+        result = estimate_skeleton(recording, method=options.method, progress=estimating,
                                    **_method_values(options))
     else:
         # a calibration's offsets leave nothing to fit: the method's options do not apply
         result = estimate_skeleton_from_offsets(recording, options.offsets, up=options.up,
                                                 i0=options.i0, smooth=bool(options.smooth),
-                                                progress=progress)
+                                                progress=estimating)
     _stage(stages, "writing")
     result = replace(result, timings={**result.timings, "read_s": read_s})
     result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,
-                                  csv_path=outputs.csv, npz_path=outputs.npz)
+                                  csv_path=outputs.csv, npz_path=outputs.npz,
+                                  progress=_share(progress, 1.0 - WRITE_SHARE, 1.0))
     return SkeletonRun(result, recording)
 
 
@@ -194,7 +213,8 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
         Formats of ``io.kinematics.write_translation`` or :data:`SAME_AS_INPUT`; the JSON is
         written last, its ``write_s`` covering the others.
     progress, stages, on_read
-        As in :func:`run_skeleton`.
+        As in :func:`run_skeleton` (the read and the writes report only their start and
+        end).
 
     Returns
     -------
@@ -207,11 +227,13 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
     OSError
         A file could not be read or written.
     """
+    report = progress or no_progress
+    _stage(stages, "reading")
+    report(0.0, "reading")
     from .io.kinematics import read_kinematics
     from .io.translation_files import write_translation_files
     from .translation import estimate_translation
 
-    _stage(stages, "reading")
     started = time.perf_counter()
     recording = read_kinematics(
         source.path, format=source.format, accelerations=source.accelerations,
@@ -219,16 +241,20 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
         acceleration_units=source.acceleration_units, units=source.units,
         subject=source.subject)
     read_s = time.perf_counter() - started
+    report(READ_SHARE, "reading")
     if on_read is not None:
         on_read(recording)
     result = estimate_translation(recording, method=options.method,
                                   left_foot=recording.left_foot, right_foot=recording.right_foot,
-                                  progress=progress, **options.options)
+                                  progress=_share(progress, READ_SHARE, 1.0 - WRITE_SHARE),
+                                  **options.options)
     _stage(stages, "writing")
+    report(1.0 - WRITE_SHARE, "writing")
     result = replace(result, timings={**result.timings, "read_s": read_s})
     files = [(recording.source_format if fmt == SAME_AS_INPUT else fmt, path)
              for fmt, path in outputs]
     result = write_translation_files(result, recording, files)
+    report(1.0, "writing")
     return TranslationRun(result, recording)
 
 
@@ -242,6 +268,11 @@ def _method_values(options: SkeletonRunOptions) -> dict[str, Any]:
     names = {f.name for f in fields(cls)} if cls is not None else set()
     return {f.name: getattr(options, f.name) for f in fields(options)
             if f.name in names}
+
+
+def _share(progress: Progress | None, start: float, stop: float) -> Progress | None:
+    """``progress`` mapped onto [start, stop] of the run; None without one."""
+    return None if progress is None else scaled(progress, start, stop)
 
 
 def _stage(stages: Stages | None, name: str) -> None:

@@ -10,7 +10,6 @@ from typing import Any, ClassVar, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
 from . import _rows as rows
@@ -37,6 +36,7 @@ from .params import (
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
+from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
@@ -835,9 +835,12 @@ def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz:
     fit = estimate_slip(sensors.positions, by_sensor, sensors.ok,
                         [JOINT_SEGMENTS[j] for j in pairs], fps=fps, slip_hz=slip_hz,
                         rotation_noise=rotation_noise_variance(by_sensor, sensors.ok),
-                        progress=scaled(progress, 0.0, 0.95))
-    without = {s: sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(), slip)
-               for s, slip in fit.slip.items()}
+                        progress=scaled(progress, 0.0, 0.9))
+    without = {}
+    for k, (s, slip) in enumerate(fit.slip.items()):
+        without[s] = sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(),
+                                                            slip)
+        progress(0.9 + 0.1 * k / len(fit.slip), "slip")
     progress(1.0, "slip")
     # the slips live on in ``without``; not keeping them saves (F, 3) per sensor
     return SharedSlip(replace(fit, slip={}), without, {j: i for i, j in enumerate(pairs)})

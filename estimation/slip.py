@@ -58,12 +58,12 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from . import quaternions as quat
 from .joints import slip_basis, white_variance
 from .params import check_number, resolved_options
 from .progress import Progress, no_progress, scaled
+from .savgol import savgol_coeffs, savgol_filter
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
@@ -307,7 +307,8 @@ def estimate_slip(
         Frame rate, Hz.
     progress : callable, optional
         ``progress(fraction, "slip")``: after the rotation filter (by windows refitted
-        around gaps) and after each joint's rows, so that a long take reports often.
+        around gaps), after each joint's rows and between the solve's steps, so that a
+        long take reports often.
     options : SlipOptions, optional
         ``slip_hz`` and ``rotation_noise`` as one object; default: from ``keywords``.
     **keywords
@@ -345,11 +346,14 @@ def estimate_slip(
             w=(valid[a] & valid[b]).astype(float), v_eiv=v_eiv))
         report(0.4 + 0.55 * (j + 1) / len(pairs), "slip")
     normal, rhs_all = _assemble(layout, blocks)
+    report(0.96, "slip")
     x, blocks_c = _solve_system(normal, rhs_all, layout.n_s)
+    report(0.97, "slip")
     centres = x[layout.n_s:].reshape(-1, 2, 3)
     k = layout.k
     slip = {s: layout.basis @ x[layout.index[s]:layout.index[s] + 3 * k].reshape(k, 3)
             for s in sensors}
+    report(0.98, "slip")
     share = tuple(block.share for block in blocks)
     if not any(block.eiv is not None for block in blocks):
         return SlipFit(slip, centres, blocks_c, (False,) * len(pairs), share)

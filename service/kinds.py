@@ -27,7 +27,7 @@ from bonefit.estimation.params import (
     MIN_FPS,
     WEIGHT_MAX,
 )
-from bonefit.estimation.progress import Progress, scaled
+from bonefit.estimation.progress import Progress
 from bonefit.estimation.vocabulary import (
     ANTHROPOMETRY_KEYS,
     ANTHROPOMETRY_TABLES,
@@ -240,12 +240,6 @@ class TranslationParams(BaseModel):
         return model.model_validate(value)
 
 
-def _stages(progress: Progress) -> Callable[[str], None]:
-    """Report the pipeline's reading at 0 and writing at 0.95 of the job."""
-    at = {"reading": 0.0, "writing": 0.95}
-    return lambda stage: progress(at[stage], stage)
-
-
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
                  outdir: Path) -> dict[str, Path]:
     """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
@@ -266,7 +260,7 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
                 {k: v.model_dump() for k, v in params.offsets.items()})),
         pipeline.SkeletonOutputs(json=out["json"], bvh=out["bvh"], csv=out["csv"],
                                  npz=out["npz"]),
-        progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
+        progress=progress)
     return out
 
 
@@ -290,7 +284,7 @@ def run_translation(inputs: Mapping[str, Input], params: TranslationParams, prog
             subject=params.subject),
         pipeline.TranslationRunOptions(params.method, params.options.model_dump()),
         [(writers[f], p) for f, p in out.items()],
-        progress=scaled(progress, 0.02, 0.95), stages=_stages(progress))
+        progress=progress)
     return out
 
 

@@ -10,6 +10,10 @@ from typing import TextIO
 LOG_INTERVAL = 10.0
 """Seconds between the lines of an unchanged stage on a non-terminal stream (a log)."""
 
+QUIET_START = frozenset({"reading"})
+"""Stages whose report at 0 a log gets no line for (a run's first report, before anything
+is known: a bad input's error message then stays the log's only line)."""
+
 
 def clock(seconds: float) -> str:
     """``m:ss`` (or ``h:mm:ss``) of a duration."""
@@ -22,10 +26,11 @@ class ProgressBar:
     """Callable progress reporter drawing ``stage [#####     ]  42%  9,800 frames/s  ETA 0:07``
     on a terminal (``42% stage  9,800 frames/s  ETA 0:07`` lines elsewhere).
 
-    The rate and the remaining time are those of the work reported through the callback (the
-    estimate), from its first report on; the rate needs the take's length (:attr:`frames`,
-    set once the recording is read). :meth:`stage` shows a stage that reports no fraction
-    (reading, writing) on a terminal, with the take's length once known. On a non-terminal
+    The rate and the remaining time are those of the work reported through the callback
+    (a whole run of ``pipeline``: read, estimate, writes), from its first report on; the rate
+    needs the take's length (:attr:`frames`, set once the recording is read). :meth:`stage`
+    shows a stage that reports no fraction on a terminal, with the take's length once
+    known. On a non-terminal
     stream it prints a line per reported stage, and every :data:`LOG_INTERVAL` seconds within
     one, instead of redrawing.
     """
@@ -50,6 +55,9 @@ class ProgressBar:
         new_stage = stage != self._stage
         interval = self.min_interval if self._tty else LOG_INTERVAL
         if not new_stage and fraction < 1.0 and now - self._last < interval:
+            return
+        if not self._tty and fraction <= 0.0 and stage in QUIET_START:
+            self._last, self._stage = now, stage
             return
         self._last = now
         self._stage = stage

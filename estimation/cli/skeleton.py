@@ -200,8 +200,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         done = run_skeleton(SensorSource(source, format=fmt, units=units, fps=fps,
                                          stations=stations, tracker_layout=layout),
-                            options, outputs, progress=bar, on_read=on_read,
-                            stages=None if bar is None else bar.stage)
+                            options, outputs, progress=bar, on_read=on_read)
     except OSError as exc:
         raise _write_error(exc, outputs) from None
     finally:

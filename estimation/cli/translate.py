@@ -100,8 +100,7 @@ def run(args: argparse.Namespace) -> int:
                              left_foot=args.left_foot, right_foot=args.right_foot,
                              acceleration_units=args.acceleration_units, units=args.units,
                              subject=args.subject),
-            TranslationRunOptions(args.method), outputs, progress=bar,
-            stages=None if bar is None else bar.stage, on_read=_notes(bar))
+            TranslationRunOptions(args.method), outputs, progress=bar, on_read=_notes(bar))
     finally:
         if bar is not None:
             bar.close()

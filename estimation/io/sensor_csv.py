@@ -7,6 +7,7 @@ import csv
 import io
 import itertools
 import math
+import os
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ from numpy.typing import NDArray
 from ..errors import InputError, LimitError
 from ..model import SEGMENTS
 from ..numtext import fixed_blocks, write_text_blocks
+from ..progress import Progress, no_progress, scaled
 from ..recording import SensorRecording
 from . import limits
 
@@ -144,7 +146,8 @@ class _Rows:
 
 
 def read_sensor_csv(path: PathLike, *, units: str | None = None,
-                    fps: float | None = None) -> SensorRecording:
+                    fps: float | None = None,
+                    progress: Progress | None = None) -> SensorRecording:
     """Read a bonefit sensor CSV.
 
     Parameters
@@ -159,6 +162,10 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
     fps : float, optional
         Frame rate, Hz. Required if there is no ``time`` column; otherwise overrides the rate
         measured from the median time step.
+    progress : callable, optional
+        ``progress(fraction, "reading")`` after each parsed block (up to 0.9: the share of
+        the file's bytes read so far) and between the checks of the whole recording after
+        them (below 1).
 
     Returns
     -------
@@ -184,16 +191,23 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
         header, header_line = csv_header(csv_rows(handle), meta)
         time_col, sensors, index = parse_csv_header(header, header_line)
         table = _Table(header, header_line, time_col, sensors, index)
-        values, times, lines = _join_blocks(list(_row_blocks(handle, table)), table)
+        report = progress or no_progress
+        blocks = list(_row_blocks(handle, table, scaled(report, 0.0, 0.9)))
+        values, times, lines = _join_blocks(blocks, table)
+    report(0.92, "reading")
     units = units if units is not None else meta.get("units", "m")
     positions = values[..., :3] * unit_scale(units)
     quats = normalise_quaternions(values[..., 3:], tuple(sensors), lines)
     del values
+    report(0.95, "reading")
     if fps is None and "fps" in meta:
         fps = parse_fps(meta["fps"])
     time, rate = _frame_times(times, lines, fps, time_col)
     rec = SensorRecording(tuple(sensors), positions, quats, rate, time)
-    return check_recording(rec, units)
+    report(0.96, "reading")
+    rec = check_recording(rec, units)
+    report(0.99, "reading")
+    return rec
 
 
 def _frame_times(times: NDArray[np.float64] | None, lines: NDArray[np.int64],
@@ -233,9 +247,11 @@ def _join_blocks(blocks: list[_Rows], table: _Table
     return values, times, lines
 
 
-def _row_blocks(handle: IO[str], table: _Table) -> Iterator[_Rows]:
+def _row_blocks(handle: io.TextIOWrapper, table: _Table, report: Progress) -> Iterator[_Rows]:
     """The rows after the header, a block of whole lines at a time, checked (cell count,
-    numbers, magnitudes, row limit) and laid out by sensor."""
+    numbers, magnitudes, row limit) and laid out by sensor; ``report`` gets the share of the
+    file read after each block."""
+    size = _file_size(handle)
     n_cols = len(table.header)
     max_rows = limits.max_rows(n_cols)
     count = 0
@@ -246,6 +262,17 @@ def _row_blocks(handle: IO[str], table: _Table) -> Iterator[_Rows]:
         count += lines.size
         if lines.size:
             yield _by_sensor(cells, lines, table)
+        if size:
+            # the file's position (a block's read-ahead at most ahead of the parse)
+            report(min(os.lseek(handle.fileno(), 0, os.SEEK_CUR) / size, 1.0), "reading")
+
+
+def _file_size(handle: io.TextIOWrapper) -> int:
+    """Bytes of the file behind ``handle``; 0 when it has none (a stream)."""
+    try:
+        return os.fstat(handle.fileno()).st_size
+    except (OSError, io.UnsupportedOperation):
+        return 0
 
 
 def _line_blocks(handle: IO[str], first: int) -> Iterator[tuple[int, str]]:

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
+from ..progress import Progress
 from ..recording import SensorRecording
 
 if TYPE_CHECKING:
@@ -50,7 +51,8 @@ from .sniff import sniff_recording as sniff_recording
 def read_recording(path: PathLike, *, format: str = "auto", units: str | None = None,
                    fps: float | None = None,
                    stations: Mapping[Any, Any] | str | None = None,
-                   tracker_layout: str | TrackerLayout | None = None) -> SensorRecording:
+                   tracker_layout: str | TrackerLayout | None = None,
+                   progress: Progress | None = None) -> SensorRecording:
     """Read a sensor recording in any supported format.
 
     Parameters
@@ -69,6 +71,9 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
         Column layout of a tracker file (see
         :func:`~bonefit.estimation.io.tracker.parse_tracker_layout`); detected from the file when
         omitted.
+    progress : callable, optional
+        ``progress(fraction, "reading")`` while a sensor CSV is parsed (per block); the
+        other formats report nothing within the read.
 
     Returns
     -------
@@ -86,7 +91,7 @@ def read_recording(path: PathLike, *, format: str = "auto", units: str | None = 
     if units is not None:
         unit_scale(units)
     if fmt == "csv":
-        return read_sensor_csv(path, units=units, fps=fps)
+        return read_sensor_csv(path, units=units, fps=fps, progress=progress)
     if fmt == "tracker":
         from .tracker import read_tracker_ascii
 

@@ -14,8 +14,8 @@ import json
 import math
 import os
 import time
-from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
@@ -27,7 +27,16 @@ from scipy.spatial.transform import Rotation
 from ..bvh import BvhMotion, compose_quaternions, rest_euler_channels, write_bvh
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
-from ..numtext import JsonArray, JsonLater, fixed_blocks, json_blocks, plain, write_text_blocks
+from ..numtext import (
+    JsonArray,
+    JsonLater,
+    array_values,
+    fixed_blocks,
+    json_blocks,
+    plain,
+    write_text_blocks,
+)
+from ..progress import Progress, no_progress
 from ..results import JointOffset, SkeletonResult, timings_document
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
@@ -180,9 +189,50 @@ def write_skeleton_json(result: SkeletonResult, path: PathLike | io.TextIOBase, 
     _dump(document, path, indent)
 
 
+JSON_WEIGHT: Final[float] = 2.0
+"""Weight of the JSON in the progress of :func:`write_skeleton_files` against 1 for each other
+file (at 144k frames the JSON took 1.37× ``numpy.loadtxt`` of the take, the BVH 0.28×, the
+CSV 0.53×, the NPZ 0.18×)."""
+
+
+class _WriteProgress:
+    """Progress of :func:`write_skeleton_files`, always reported from the calling thread:
+    the JSON's numbers written there and the other files finished by the second thread
+    (which only counts them)."""
+
+    def __init__(self, report: Progress, json_values: int, files: int) -> None:
+        self.report = report
+        self.json_values = json_values
+        self.json_weight = JSON_WEIGHT if json_values else 0.0
+        self.total = self.json_weight + files
+        self.values = 0
+        self.files = 0
+
+    def json_done(self, values: int) -> None:
+        """``values`` more numbers of the JSON written (this thread): report."""
+        self.values += values
+        self.show()
+
+    def file_done(self) -> None:
+        """One more other file written (the second thread: reported by the next ``show``)."""
+        self.files += 1
+
+    def file_shown(self) -> None:
+        """One more other file written (this thread): report."""
+        self.files += 1
+        self.show()
+
+    def show(self) -> None:
+        """Report the share done, below 1 (the caller reports the end)."""
+        json_share = self.values / self.json_values if self.json_values else 0.0
+        done = self.json_weight * json_share + self.files
+        self.report(min(done / self.total, 0.99) if self.total else 0.0, "writing")
+
+
 def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None = None,
                          bvh_path: PathLike | None = None, csv_path: PathLike | None = None,
-                         npz_path: PathLike | None = None, decimals: int = 6) -> SkeletonResult:
+                         npz_path: PathLike | None = None, decimals: int = 6,
+                         progress: Progress | None = None) -> SkeletonResult:
     """Write the BVH, the CSV and the NPZ and, meanwhile, the JSON, whose ``timings.write_s``
     covers all.
 
@@ -198,6 +248,10 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
         Files to write; None: skip. The NPZ's ``timings`` stop before it.
     decimals : int
         Decimal places of JSON positions in metres.
+    progress : callable, optional
+        ``progress(fraction, "writing")``, from the calling thread only: at the start, per
+        block of JSON numbers, as each other file is finished (every 0.25 s while the JSON
+        waits for them) and 1 at the end.
 
     Returns
     -------
@@ -211,45 +265,65 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
         A file could not be written (a JSON left unfinished by it is removed).
     """
     started = time.perf_counter()
+    report = progress or no_progress
+    report(0.0, "writing")
+    files = sum(p is not None for p in (bvh_path, csv_path, npz_path))
     if json_path is None:
-        _write_others(result, bvh_path, csv_path, npz_path, started)
-        return replace(result, timings={**result.timings,
-                                        "write_s": time.perf_counter() - started})
-    with ThreadPoolExecutor(1, thread_name_prefix="bonefit-write") as pool:
-        others = pool.submit(_write_others, result, bvh_path, csv_path, npz_path, started)
-
-        def timings() -> dict[str, float]:
-            others.result()  # raises what the other writes raised
-            return timings_document({**result.timings,
-                                     "write_s": time.perf_counter() - started})
-
+        tally = _WriteProgress(report, 0, files)
+        _write_others(result, (bvh_path, csv_path, npz_path), started, tally.file_shown)
+    else:
         document = skeleton_document(result, decimals=decimals)
-        document["timings"] = JsonLater(timings)
-        try:
-            _dump(document, json_path, None)
-        except BaseException:
-            Path(json_path).unlink(missing_ok=True)
-            raise
+        tally = _WriteProgress(report, array_values(document), files)
+        with ThreadPoolExecutor(1, thread_name_prefix="bonefit-write") as pool:
+            others = pool.submit(_write_others, result, (bvh_path, csv_path, npz_path),
+                                 started, tally.file_done)
+
+            def timings() -> dict[str, float]:
+                _wait(others, tally)  # raises what the other writes raised
+                return timings_document({**result.timings,
+                                         "write_s": time.perf_counter() - started})
+
+            document["timings"] = JsonLater(timings)
+            try:
+                _dump(document, json_path, None, done=tally.json_done)
+            except BaseException:
+                Path(json_path).unlink(missing_ok=True)
+                raise
+    report(1.0, "writing")
     return replace(result, timings={**result.timings, "write_s": time.perf_counter() - started})
 
 
-def _write_others(result: SkeletonResult, bvh_path: PathLike | None,
-                  csv_path: PathLike | None, npz_path: PathLike | None,
-                  started: float) -> None:
-    """The BVH, CSV and NPZ of :func:`write_skeleton_files` (those not None)."""
-    if bvh_path is not None:
-        write_skeleton_bvh(result, bvh_path)
-    if csv_path is not None:
-        write_skeleton_csv(result, csv_path)
-    if npz_path is not None:
-        timed = {**result.timings, "write_s": time.perf_counter() - started}
-        write_skeleton_npz(replace(result, timings=timed), npz_path)
+def _wait(others: Future[None], tally: _WriteProgress) -> None:
+    """Wait for the other files, reporting every 0.25 s meanwhile (the JSON is done)."""
+    while True:
+        try:
+            others.result(timeout=0.25)
+            return
+        except TimeoutError:
+            tally.show()
+
+
+def _write_others(result: SkeletonResult,
+                  paths: tuple[PathLike | None, PathLike | None, PathLike | None],
+                  started: float, done: Callable[[], None]) -> None:
+    """The BVH, CSV and NPZ (``paths``) of :func:`write_skeleton_files` (those not None);
+    ``done()`` after each."""
+    bvh_path, csv_path, npz_path = paths
+    writes: list[tuple[PathLike | None, Callable[[PathLike], None]]] = [
+        (bvh_path, lambda path: write_skeleton_bvh(result, path)),
+        (csv_path, lambda path: write_skeleton_csv(result, path)),
+        (npz_path, lambda path: write_skeleton_npz(replace(result, timings={
+            **result.timings, "write_s": time.perf_counter() - started}), path))]
+    for path, write in writes:
+        if path is not None:
+            write(path)
+            done()
 
 
 def _dump(document: Mapping[str, Any], path: PathLike | io.TextIOBase,
-          indent: int | None) -> None:
+          indent: int | None, *, done: Callable[[int], None] | None = None) -> None:
     end = "" if isinstance(path, io.TextIOBase) else "\n"
-    write_text_blocks(json_blocks(document, indent=indent), path, end=end)
+    write_text_blocks(json_blocks(document, indent=indent, done=done), path, end=end)
 
 
 def _read_json(path: PathLike) -> Any:

@@ -53,3 +53,18 @@ def test_a_log_gets_a_line_per_stage_and_every_interval() -> None:
 def test_durations_read_as_a_clock() -> None:
     assert [clock(s) for s in (0, 59.6, 61, 3600 * 2 + 5)] == ["0:00", "1:00", "1:01",
                                                                "2:00:05"]
+
+
+def test_a_log_gets_no_line_for_the_start_of_the_read() -> None:
+    """A run's first report (reading at 0) draws nothing on a log; its later reports do, and
+    the time left is that of the whole run."""
+    out, now = io.StringIO(), Clock()
+    bar = ProgressBar(out, now=now)
+    bar(0.0, "reading")
+    assert out.getvalue() == ""
+    now.now += LOG_INTERVAL
+    bar(0.05, "reading")  # same stage, an interval later: 5 % of the run in 10 s
+    bar.frames = 1000
+    bar(0.1, "gaps")
+    assert out.getvalue().splitlines() == [
+        "  5% reading  ETA 3:10", " 10% gaps  10 frames/s  ETA 1:30"]

@@ -16,7 +16,13 @@ from bonefit.estimation.gaps import (
     fill_sensor_major,
     sensor_major,
 )
-from bonefit.estimation.joints import effective_samples, estimate_joint, percentile, range_of_motion
+from bonefit.estimation.joints import (
+    effective_samples,
+    estimate_joint,
+    percentile,
+    range_of_motion,
+    smooth_length,
+)
 from bonefit.estimation.results import JointQuality
 
 RigFactory = Callable[..., Any]  # conftest.make_rig -> Rig
@@ -437,6 +443,46 @@ def test_effective_samples_of_white_and_slow_residuals() -> None:
     t = np.arange(1000) / 100.0
     slow = np.column_stack([np.sin(2 * np.pi * 0.2 * t + k) for k in range(3)])
     assert effective_samples(slow + 0.01 * white, np.ones(1000)) < 20
+
+
+def direct_effective_samples(residuals: np.ndarray, weights: np.ndarray) -> float:
+    """``effective_samples`` by the definition: lag products summed frame by frame."""
+    x = residuals * np.sqrt(weights)[:, None]
+    x = x - x.mean(axis=0)
+    var = float(np.sum(x * x))
+    tau = 1.0
+    for k in range(1, len(x)):
+        rho = float(np.sum(x[k:] * x[:-k])) / var
+        if rho <= 0.0:
+            break
+        tau += 2.0 * rho
+    return max(float(weights.sum()) / max(tau, 1.0), 1.0)
+
+
+@pytest.mark.parametrize("n", [4, 5, 97, 1000, 1283])
+def test_effective_samples_matches_the_direct_sum(n: int) -> None:
+    rng = np.random.default_rng(n)
+    t = np.arange(n) / 60.0
+    residuals = (np.column_stack([np.sin(1.3 * t + k) for k in range(3)])
+                 + 0.3 * rng.normal(size=(n, 3)))
+    weights = rng.random(n)
+    weights[rng.random(n) < 0.1] = 0.0
+    assert effective_samples(residuals, weights) == pytest.approx(
+        direct_effective_samples(residuals, weights), rel=1e-9)
+
+
+def test_smooth_length_is_the_next_5_smooth_number() -> None:
+    def smooth(k: int) -> bool:
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        return k == 1
+
+    for m in range(1, 3000):
+        got = smooth_length(m)
+        assert got >= m
+        assert smooth(got)
+        assert not any(smooth(k) for k in range(m, got))
 
 
 def test_range_of_motion_ignores_orientation_noise(rig_factory: RigFactory) -> None:

@@ -181,3 +181,23 @@ def test_row_helpers_transform_and_sum_of_matrix_products() -> None:
     np.testing.assert_allclose(out, expected, atol=1e-14)
     np.testing.assert_allclose(rows.sum_transposed(m, n), np.einsum("tji,tjk->ik", m, n),
                                atol=1e-13)
+
+
+def test_apply_and_sum_transposed_on_contiguous_stacks_and_on_views() -> None:
+    """``_rows.apply`` (m[t] v): the BLAS path of a C-contiguous stack (also with more
+    leading axes) and the strided path of a transposed view give ``m[t] @ v``."""
+    m = Rotation.random(60, rng=9).as_matrix()
+    v = np.random.default_rng(10).normal(size=3)
+    np.testing.assert_allclose(rows.apply(m, v), np.einsum("tij,j->ti", m, v), atol=1e-14)
+    view = m.transpose(0, 2, 1)
+    np.testing.assert_allclose(rows.apply(view, v), np.einsum("tji,j->ti", m, v), atol=1e-14)
+    stacked = m.reshape(4, 15, 3, 3)
+    got = rows.apply(stacked, v)
+    assert got.shape == (4, 15, 3)
+    np.testing.assert_allclose(got, np.einsum("stij,j->sti", stacked, v), atol=1e-14)
+    # sum_transposed of two stacks: the Gram path (contiguous) and the strided one (a view)
+    n = Rotation.random(60, rng=11).as_matrix()
+    np.testing.assert_allclose(rows.sum_transposed(m, n), np.einsum("tji,tjk->ik", m, n),
+                               atol=1e-13)
+    np.testing.assert_allclose(rows.sum_transposed(view, n), np.einsum("tij,tjk->ik", m, n),
+                               atol=1e-13)

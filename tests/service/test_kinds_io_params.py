@@ -78,3 +78,21 @@ def test_translation_params_carry_the_subject(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no subject 'third'"):
         run_translation({"recording": Input(path, "mvnx")}, TranslationParams(subject="third"),
                         no_progress, tmp_path)
+
+
+def test_a_skeleton_job_reports_the_runs_stages_in_order(tmp_path: Path) -> None:
+    """The job's progress is the pipeline's, read to writes: non-decreasing, reading first,
+    writing at 1 last, fractions inside the job from the read on."""
+    from bonefit.estimation.io.sensors import example_path
+
+    reports: list[tuple[float, str]] = []
+    out = run_skeleton({"recording": Input(example_path(), "sensor-csv")}, SkeletonParams(),
+                       lambda f, s: reports.append((f, s)), tmp_path)
+    fractions = [f for f, _ in reports]
+    assert fractions == sorted(fractions)
+    assert (reports[0], reports[-1]) == ((0.0, "reading"), (1.0, "writing"))
+    stages = [s for _, s in reports]
+    assert stages.index("reading") < stages.index("gaps") < stages.index("writing")
+    assert any(0.0 < f < 1.0 for f, s in reports if s == "reading")
+    assert len({f for f, s in reports if s == "writing" and 0.0 < f < 1.0}) >= 3
+    assert all(path.stat().st_size > 0 for path in out.values())
