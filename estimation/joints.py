@@ -839,10 +839,9 @@ def rotation_noise_variance(data: JointData) -> float:
     estimates = []
     for r, ok in ((data.ra, data.ok_a), (data.rb, data.ok_b)):
         d3 = np.diff(r.reshape(-1, 9), n=3, axis=0)
-        good = np.convolve(ok.astype(float), np.ones(4), "valid") > 3.5
-        if good.sum() > 10:
-            squared = np.einsum("ti,ti->t", d3, d3)[good]
-            estimates.append(float(np.median(squared)) / (40.0 * 2.366))
+        level = quat.third_difference_median(np.einsum("ti,ti->t", d3, d3), ok)
+        if level is not None:
+            estimates.append(level / (40.0 * 2.366))
     return min(estimates) if estimates else 0.0
 
 

@@ -93,6 +93,16 @@ def continuous(q: ArrayLike) -> Float:
     return out
 
 
+def third_difference_median(squared: NDArray[np.float64], valid: NDArray[np.bool_]
+                            ) -> float | None:
+    """Median of a series' squared third differences (F - 3,) over the windows whose four
+    samples are all valid (``valid`` (F,)), or None with 10 such windows or fewer: the white
+    noise level of an orientation series, where smooth motion up to quadratic in time cancels
+    (``slip.rotation_noise_variance``, ``joints.rotation_noise_variance``)."""
+    ok = np.convolve(valid.astype(float), np.ones(4), "valid") > 3.5
+    return float(np.median(squared[ok])) if ok.sum() > 10 else None
+
+
 def continuous_rows(q: NDArray[np.float64]) -> Float:
     """``continuous`` of component-major quaternions (..., 4, F), time last: a copy with
     the sign of each quaternion chosen so that consecutive ones lie in the same hemisphere.

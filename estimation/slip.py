@@ -122,10 +122,9 @@ def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
     for name, q in quaternions.items():
         # component-major rows (4, F): the differences run along contiguous frames
         d3 = np.diff(quat.continuous_rows(np.asarray(q).T), n=3, axis=-1)
-        ok = np.convolve(valid[name].astype(float), np.ones(4), "valid") > 3.5
-        if ok.sum() > 10:
-            squared = np.einsum("ct,ct->t", d3, d3)
-            estimates.append(float(np.median(squared[ok])) / (5.0 * 2.366))
+        level = quat.third_difference_median(np.einsum("ct,ct->t", d3, d3), valid[name])
+        if level is not None:
+            estimates.append(level / (5.0 * 2.366))
     return min(estimates) if estimates else 0.0
 
 
