@@ -29,10 +29,6 @@ if TYPE_CHECKING:
 
 PathLike = str | Path
 
-Stages = Callable[[str], None]
-"""``stages(name)``: called with ``"reading"`` before the read and ``"writing"`` before the
-writes (``progress`` reports them too, with fractions)."""
-
 READ_SHARE: Final[float] = 0.1
 """Share of a run's ``progress`` the read takes (0 to it), on a long take about its share of
 the time."""
@@ -99,7 +95,7 @@ class SkeletonRun:
 
 
 def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: SkeletonOutputs,
-                 *, progress: Progress | None = None, stages: Stages | None = None,
+                 *, progress: Progress | None = None,
                  on_read: Callable[[SensorRecording], None] | None = None) -> SkeletonRun:
     """Read a sensor recording, estimate its skeleton, write the requested files.
 
@@ -113,8 +109,6 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
         non-decreasing: stage ``reading`` from 0 to :data:`READ_SHARE` (per parsed block of a
         sensor CSV), the estimate's stages, then ``writing`` from ``1 -``
         :data:`WRITE_SHARE` to 1 (per block of JSON numbers and per file).
-    stages : callable, optional
-        Told ``"reading"`` and ``"writing"`` as those stages start.
     on_read : callable, optional
         Called with the recording before estimating (a caller's own checks or messages;
         it may raise).
@@ -131,7 +125,6 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
         A file could not be read or written.
     """
     report = progress or no_progress
-    _stage(stages, "reading")
     report(0.0, "reading")
     from .io.sensors import read_recording
 
@@ -158,7 +151,6 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
         result = estimate_skeleton_from_offsets(recording, options.offsets, up=options.up,
                                                 i0=options.i0, smooth=bool(options.smooth),
                                                 progress=estimating)
-    _stage(stages, "writing")
     result = replace(result, timings={**result.timings, "read_s": read_s})
     result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,
                                   csv_path=outputs.csv, npz_path=outputs.npz,
@@ -200,7 +192,7 @@ class TranslationRun:
 
 def run_translation(source: KinematicsSource, options: TranslationRunOptions,
                     outputs: Sequence[tuple[str, PathLike]], *,
-                    progress: Progress | None = None, stages: Stages | None = None,
+                    progress: Progress | None = None,
                     on_read: Callable[[KinematicsRecording], None] | None = None,
                     ) -> TranslationRun:
     """Read kinematics (and foot accelerations), estimate the root path, write the outputs.
@@ -212,7 +204,7 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
     outputs : sequence of (format, path)
         Formats of ``io.kinematics.write_translation`` or :data:`SAME_AS_INPUT`; the JSON is
         written last, its ``write_s`` covering the others.
-    progress, stages, on_read
+    progress, on_read
         As in :func:`run_skeleton` (the read and the writes report only their start and
         end).
 
@@ -228,7 +220,6 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
         A file could not be read or written.
     """
     report = progress or no_progress
-    _stage(stages, "reading")
     report(0.0, "reading")
     from .io.kinematics import read_kinematics
     from .io.translation_files import write_translation_files
@@ -248,7 +239,6 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
                                   left_foot=recording.left_foot, right_foot=recording.right_foot,
                                   progress=_share(progress, READ_SHARE, 1.0 - WRITE_SHARE),
                                   **options.options)
-    _stage(stages, "writing")
     report(1.0 - WRITE_SHARE, "writing")
     result = replace(result, timings={**result.timings, "read_s": read_s})
     files = [(recording.source_format if fmt == SAME_AS_INPUT else fmt, path)
@@ -274,7 +264,3 @@ def _share(progress: Progress | None, start: float, stop: float) -> Progress | N
     """``progress`` mapped onto [start, stop] of the run; None without one."""
     return None if progress is None else scaled(progress, start, stop)
 
-
-def _stage(stages: Stages | None, name: str) -> None:
-    if stages is not None:
-        stages(name)
