@@ -15,7 +15,8 @@ real Heian Shodan recording (a held-out check: nothing is tuned on it).
 
     .venv/bin/python benchmarks/translation_accuracy.py [--data DIR] [--quick] \
         [--variants instep,ankle] [--seeds 1,2,3] [--rates 60] [--category walk] \
-        [--json rows.json] [--before rows_before.json] [--rows] [--options JSON]
+        [--json rows.json] [--before rows_before.json] [--rows] [--options JSON] \
+        [--no-clips | --no-heian]
 """
 
 from __future__ import annotations
