@@ -15,7 +15,8 @@ real Heian Shodan recording (a held-out check: nothing is tuned on it).
 
     .venv/bin/python benchmarks/translation_accuracy.py [--data DIR] [--quick] \
         [--variants instep,ankle] [--seeds 1,2,3] [--rates 60] [--category walk] \
-        [--json rows.json] [--before rows_before.json] [--rows] [--options JSON]
+        [--json rows.json] [--before rows_before.json] [--rows] [--options JSON] \
+        [--no-clips | --no-heian]
 """
 
 from __future__ import annotations
@@ -228,6 +229,8 @@ def heian_shodan(shadow: Path, options: dict[str, object] | None = None) -> None
     print(f"| input (Shadow's own) | {closure_in:.1f} | {length_in:.2f} | | | | | |")
     runs: list[tuple[str, str, dict[str, object]]] = [
         ("contact", "contact", options or {}), ("hachaj2018", "hachaj2018", {}),
+        ("contact + toe estimate (extrapolate_toes, opt-in)", "contact",
+         {"extrapolate_toes": True, **(options or {})}),
         ("contact + lever arm + toe estimate (opt-in)", "contact", {**OPT_IN, **(options or {})})]
     for label, method, extra in runs:
         t = time.perf_counter()
@@ -251,6 +254,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--quick", action="store_true", help="five clips only")
     parser.add_argument("--no-clips", action="store_true", help="Heian Shodan only")
+    parser.add_argument("--no-heian", action="store_true",
+                        help="synthetic clips only (keep the held-out check unseen while tuning)")
     parser.add_argument("--variants", default=",".join(VARIANTS),
                         help=f"comma-separated of {', '.join(VARIANTS)}")
     parser.add_argument("--seeds", default="1,2,3")
@@ -275,7 +280,8 @@ def main() -> None:
             print_rows(rows)
         before = json.loads(args.before.read_text()) if args.before else None
         print_tables(rows, before)
-    heian_shodan(args.data / "shadow", options)
+    if not args.no_heian:
+        heian_shodan(args.data / "shadow", options)
 
 
 if __name__ == "__main__":

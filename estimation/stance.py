@@ -40,6 +40,11 @@ on the shank; the hip's distance varies with the knee's flexion (a 20° bend of 
 leg shortens it by 1.5 %; BVH and suit skeletons keep their bones rigid to rounding)."""
 
 
+FOOT_REACH: Final[tuple[float, float]] = (0.04, 0.35)
+"""Distances from the ankle, as fractions of the leg length, of a point on the foot (the
+shank's knee is about 0.5 leg lengths away, the tip of the foot 0.2–0.3)."""
+
+
 def foot_axes(ankle: NDArray[np.float64], toe: NDArray[np.float64]) -> NDArray[np.float64]:
     """Axes of the foot per frame: forward (ankle → toe), up, lateral.
 
@@ -126,6 +131,42 @@ def estimate_sensor_offset(base: NDArray[np.float64], axes_acc: NDArray[np.float
         if float(np.linalg.norm(step)) < 1e-5:
             break
     return offset
+
+
+def foot_point(positions: NDArray[np.float64], ankle: int, leg_m: float) -> int | None:
+    """A joint rigid with the foot (an End Site or toe joint under the ankle), found by its
+    distance to ``ankle``: between :data:`FOOT_REACH` of the leg length ``leg_m`` and
+    constant to :data:`SHANK_RIGIDITY`. The farthest such joint (the longest lever on the
+    foot's pitch); None when there is none.
+
+    ``positions`` (F, J, 3) in metres. A point on the foot moves with the foot's rotation,
+    so with the ankle it gives the foot's pitch and heading even where the file has no toe
+    joint and the reader does not know where on the foot its End Site sits.
+    """
+    d = np.linalg.norm(positions - positions[:, ankle:ankle + 1], axis=2)
+    mean, spread = d.mean(axis=0), d.std(axis=0)
+    low, high = FOOT_REACH
+    ok = (mean > low * leg_m) & (mean < high * leg_m) & (spread < SHANK_RIGIDITY * mean)
+    ok[ankle] = False
+    return int(np.argmax(np.where(ok, mean, -np.inf))) if ok.any() else None
+
+
+def ball_on_foot(ankle: NDArray[np.float64], point: NDArray[np.float64],
+                 flat: NDArray[np.bool_], leg_m: float) -> NDArray[np.float64]:
+    """Ball of the foot (3,) in :func:`foot_axes` of ``ankle`` and a ``point`` rigid with the
+    foot (F, 3 each, metres, +Y up): :data:`TOE_AHEAD` leg lengths ahead of and
+    :data:`TOE_BELOW` below the ankle when the foot stands flat.
+
+    The foot stands flat at the median pitch β of ankle → ``point`` over the frames of
+    ``flat`` (F,) (all frames when fewer than 10): the ball (L, −d) along the flat foot's
+    heading and up is (L cos β − d sin β, −L sin β − d cos β, 0) along the axes.
+    """
+    ahead = _unit(point - ankle)
+    pitch = np.arcsin(np.clip(ahead[:, 1], -1.0, 1.0))
+    beta = float(np.median(pitch[flat] if int(flat.sum()) >= 10 else pitch))
+    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    return np.array([length * math.cos(beta) - drop * math.sin(beta),
+                     -length * math.sin(beta) - drop * math.cos(beta), 0.0])
 
 
 def body_heading(left_hip: NDArray[np.float64], right_hip: NDArray[np.float64]

@@ -47,9 +47,11 @@ from .progress import Progress, no_progress
 from .results import TranslationQuality
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
+    ball_on_foot,
     body_heading,
     estimate_sensor_offset,
     foot_axes,
+    foot_point,
     heading_by_knees,
     leg_joints,
     rise_tilt,
@@ -144,7 +146,10 @@ def _contact_labels(left: NDArray[np.bool_], right: NDArray[np.bool_]) -> NDArra
 
 @dataclass(frozen=True)
 class _Feet:
-    """Heel/toe contact points of one foot: a soft blend of heel and toe by which is lower."""
+    """Heel/toe contact points of one foot: a soft blend of heel and toe by which is lower.
+
+    The toe is the file's toe joint, or else the ball of the foot placed by ``ball`` on the
+    axes of the ankle and a point rigid with the foot (``end``, e.g. an End Site)."""
 
     heel: int
     toe: int | None
@@ -154,68 +159,110 @@ class _Feet:
     # summed along the foot's heading as it changes, m; the contact point is the ankle moved
     # back by it (turning the heading moves nothing).
     roll: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    end: int | None = None  # a joint rigid with the foot, when there is no toe joint
+    ball: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in foot_axes(heel, end), m
+
+    @property
+    def has_toe(self) -> bool:
+        """Whether the foot has a toe point (a toe joint, or a ball placed on ``end``)."""
+        return self.toe is not None or self.end is not None
+
+    def toe_path(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Path (F, 3) of the toe point (only for :attr:`has_toe`)."""
+        if self.toe is not None:
+            return p[:, self.toe]
+        assert self.end is not None
+        return sensor_track(p[:, self.heel], self.axes(p), np.asarray(self.ball))
+
+    def axes(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:func:`stance.foot_axes` (F, 3, 3) of the ankle and the toe joint or ``end``."""
+        tip = self.toe if self.toe is not None else self.end
+        assert tip is not None
+        return foot_axes(p[:, self.heel], p[:, tip])
 
     def sensor(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Path (F, 3) of the foot's accelerometer: the ankle moved by ``offset`` along the
         foot's axes (the ankle itself without a toe point or an offset)."""
-        if self.toe is None or not any(self.offset):
+        if not self.has_toe or not any(self.offset):
             return p[:, self.heel].copy()
-        return sensor_track(p[:, self.heel], foot_axes(p[:, self.heel], p[:, self.toe]),
-                            np.asarray(self.offset))
+        return sensor_track(p[:, self.heel], self.axes(p), np.asarray(self.offset))
 
     def weights(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        if self.toe is None:
+        if not self.has_toe:
             return np.ones(p.shape[0])
-        gap = p[:, self.toe, 1] - (p[:, self.heel, 1] - self.drop)
+        gap = self.toe_path(p)[:, 1] - (p[:, self.heel, 1] - self.drop)
         return 0.5 * (1.0 + np.tanh(gap / 0.02))
 
     def sole(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Height of the contact point (toe frame: heel heights lowered by ``drop``)."""
-        if self.toe is None:
+        if not self.has_toe:
             return p[:, self.heel, 1].copy()
         w = self.weights(p)
-        return w * (p[:, self.heel, 1] - self.drop) + (1 - w) * p[:, self.toe, 1]
+        return w * (p[:, self.heel, 1] - self.drop) + (1 - w) * self.toe_path(p)[:, 1]
 
     def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        if self.toe is None:
+        if not self.has_toe:
             if self.roll is None:
                 return p[:, self.heel].copy()
             out: NDArray[np.float64] = p[:, self.heel] - self.roll
             return out
         w = self.weights(p)[:, None]
-        return w * p[:, self.heel] + (1 - w) * p[:, self.toe]
+        return w * p[:, self.heel] + (1 - w) * self.toe_path(p)
 
     def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
         earlier frame (so switching heel→toe moves nothing)."""
-        if self.toe is None:
+        if not self.has_toe:
             return np.diff(self.point(p), axis=0)
         d_heel = p[1:, self.heel] - p[:-1, self.heel]
         w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
-        return w * d_heel + (1 - w) * (p[1:, self.toe] - p[:-1, self.toe])
+        toe = self.toe_path(p)
+        return w * d_heel + (1 - w) * (toe[1:] - toe[:-1])
 
 
 def _feet(recording: KinematicsRecording, left_foot: str, right_foot: str,
-          use_toes: bool) -> tuple[_Feet, _Feet]:
+          use_toes: bool, *, balls: bool = False) -> tuple[_Feet, _Feet]:
+    """Both feet's contact points: with ``use_toes`` the toe joints named by the recording,
+    else (``balls``) the ball of the foot on a point rigid with it; each toe's ``drop`` from
+    the frames where it is the lower."""
     p = recording.positions
+    bare = []
+    for joint in (left_foot, right_foot):
+        name = recording.toes.get(joint) if use_toes else None
+        bare.append(_Feet(recording.index(joint), recording.index(name) if name else None,
+                          0.0))
+    if use_toes and balls:
+        bare = _balls(p, bare, recording.index(recording.root))
+    toes = [f.toe_path(p) if f.has_toe else None for f in bare]
     out = []
-    indices = [recording.index(left_foot), recording.index(right_foot)]
-    toes: list[int | None] = []
-    for foot in (left_foot, right_foot):
-        name = recording.toes.get(foot) if use_toes else None
-        toes.append(recording.index(name) if name else None)
-    for k, (heel, toe) in enumerate(zip(indices, toes, strict=True)):
+    for k, foot in enumerate(bare):
+        toe, other_toe = toes[k], toes[1 - k]
         if toe is None:
-            out.append(_Feet(heel, None, 0.0))
+            out.append(foot)
             continue
-        other_toe = toes[1 - k]
-        other = p[:, other_toe, 1] if other_toe is not None else p[:, indices[1 - k], 1]
-        own = p[:, toe, 1] if other_toe is not None else p[:, heel, 1]
+        other = other_toe[:, 1] if other_toe is not None else p[:, bare[1 - k].heel, 1]
+        own = toe[:, 1] if other_toe is not None else p[:, foot.heel, 1]
         lower = own <= other
-        gap = p[:, heel, 1] - p[:, toe, 1]
+        gap = p[:, foot.heel, 1] - toe[:, 1]
         drop = float(np.median(gap[lower] if lower.sum() > 10 else gap))
-        out.append(_Feet(heel, toe, drop))
+        out.append(replace(foot, drop=drop))
     return out[0], out[1]
+
+
+def _balls(p: NDArray[np.float64], feet: list[_Feet], root: int) -> list[_Feet]:
+    """``feet`` where a foot without a toe joint but with a point rigid with it
+    (``stance.foot_point``) gets the ball of the foot on that point (``stance.ball_on_foot``,
+    flat where its ankle is the lower)."""
+    out = []
+    for k, foot in enumerate(feet):
+        ankle, other = p[:, foot.heel], p[:, feet[1 - k].heel]
+        leg = float(np.median(np.linalg.norm(p[:, root] - ankle, axis=1)))
+        end = foot_point(p, foot.heel, leg) if foot.toe is None and leg > 0 else None
+        if end is not None:
+            ball = ball_on_foot(ankle, p[:, end], ankle[:, 1] <= other[:, 1], leg)
+            foot = replace(foot, end=end, ball=(float(ball[0]), float(ball[1]), 0.0))
+        out.append(foot)
+    return out
 
 
 def _swing_floor(level: NDArray[np.float64], floor: NDArray[np.float64]
@@ -391,10 +438,13 @@ class ContactOptions:
     use_toes : bool
         Use heel/toe contact points when the recording names toe joints.
     extrapolate_toes : bool
-        Without toe joints, roll each foot's stance point from the ankle over the ball of
-        the foot as the heel lifts (the ankle's rise above the other ankle, the foot's size
-        scaled by the leg, along the hip line's heading: ``bonefit.estimation.stance``);
-        needs ``use_toes``. Off by default: it fails the real recording's held-out check
+        Without toe joints, a toe point at the ball of the foot: on a point rigid with the
+        foot (an End Site; ``stance.foot_point``), the ball L = 0.13 and d = 0.055 leg
+        lengths ahead of and below the ankle of the foot standing flat
+        (``stance.ball_on_foot``), a heel/toe point like a toe joint's (and the lever-arm
+        fit then has the foot's axes); without such a point, the ankle rolled back by the
+        heel lift read from its rise above the other ankle (``stance.rise_tilt``). Needs
+        ``use_toes``. Off by default: it fails the real recording's held-out check
         (docs/translation.md).
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
@@ -528,7 +578,7 @@ def _contact_states(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     sat = [_saturated(raw, opt.clip_g, recording.acceleration_frame) for raw in meas]
     states, info = _decode(recording, p, feet, root, readings=(meas, sat), opt=opt)
     if opt.lever_arm_prior_m > 0 and recording.acceleration_frame == "sensor" \
-            and any(f.toe is not None for f in feet):
+            and any(f.has_toe for f in feet):
         feet = _fitted_offsets(recording.fps, p, feet, states, readings=(meas, sat), opt=opt)
         states, info = _decode(recording, p, feet, root, readings=(meas, sat), opt=opt)
         info["sensor_offsets_m"] = {name: [round(v, 4) for v in f.offset]
@@ -572,13 +622,13 @@ def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet
     meas, sat = readings
     out = []
     for k, foot in enumerate(feet):
-        if foot.toe is None:
+        if not foot.has_toe:
             out.append(foot)
             continue
         heel = p[:, foot.heel]
         base = (_second_derivative(heel, fps) - _second_derivative(foot.point(p), fps)
                 + np.array([0.0, GRAVITY, 0.0]))
-        axes_acc = _second_derivative(foot_axes(heel, p[:, foot.toe]), fps)
+        axes_acc = _second_derivative(foot.axes(p), fps)
         use = ((states == 1 + k) | (states == 3)) & ~sat[k]
         offset = estimate_sensor_offset(base, axes_acc, meas[k], use, sigma=opt.sigma_acc,
                                         prior_m=opt.lever_arm_prior_m)
@@ -1060,7 +1110,8 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
     lf, rf = names
-    feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
+    feet = _feet(recording, lf, rf, use_toes=opt.use_toes,
+                 balls=opt.use_toes and opt.extrapolate_toes)
     if opt.use_toes and opt.extrapolate_toes:
         feet = _rolling_feet(recording, feet, names, root)
     extra: dict[str, Any] = {}
@@ -1080,6 +1131,10 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     extra["floor_levels"] = n_levels
     extra["toes"] = {name: recording.joints[f.toe] for name, f in zip(names, feet, strict=True)
                      if f.toe is not None}
+    balls = {name: recording.joints[f.end] for name, f in zip(names, feet, strict=True)
+             if f.end is not None}
+    if balls:  # the ball of the foot placed on these points rigid with the foot
+        extra["balls_on"] = balls
     return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)
 
 
@@ -1091,7 +1146,7 @@ def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     (``stance.rise_tilt``). A flat foot's point is the ankle, and the point moves only while
     the heel lifts (turning the heading with the heel up moves nothing), so a foot turning
     on the spot does not sweep it. Unchanged when the legs cannot be found."""
-    if all(f.toe is not None for f in feet):
+    if all(f.has_toe for f in feet):
         return feet
     p = recording.positions
     ankles = [f.heel for f in feet]
@@ -1106,7 +1161,7 @@ def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     between = 0.5 * (heading[1:] + heading[:-1])
     out = []
     for k, foot in enumerate(feet):
-        if foot.toe is None:
+        if not foot.has_toe:
             tilt = rise_tilt(p[:, ankles[k]], p[:, ankles[1 - k]], leg)
             shift = np.zeros((p.shape[0], 3))
             np.cumsum(between * np.diff(roll_advance(tilt, leg))[:, None], axis=0,

@@ -94,7 +94,10 @@ class FootMount:
         Ranges of the sensor's offset from the ankle joint, metres.
     keep_toes : bool
         Give the estimator the toe joints (and everything below the feet); False drops them,
-        as in files without toe joints.
+        as in files without toe joints, and gives each foot an End Site (``<foot>_end``)
+        instead: a point rigid with the foot where the toe joint's offset, scaled by 0.7–1.5
+        and turned by up to 20° about a random axis, puts it (files put their foot End
+        Sites anywhere from the ball to the tip of the foot).
     bias_g : float
         Standard deviation of a constant per-axis accelerometer bias, g.
     """
@@ -207,9 +210,10 @@ def simulate_inertial(
     offsets = _sensor_offsets(motion, world, rotations, feet, mount=mount, seed=seed)
     sensor = _mounted_accelerometers(motion, world, rotations, offsets, rate=rate, rng=rng)
     t_new = np.arange(0.0, t_src[-1] + 0.5 / target, 1.0 / target)
-    t_new, keep = t_new[t_new <= t_src[-1] + 1e-9], _kept_joints(motion, feet, mount.keep_toes)
-    stripped = world - (world[:, root] - world[0, root])[:, None, :]
-    positions = CubicSpline(t_src, stripped[:, keep], axis=0)(t_new)
+    t_new = t_new[t_new <= t_src[-1] + 1e-9]
+    names, given = _given_joints(motion, world, rotations, feet, mount=mount, seed=seed)
+    positions = CubicSpline(t_src, given - (world[:, root] - world[0, root])[:, None, :],
+                            axis=0)(t_new)
     true_pos = CubicSpline(t_src, world, axis=0)(t_new)
     bias_rng = np.random.default_rng([seed, 2])
     out_acc = {foot: _accelerometer_readings(CubicSpline(t_src, acc, axis=0)(t_new),
@@ -217,7 +221,7 @@ def simulate_inertial(
                + bias_rng.normal(0.0, mount.bias_g * GRAVITY, 3)
                for foot, acc in sensor.items()}
     recording = KinematicsRecording(
-        joints=tuple(motion.names[j] for j in keep), positions=positions, fps=target,
+        joints=names, positions=positions, fps=target,
         time=t_new, accelerations=out_acc, acceleration_frame="sensor", left_foot=left_foot,
         right_foot=right_foot, toes=_toes(motion, feet) if mount.keep_toes else {},
         source_format="simulated", length_scale=length_units_m, root=motion.names[root],
@@ -235,6 +239,43 @@ def _toes(motion: BvhMotion, feet: tuple[str, str]) -> dict[str, str]:
         if child is not None:
             toes[foot] = motion.names[child]
     return toes
+
+
+def _given_joints(motion: BvhMotion, world: NDArray[np.float64], rotations: list[Rotation],
+                  feet: tuple[str, str], *, mount: FootMount, seed: int
+                  ) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+    """Names and world paths (F, J', 3) of the joints given to the estimator: all, or (no toe
+    joints) all but those below the feet plus an End Site per foot."""
+    keep = _kept_joints(motion, feet, mount.keep_toes)
+    names = tuple(motion.names[j] for j in keep)
+    ends = {} if mount.keep_toes else _foot_end_sites(motion, world, rotations, feet,
+                                                         seed=seed)
+    if not ends:
+        return names, world[:, keep]
+    return (names + tuple(f"{foot}_end" for foot in ends),
+            np.concatenate([world[:, keep], np.stack(list(ends.values()), axis=1)], axis=1))
+
+
+def _foot_end_sites(motion: BvhMotion, world: NDArray[np.float64],
+                    rotations: list[Rotation], feet: tuple[str, str], *, seed: int
+                    ) -> dict[str, NDArray[np.float64]]:
+    """Path (F, 3) of an End Site rigid with each foot that has a child: the child's offset
+    (of ``world`` (F, J, 3), metres, in the foot's frame) scaled by 0.7–1.5 and turned by up
+    to 20° about a random axis (see :class:`FootMount`)."""
+    rng = np.random.default_rng([seed, 3])
+    out = {}
+    for foot in feet:
+        j = motion.names.index(foot)
+        child = longest_child(motion, j)
+        if child is None:
+            continue
+        local = rotations[j][0].inv().apply(world[0, child] - world[0, j])
+        axis = rng.normal(size=3)
+        turn = Rotation.from_rotvec(axis / np.linalg.norm(axis)
+                                    * np.radians(rng.uniform(-20.0, 20.0)))
+        offset = turn.apply(local) * rng.uniform(0.7, 1.5)
+        out[foot] = world[:, j] + rotations[j].apply(offset)
+    return out
 
 
 def _kept_joints(motion: BvhMotion, feet: tuple[str, str], keep_toes: bool) -> list[int]:

@@ -10,9 +10,11 @@ from scipy.spatial.transform import Rotation
 from bonefit.estimation.kinematics import GRAVITY
 from bonefit.estimation.stance import (
     UP,
+    ball_on_foot,
     body_heading,
     estimate_sensor_offset,
     foot_axes,
+    foot_point,
     heading_by_knees,
     leg_joints,
     rise_tilt,
@@ -131,3 +133,45 @@ def test_body_heading_is_horizontal_and_faces_forward() -> None:
     left = np.array([[0.1, 0.9, 0.0], [0.0, 0.95, -0.1]])
     right = np.array([[-0.1, 0.9, 0.0], [0.0, 0.9, 0.1]])
     np.testing.assert_allclose(body_heading(left, right), [[0, 0, 1], [1, 0, 0]], atol=1e-12)
+
+
+def heel_lift_with_end_site(end_pitch_deg: float) -> tuple[np.ndarray, np.ndarray,
+                                                           np.ndarray, np.ndarray]:
+    """Ankle, an End Site rigid with the foot 16 cm away pitched ``end_pitch_deg`` when the
+    foot is flat, the still ball (0.13 and 0.055 leg lengths of 0.9 m ahead of and below the
+    flat foot's ankle) and the flat frames: flat for 20 frames, then the heel lifts to 40°
+    about the ball."""
+    leg = 0.9
+    length, drop = 0.13 * leg, 0.055 * leg
+    theta = np.concatenate([np.zeros(20), np.radians(np.linspace(0.0, 40.0, 50))])
+    ball = np.array([0.4, 0.0, 1.0])
+    forward = np.array([0.6, 0.0, 0.8])
+    lateral = np.cross(forward, UP)
+    turn = Rotation.from_rotvec(-theta[:, None] * lateral)  # heel up, toes down
+    ankle = ball + turn.apply(-length * forward + drop * UP)
+    pitch = np.radians(end_pitch_deg)
+    end = ankle + turn.apply(0.16 * (np.cos(pitch) * forward + np.sin(pitch) * UP))
+    return ankle, end, ball, theta == 0
+
+
+@pytest.mark.parametrize("end_pitch_deg", [-45.0, -20.0, 0.0, 10.0])
+def test_ball_on_an_end_site_stays_still_while_the_heel_lifts(end_pitch_deg: float) -> None:
+    # wherever the End Site sits on the foot, the ball placed on it does not move while the
+    # foot rolls over it (the ankle alone moves 8 cm here)
+    ankle, end, ball, flat = heel_lift_with_end_site(end_pitch_deg)
+    local = ball_on_foot(ankle, end, flat, 0.9)
+    path = sensor_track(ankle, foot_axes(ankle, end), local)
+    np.testing.assert_allclose(path, np.broadcast_to(ball, path.shape), atol=1e-12)
+    assert np.linalg.norm(ankle - ankle[0], axis=1).max() > 0.07
+
+
+def test_foot_point_is_the_joint_rigid_with_the_foot() -> None:
+    ankle, end, _ball, _flat = heel_lift_with_end_site(-30.0)
+    n = ankle.shape[0]
+    knee = ankle + np.array([0.0, 0.42, 0.0])  # rigid but a shank away
+    bending = end + np.column_stack([np.zeros(n), 0.02 * np.sin(np.arange(n) / 5.0),
+                                     np.zeros(n)])  # a toe tip that bends
+    hips = knee + np.array([0.0, 0.44, 0.0])
+    positions = np.stack([hips, knee, ankle, bending, end], axis=1)
+    assert foot_point(positions, 2, 0.9) == 4
+    assert foot_point(positions[:, :4], 2, 0.9) is None

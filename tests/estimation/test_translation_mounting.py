@@ -4,12 +4,13 @@ rotated, biased, on a foot that rolls from heel to toe, with and without toe joi
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from bonefit.estimation.bvh import BvhMotion, forward_kinematics
+from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh
 from bonefit.estimation.kinematics import GRAVITY, KinematicsRecording
 from bonefit.estimation.simulate.inertial import (
     ANKLE_MOUNT,
@@ -122,13 +123,25 @@ def test_instep_sensor_reads_the_rotational_terms_exactly() -> None:
 
 
 def test_toe_joints_can_be_left_out_of_the_kinematics() -> None:
+    # as in files without toe joints, each foot keeps an End Site rigid with it somewhere on
+    # the foot: the toe's offset (16.6 cm here) scaled by 0.7-1.5 and turned by up to 20°
+    fps = 60.0
     values = np.zeros((60, 12))
     values[:, 1] = 90
-    motion = two_feet_motion(values, 60.0)
+    values[:, 6] = 30 * np.sin(np.arange(60) / fps * 2 * np.pi)  # left foot pitches ±30°
+    motion = two_feet_motion(values, fps)
     rec, truth = simulate_inertial(motion, mount=replace(INSTEP_MOUNT, keep_toes=False))
-    assert rec.joints == ("Hips", "LeftFoot", "RightFoot")
+    assert rec.joints == ("Hips", "LeftFoot", "RightFoot", "LeftFoot_end", "RightFoot_end")
     assert rec.toes == {}
     assert truth.positions.shape[1] == 5  # the truth keeps every joint
+    p = rec.positions
+    for foot in ("LeftFoot", "RightFoot"):
+        reach = np.linalg.norm(p[:, rec.index(f"{foot}_end")] - p[:, rec.index(foot)], axis=1)
+        assert 0.7 * 0.166 < reach.mean() < 1.5 * 0.166
+        assert np.ptp(reach) < 1e-3 * reach.mean()  # rigid with the foot
+    toe = truth.positions[:, motion.names.index("LeftFoot_end")]
+    end = p[:, rec.index("LeftFoot_end")] + (truth.root - truth.root[0])
+    assert np.ptp(np.linalg.norm(end - toe, axis=1)) < 1e-3  # it turns with the foot
 
 
 THIGH_M = SHANK_M = 0.42
@@ -175,18 +188,49 @@ def legged_walker_bvh(fps: float = 100.0, *, roll_s: float = 0.3,
                      1.0 / fps, np.concatenate(cols, axis=1))
 
 
+def without_end_sites(rec: KinematicsRecording) -> KinematicsRecording:
+    """``rec`` without its End Sites (files that give only the joints)."""
+    keep = [i for i, name in enumerate(rec.joints) if not name.endswith("_end")]
+    return replace(rec, joints=tuple(rec.joints[i] for i in keep),
+                   positions=rec.positions[:, keep])
+
+
 @pytest.mark.parametrize("fps", [30.0, 100.0])
 def test_contact_rolls_over_the_ball_without_toe_joints(fps: float) -> None:
     # the heel lifts 25° about the ball while the other foot is still in the air, no toe
-    # joints in the kinematics, sensor on the instep: holding the ankle still (the default)
-    # puts the body 4 cm back at every step, 5.1-6.5 % of the path for seeds 1-3 at
-    # 30-100 fps; the rolling stance point (extrapolate_toes) gives 0.54-0.81 % (0.66-0.69 %
-    # with toe joints), hachaj2018 5-45 %
+    # joints nor End Sites in the kinematics, sensor on the instep: holding the ankle still
+    # (the default) puts the body 4 cm back at every step, 5.1-6.5 % of the path for seeds
+    # 1-3 at 30-100 fps; the rolling stance point (extrapolate_toes) gives 0.54-0.81 %
+    # (0.66-0.69 % with toe joints), hachaj2018 5-45 %
     rec, truth = simulate_inertial(legged_walker_bvh(), fps=fps, length_units_m=0.01, seed=2,
                                    mount=replace(INSTEP_MOUNT, keep_toes=False))
+    rec = without_end_sites(rec)
     assert rec.toes == {}
     err = truth.horizontal_errors(estimate_translation(rec, extrapolate_toes=True).root
                                   )["mean_pct"]
     paper = truth.horizontal_errors(estimate_translation(rec, method="hachaj2018").root)
     assert err < 1.5
     assert err < paper["mean_pct"]
+
+
+MOTIONS = Path(__file__).resolve().parents[3] / "shared" / "data" / "motions"
+
+
+@pytest.mark.skipif(not (MOTIONS / "cmu_bvh11" / "131_01.bvh").is_file(),
+                    reason="shared motion data not present")
+@pytest.mark.parametrize(("seed", "noise_g"), [(1, 0.01), (2, 0.02), (3, 0.005)])
+def test_ball_on_the_foot_end_site_stands_in_for_toe_joints(seed: int, noise_g: float) -> None:
+    # a real walk (CMU 131_01, 60 fps, the benchmark's instep protocol) without toe joints:
+    # the ball placed on the foot's End Site (extrapolate_toes) gives 4.2-4.6 % of the path
+    # for seeds 1-3 (with the toe joints 3.8-4.1 %; the ankle held still, the default,
+    # 6.3-6.5 %; the ball rolled from the ankle's rise, the option before, 7.5-9.0 %)
+    motion = read_bvh(MOTIONS / "cmu_bvh11" / "131_01.bvh")
+    rec, truth = simulate_inertial(motion, fps=60.0, length_units_m=0.05644, seed=seed,
+                                   noise_g=noise_g, mount=replace(INSTEP_MOUNT, keep_toes=False))
+    result = estimate_translation(rec, extrapolate_toes=True)
+    err = truth.horizontal_errors(result.root)["mean_pct"]
+    ankle = truth.horizontal_errors(estimate_translation(rec).root)["mean_pct"]
+    assert err < 5.2
+    assert err < ankle - 1.0
+    assert result.quality["balls_on"] == {"LeftAnkle": "LeftAnkle_end",
+                                          "RightAnkle": "RightAnkle_end"}
