@@ -83,7 +83,7 @@ def sql_client(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[TestC
         with TestClient(app, headers=AUTH_A, raise_server_exceptions=False) as c:
             yield c
     finally:
-        store.engine.dispose()
+        store.dispose()
 
 
 def test_a_long_content_type_is_refused_on_every_store(sql_client: TestClient) -> None:

@@ -17,6 +17,7 @@ import pytest
 
 from bonefit.estimation.progress import Progress
 from bonefit.service.errors import StoreUnavailable
+from bonefit.service.jobs import new_id
 from bonefit.service.kinds import Input, Kind, SkeletonParams
 from bonefit.service.reaper import reap
 from bonefit.service.retention import purge
@@ -371,3 +372,14 @@ def test_a_worker_stopped_while_loading_never_says_it_is_ready(
     messages = [r.getMessage() for r in caplog.records]
     assert any("shutting down" in m for m in messages)
     assert not any(" ready " in m for m in messages)
+
+
+def test_a_message_for_a_job_not_in_the_store_is_dropped_with_a_log_line(
+        runtime: Runtime, worker: Worker, caplog: pytest.LogCaptureFixture) -> None:
+    """As when the database crashed after the job was queued but before it became durable
+    (its client got a problem, not 202): the worker says so and takes the next message."""
+    runtime.queue.enqueue(new_id())
+    with caplog.at_level(logging.INFO, logger="bonefit.worker"):
+        assert runtime.queue.run_next(worker.run_job)
+    assert "not in the job store; message dropped" in caplog.text
+    assert runtime.queue.depth() == 0
