@@ -462,18 +462,22 @@ class SqlJobStore:
         return recs, jobs
 
     def beat_worker(self, worker_id: str, now: float) -> None:
-        """Update the worker's row, inserting it the first time."""
+        """Update the worker's row, inserting it the first time.
+
+        On the early pool: an idle worker beats between its looks at the queue, and a beat
+        waiting for the disk (a stall of the shared disk: 100 ms and more) would keep a job
+        queued meanwhile waiting too; a beat a database crash takes back only makes the
+        worker look gone until its next one.
+        """
         w = workers_table
-        with self.engine.begin() as conn:
-            done = conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
-            if done.rowcount == 1:
+        beat = w.update().where(w.c.id == worker_id).values(seen_at=now)
+        with self._single(self.early) as conn:
+            if conn.execute(beat).rowcount == 1:
                 return
-        try:
-            with self.engine.begin() as conn:
+            try:
                 conn.execute(w.insert().values(id=worker_id, seen_at=now))
-        except sa.exc.IntegrityError:  # inserted meanwhile by a duplicate id: just update
-            with self.engine.begin() as conn:
-                conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
+            except sa.exc.IntegrityError:  # inserted meanwhile by a duplicate id: just update
+                conn.execute(beat)
 
     def drop_worker(self, worker_id: str) -> None:
         """Delete the worker's row."""

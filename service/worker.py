@@ -166,7 +166,8 @@ class Worker:
             self._failed(job, exc)
 
     def _failed(self, job: Job, exc: Exception) -> None:
-        """Fail the job for good when ``exc`` is the input's fault or a limit; else retry."""
+        """Fail the job for good when ``exc`` is the input's fault, a limit or a full disk;
+        else retry."""
         kind = self.kinds.get(job.kind)
         params = kind.params.model_fields if kind is not None else {}
         error = job_problem(exc, job.id, params, self.runtime.settings.job_timeout_seconds)
