@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import psycopg
+
 from bonefit.service.jobs import Job, Status, new_id
 from bonefit.service.sql_store import SqlJobStore
 
@@ -71,13 +73,13 @@ class Cluster:
             "-c", "listen_addresses=127.0.0.1", "-c", f"unix_socket_directories={self.data}",
             "-c", "wal_writer_delay=10s", "-c", "wal_writer_flush_after=1GB"]),
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            with socket.socket() as sock:
-                if sock.connect_ex(("127.0.0.1", self.port)) == 0:
-                    time.sleep(0.5)  # accepting: let the startup finish
-                    return
-            time.sleep(0.1)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # accepting connections, and past its recovery
+            try:
+                psycopg.connect(self.url, connect_timeout=5).close()
+                return
+            except psycopg.OperationalError:
+                time.sleep(0.2)
         raise SystemExit("the private PostgreSQL did not start")
 
     def postmaster(self) -> int:
