@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, fields
@@ -22,6 +23,8 @@ from .errors import (
     translate_methods,
 )
 from .jobs import PURGE_BATCH, Expect, Histogram, Job, JobStore, Recording, Status
+
+log = logging.getLogger("bonefit.service")
 
 _metadata = sa.MetaData()
 
@@ -181,7 +184,9 @@ def early_engine(engine: Engine) -> Engine:
     @sa.event.listens_for(early, "connect")
     def _no_wait(dbapi_connection: Any, _record: Any) -> None:
         autocommit, dbapi_connection.autocommit = dbapi_connection.autocommit, True
-        dbapi_connection.execute("SET synchronous_commit = off")
+        cursor = dbapi_connection.cursor()
+        cursor.execute("SET synchronous_commit = off")
+        cursor.close()
         dbapi_connection.autocommit = autocommit
 
     return early
@@ -221,11 +226,19 @@ class SqlJobStore:
         return cls(create_engine(url))
 
     def init(self) -> None:
-        """Create the tables if missing (concurrent creators tolerated)."""
+        """Create the tables if missing (concurrent creators tolerated), and check that
+        :meth:`wait_durable` may run here."""
         try:
             _metadata.create_all(self.engine)
         except (sa.exc.IntegrityError, sa.exc.ProgrammingError, sa.exc.OperationalError):
             _metadata.create_all(self.engine)  # another process created them at the same time
+        try:
+            self.wait_durable()
+        except sa.exc.ProgrammingError as exc:  # EXECUTE on pg_logical_emit_message revoked
+            log.warning("the job store cannot flush on demand (%s); every submission waits "
+                        "for its own commit to reach the disk", str(exc.orig).strip())
+            self.early.dispose()
+            self.early = self.engine
 
     def ping(self) -> None:
         """Run a trivial query."""

@@ -354,6 +354,37 @@ def test_an_early_insert_is_seen_at_once_and_durable_after_the_wait(store: JobSt
                             {"lsn": written}).scalar_one()
 
 
+def test_without_the_flush_function_every_insert_waits_for_the_disk(
+        postgres_url: str, caplog: pytest.LogCaptureFixture) -> None:
+    """A database where EXECUTE on pg_logical_emit_message was revoked: ``init`` says so and
+    the store falls back to durable inserts, instead of a 500 on every submission."""
+    role = f"bonefit_plain_{uuid.uuid4().hex[:8]}"
+    admin = sa.create_engine(postgres_url, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.execute(sa.text(f"CREATE ROLE {role} LOGIN"))
+        conn.execute(sa.text(f"GRANT ALL ON SCHEMA public TO {role}"))
+        conn.execute(sa.text(f"GRANT ALL ON ALL TABLES IN SCHEMA public TO {role}"))
+        conn.execute(sa.text("REVOKE EXECUTE ON FUNCTION pg_logical_emit_message(boolean, text, "
+                             "text) FROM PUBLIC"))
+    store = SqlJobStore.from_url(sa.make_url(postgres_url).set(username=role, password=None)
+                                 .render_as_string(hide_password=False))
+    try:
+        store.init()
+        assert store.early is store.engine
+        assert "cannot flush on demand" in caplog.text
+        stored = store.add_job(job(), durable=False)
+        store.wait_durable()
+        assert store.get_job(stored.id) is not None
+    finally:
+        store.dispose()
+        with admin.connect() as conn:
+            conn.execute(sa.text("GRANT EXECUTE ON FUNCTION pg_logical_emit_message(boolean, "
+                                 "text, text) TO PUBLIC"))
+            conn.execute(sa.text(f"DROP OWNED BY {role}"))
+            conn.execute(sa.text(f"DROP ROLE {role}"))
+        admin.dispose()
+
+
 @pytest.mark.parametrize("durable", [True, False])
 def test_an_insert_sent_again_after_its_commit_finds_its_own_row(postgres_url: str,
                                                                 durable: bool) -> None:
