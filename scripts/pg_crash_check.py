@@ -154,6 +154,7 @@ def scenario(cluster: Cluster, name: str, after_insert: str) -> str:
 def main() -> None:
     root = Path(tempfile.mkdtemp(prefix="bonefit-pg-crash-"))
     os.chmod(root, 0o777)  # initdb as postgres writes here
+    cluster: Cluster | None = None
     try:
         cluster = Cluster(root)
         results = [
@@ -162,6 +163,8 @@ def main() -> None:
             scenario(cluster, "early insert, a worker's claim, crash", "claim"),
         ]
     finally:
+        if cluster is not None and cluster.proc is not None and cluster.proc.poll() is None:
+            cluster.crash()  # a scenario failed half-way: stop its server
         shutil.rmtree(root, ignore_errors=True)
     expected = ["lost", "kept (queued)", "kept (running)"]
     if results != expected:
