@@ -107,6 +107,35 @@ class ErrorBoundary:
             await response(scope, receive, send)
 
 
+class HeadAsGet:
+    """ASGI middleware: HEAD on a GET route answers with the headers GET would (RFC 9110
+    §9.3.2; FastAPI routes take GET alone, so HEAD was a 405).
+
+    The request runs as GET; once its headers are sent the response ends and the rest of the
+    app is cancelled, so a download is not read only to be thrown away."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Run a HEAD request as GET, up to the response's headers."""
+        if scope["type"] != "http" or scope["method"] != "HEAD":
+            await self.app(scope, receive, send)
+            return
+        async with anyio.create_task_group() as group:
+
+            async def headers_only(message: Message) -> None:
+                if message["type"] == "http.response.start":
+                    await send(message)
+                    await send({"type": "http.response.body", "body": b"", "more_body": False})
+                    group.cancel_scope.cancel()
+
+            async def as_get() -> None:
+                await self.app({**scope, "method": "GET"}, receive, headers_only)
+
+            group.start_soon(as_get)
+
+
 class BodyGuard:
     """ASGI middleware: an idle timeout on request bodies, and a cap on concurrent uploads.
 
@@ -211,6 +240,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
                        min_rate=runtime.settings.body_min_bytes_per_second,
                        max_uploads=runtime.settings.max_concurrent_uploads)
     app.add_middleware(BodyLimit)
+    app.add_middleware(HeadAsGet)
     app.include_router(v1)
     app.include_router(ops)
     studio.install(app)

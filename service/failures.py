@@ -12,9 +12,11 @@ from collections.abc import Collection
 
 from bonefit.estimation.errors import BonefitError
 
+from .errors import StorageFull, chain
 from .job_lease import TimedOut
 from .limits import MemoryLimitExceeded
 from .problems import Problem, from_bonefit_error
+from .storage import is_storage_full, storage_full
 
 log = logging.getLogger("bonefit.worker")
 
@@ -88,8 +90,9 @@ def input_problem(exc: BonefitError, params: Collection[str]) -> Problem:
 
 def job_problem(exc: Exception, job_id: str, params: Collection[str],
                 timeout: float) -> Problem | None:
-    """The problem ending the job that raised ``exc`` for good (an input's fault, a limit);
-    None for an internal error, which may pass on another attempt."""
+    """The problem ending the job that raised ``exc`` for good (an input's fault, a limit,
+    a full disk, which another attempt would meet again); None for an internal error, which
+    may pass on another attempt."""
     if isinstance(exc, TimedOut):
         log.warning("job %s: stopped after its %g s limit", job_id, timeout)
         return timeout_problem(timeout)
@@ -101,4 +104,17 @@ def job_problem(exc: Exception, job_id: str, params: Collection[str],
     if isinstance(exc, InputFault):
         error_id = log_error(job_id, exc.__cause__ or exc, "could not process its input")
         return input_fault_problem(exc, error_id)
+    if is_storage_full(exc):
+        storage = full_storage(exc)
+        log.warning("job %s: the %s is full (%s)", job_id, storage, type(exc).__name__)
+        return storage_full(storage)
     return None
+
+
+def full_storage(exc: BaseException) -> str:
+    """The name of the storage a job found full: the back-end's (results, job database), else
+    the worker's own disk (its job folder: inputs fetched, results written)."""
+    for e in chain(exc):
+        if isinstance(e, StorageFull):
+            return e.storage
+    return "worker's scratch disk"

@@ -128,8 +128,13 @@ class JobStore(Protocol):
     def delete_recording(self, tenant: str, recording_id: str) -> Recording | None:
         """Delete and return the tenant's recording, or None."""
 
-    def add_job(self, job: Job) -> Job:
-        """Insert a job; with an idempotency key already used, return that job instead."""
+    def add_job(self, job: Job, *, durable: bool = True) -> Job:
+        """Insert a job; with an idempotency key already used, return that job instead.
+        With ``durable=False`` the job may reach the disk only later: it is visible to
+        workers at once, but no one may be told of it before :meth:`wait_durable`."""
+
+    def wait_durable(self) -> None:
+        """Return once everything stored before the call survives a crash of the store."""
 
     def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
         """The job (of ``tenant`` when given), or None."""

@@ -144,11 +144,12 @@ def allowed_methods(request: Request) -> list[str]:
     """Every method some route answers on the request's path (for a 405's ``Allow``).
 
     Each method is tried against the routes: routers included in others hide their routes'
-    methods, but a route of the path matches the method it answers in full."""
+    methods, but a route of the path matches the method it answers in full. HEAD goes
+    wherever GET does (``app.HeadAsGet``)."""
     routes = request.app.router.routes
     return [method for method in METHODS
-            if any(route.matches({**request.scope, "method": method})[0] is Match.FULL
-                   for route in routes)]
+            if any(route.matches({**request.scope, "method": "GET" if method == "HEAD"
+                                  else method})[0] is Match.FULL for route in routes)]
 
 
 async def on_problem(request: Request, exc: Exception) -> JSONResponse:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, fields
@@ -22,6 +23,8 @@ from .errors import (
     translate_methods,
 )
 from .jobs import PURGE_BATCH, Expect, Histogram, Job, JobStore, Recording, Status
+
+log = logging.getLogger("bonefit.service")
 
 _metadata = sa.MetaData()
 
@@ -131,7 +134,7 @@ def resent_once(method: Callable[..., Any]) -> Callable[..., Any]:
     the call is made again on a new connection. That statement never ran, so sending it again
     is safe. Should a connection die after the server committed but before the answer came
     back, a compare-and-set sent again finds its condition false (None, as for any lost race)
-    and an insert finds its key taken.
+    and an insert finds its id taken by its own row, which :meth:`SqlJobStore.add_job` returns.
     """
 
     @functools.wraps(method)
@@ -167,6 +170,28 @@ def create_engine(url: str) -> Engine:
     return engine
 
 
+def early_engine(engine: Engine) -> Engine:
+    """For PostgreSQL, a second pool on the same database whose sessions commit without
+    waiting for the disk (``synchronous_commit = off``): a row is visible to all as soon as
+    its commit returns, and durable once the log is flushed (within 3 × ``wal_writer_delay``
+    at most; at once by a later synchronous commit, see :meth:`SqlJobStore.wait_durable`).
+    For SQLite ``engine`` itself: in WAL mode with ``synchronous=NORMAL`` no commit waits
+    for the disk, and none is lost when a process crashes."""
+    if engine.dialect.name != "postgresql":
+        return engine
+    early = sa.create_engine(engine.url, pool_recycle=RECYCLE_SECONDS)
+
+    @sa.event.listens_for(early, "connect")
+    def _no_wait(dbapi_connection: Any, _record: Any) -> None:
+        autocommit, dbapi_connection.autocommit = dbapi_connection.autocommit, True
+        cursor = dbapi_connection.cursor()
+        cursor.execute("SET synchronous_commit = off")
+        cursor.close()
+        dbapi_connection.autocommit = autocommit
+
+    return early
+
+
 @translate_methods(sql_error)
 @decorate_methods(resent_once)
 class SqlJobStore:
@@ -181,11 +206,18 @@ class SqlJobStore:
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
+        self.early = early_engine(engine)  # for inserts that need not wait for the disk
+
+    def dispose(self) -> None:
+        """Close the pooled connections."""
+        self.engine.dispose()
+        if self.early is not self.engine:
+            self.early.dispose()
 
     @contextlib.contextmanager
-    def _single(self) -> Iterator[sa.Connection]:
+    def _single(self, engine: Engine | None = None) -> Iterator[sa.Connection]:
         """A connection for one statement, in autocommit mode (its own transaction)."""
-        with self.engine.connect() as conn:
+        with (engine or self.engine).connect() as conn:
             yield conn.execution_options(isolation_level="AUTOCOMMIT")
 
     @classmethod
@@ -194,11 +226,19 @@ class SqlJobStore:
         return cls(create_engine(url))
 
     def init(self) -> None:
-        """Create the tables if missing (concurrent creators tolerated)."""
+        """Create the tables if missing (concurrent creators tolerated), and check that
+        :meth:`wait_durable` may run here."""
         try:
             _metadata.create_all(self.engine)
         except (sa.exc.IntegrityError, sa.exc.ProgrammingError, sa.exc.OperationalError):
             _metadata.create_all(self.engine)  # another process created them at the same time
+        try:
+            self.wait_durable()
+        except sa.exc.ProgrammingError as exc:  # EXECUTE on pg_logical_emit_message revoked
+            log.warning("the job store cannot flush on demand (%s); every submission waits "
+                        "for its own commit to reach the disk", str(exc.orig).strip())
+            self.early.dispose()
+            self.early = self.engine
 
     def ping(self) -> None:
         """Run a trivial query."""
@@ -238,20 +278,42 @@ class SqlJobStore:
             conn.execute(t.delete().where(t.c.id == recording_id))
         return _recording(row)
 
-    def add_job(self, job: Job) -> Job:
-        """Insert a job, or return the one already holding its idempotency key."""
+    def add_job(self, job: Job, *, durable: bool = True) -> Job:
+        """Insert a job, or return the one already holding its id (this call's own insert,
+        sent again after its connection died) or its idempotency key.
+
+        With ``durable=False`` PostgreSQL commits the insert without waiting for the disk:
+        workers see the job at once, and :meth:`wait_durable` must return before anyone is
+        told that it exists.
+        """
         t = jobs_table
         try:
-            with self._single() as conn:
+            with self._single(self.engine if durable else self.early) as conn:
                 conn.execute(t.insert().values(**asdict(job)))
             return job
         except sa.exc.IntegrityError:
+            same = [t.c.id == job.id]  # at most one row: our own holds our key
+            if job.idempotency_key is not None:
+                same.append(t.c.idempotency_key == job.idempotency_key)
             with self.engine.connect() as conn:
-                row = conn.execute(sa.select(t).where(
-                    t.c.tenant == job.tenant, t.c.idempotency_key == job.idempotency_key)).first()
+                row = conn.execute(sa.select(t).where(t.c.tenant == job.tenant,
+                                                      sa.or_(*same))).first()
             if row is None:
                 raise
             return _job(row)
+
+    def wait_durable(self) -> None:
+        """Return once every commit made before the call is on disk.
+
+        On PostgreSQL one synchronous commit of a transaction that wrote to the log (a
+        logical-decoding message, which needs no table and no privilege): the server flushes
+        the log up to that commit, and so every asynchronous commit before it (a transaction
+        that writes nothing, even ``SELECT txid_current()``, commits without a flush).
+        SQLite commits are as durable as they get when they return.
+        """
+        if self.early is not self.engine:
+            with self._single() as conn:
+                conn.execute(sa.text("SELECT pg_logical_emit_message(true, 'bonefit', '')"))
 
     def get_job(self, job_id: str, tenant: str | None = None) -> Job | None:
         """The job, or None."""
@@ -413,18 +475,22 @@ class SqlJobStore:
         return recs, jobs
 
     def beat_worker(self, worker_id: str, now: float) -> None:
-        """Update the worker's row, inserting it the first time."""
+        """Update the worker's row, inserting it the first time.
+
+        On the early pool: an idle worker beats between its looks at the queue, and a beat
+        waiting for the disk (a stall of the shared disk: 100 ms and more) would keep a job
+        queued meanwhile waiting too; a beat a database crash takes back only makes the
+        worker look gone until its next one.
+        """
         w = workers_table
-        with self.engine.begin() as conn:
-            done = conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
-            if done.rowcount == 1:
+        beat = w.update().where(w.c.id == worker_id).values(seen_at=now)
+        with self._single(self.early) as conn:
+            if conn.execute(beat).rowcount == 1:
                 return
-        try:
-            with self.engine.begin() as conn:
+            try:
                 conn.execute(w.insert().values(id=worker_id, seen_at=now))
-        except sa.exc.IntegrityError:  # inserted meanwhile by a duplicate id: just update
-            with self.engine.begin() as conn:
-                conn.execute(w.update().where(w.c.id == worker_id).values(seen_at=now))
+            except sa.exc.IntegrityError:  # inserted meanwhile by a duplicate id: just update
+                conn.execute(beat)
 
     def drop_worker(self, worker_id: str) -> None:
         """Delete the worker's row."""

@@ -125,7 +125,8 @@ class Worker:
         store, settings = self.runtime.store, self.runtime.settings
         claimed = store.claim(job_id, self.id, self.clock(), settings.lease_seconds)
         if claimed is None:
-            return  # gone, cancelled, finished, or a duplicate message
+            self._unclaimed(job_id)
+            return
         log.info("job %s (%s): attempt %d on %s", job_id, claimed.kind, claimed.attempts,
                  self.id)
         lease = JobLease(self, claimed)
@@ -134,6 +135,16 @@ class Worker:
             self._run_claimed(claimed, lease)
         finally:
             lease.stop()
+
+    def _unclaimed(self, job_id: str) -> None:
+        """Log why a message's job was not claimed: a duplicate message, or a job cancelled,
+        finished or purged meanwhile; or no such job, as when the database crashed before
+        the submission became durable (its client was answered with a problem, not 202)."""
+        job = self.runtime.store.get_job(job_id)
+        if job is None:
+            log.warning("job %s: not in the job store; message dropped", job_id)
+        else:
+            log.info("job %s: %s, not queued; message dropped", job_id, job.status)
 
     def _run_claimed(self, job: Job, lease: JobLease) -> None:
         """Run the job this worker claimed and record how it ended."""
@@ -155,7 +166,8 @@ class Worker:
             self._failed(job, exc)
 
     def _failed(self, job: Job, exc: Exception) -> None:
-        """Fail the job for good when ``exc`` is the input's fault or a limit; else retry."""
+        """Fail the job for good when ``exc`` is the input's fault, a limit or a full disk;
+        else retry."""
         kind = self.kinds.get(job.kind)
         params = kind.params.model_fields if kind is not None else {}
         error = job_problem(exc, job.id, params, self.runtime.settings.job_timeout_seconds)

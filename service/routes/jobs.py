@@ -78,14 +78,20 @@ def _store_and_enqueue(runtime: Runtime, job: Job) -> tuple[Job, Exception | Non
     """Store the job, then (a new one) queue its id, in one trip to a worker thread (each
     trip waits for a thread and the interpreter lock: milliseconds on a loaded host, all of
     it in the job's queue wait). The stored job (another one for a reused Idempotency-Key,
-    not queued again) and the queue's error, if it refused; the store's errors are raised."""
-    stored = runtime.store.add_job(job)
-    if stored.id != job.id:
-        return stored, None
-    try:
-        runtime.queue.enqueue(job.id)
-    except Exception as exc:
-        return stored, exc
+    not queued again) and the queue's error, if it refused; the store's errors are raised.
+
+    The job is stored without waiting for the disk and made durable after it is queued, so
+    that a worker can claim it while the database flushes (on PostgreSQL the flush was most
+    of the queue wait); the client hears of it only once it is durable. A worker's claim
+    commits durably, which flushes the job's row first.
+    """
+    stored = runtime.store.add_job(job, durable=False)
+    if stored.id == job.id:
+        try:
+            runtime.queue.enqueue(job.id)
+        except Exception as exc:
+            return stored, exc  # withdrawn by a durable update, which flushes the row too
+    runtime.store.wait_durable()  # another request's job (a reused key) may be as new
     return stored, None
 
 

@@ -279,7 +279,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ServerProce
                                   "BONEFIT_MAX_UPLOAD_BYTES": str(MAX_UPLOAD)}, worker=False)
         store = SqlJobStore.from_url(f"sqlite:///{server.data_dir / 'jobs.db'}")
         worker_elsewhere(store)
-        store.engine.dispose()
+        store.dispose()
         with server.client() as client:
             ids = seed(client.request)
         yield server, ids

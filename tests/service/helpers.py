@@ -8,6 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import httpx
 from huey import MemoryHuey
 
 from bonefit.estimation.errors import InputError
@@ -87,7 +88,8 @@ FAKE_KINDS = {"skeleton": Kind("skeleton", SkeletonParams, fake_run),
                                   inputs=("accelerations",))}
 
 
-def upload(client: TestClient, data: bytes | None = None, **params: str) -> dict[str, Any]:
+def upload(client: httpx.Client, data: bytes | None = None,
+           **params: str) -> dict[str, Any]:
     """Upload a recording and return its representation."""
     r = client.post("/v1/recordings", content=sensor_csv() if data is None else data,
                     params={"filename": "rec.csv", **params})
@@ -96,7 +98,7 @@ def upload(client: TestClient, data: bytes | None = None, **params: str) -> dict
     return body
 
 
-def submit(client: TestClient, recording_id: str, **extra: Any) -> dict[str, Any]:
+def submit(client: httpx.Client, recording_id: str, **extra: Any) -> dict[str, Any]:
     """Submit a skeleton job and return it."""
     r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": recording_id, **extra})
     assert r.status_code == 202, r.text

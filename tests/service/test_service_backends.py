@@ -85,7 +85,7 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
         conn.execute(sa.text("DELETE FROM bonefit_recordings"))
         conn.execute(sa.text("DELETE FROM bonefit_workers"))
     yield sql
-    sql.engine.dispose()
+    sql.dispose()
 
 
 def job(tenant: str = "t", **extra: object) -> Job:
@@ -289,12 +289,12 @@ def test_a_full_database_is_storage_full(tmp_path: Path) -> None:
         for _ in range(100):
             store.add_job(job(message="x" * 10_000))
 
-    store.engine.dispose()
+    store.dispose()
     with pytest.raises(StorageFull, match="job database is full") as caught:
         fill()
     assert (caught.value.storage, caught.value.cause_name) == ("job database",
                                                                "OperationalError")
-    store.engine.dispose()
+    store.dispose()
 
 
 def test_an_unreachable_database_is_unavailable(tmp_path: Path) -> None:
@@ -304,7 +304,7 @@ def test_an_unreachable_database_is_unavailable(tmp_path: Path) -> None:
     assert caught.value.cause_name == "OperationalError"
     with pytest.raises(StoreUnavailable):
         store.get_job("x")
-    store.engine.dispose()
+    store.dispose()
 
 
 def test_a_connection_the_server_closed_is_replaced_within_the_call(postgres_url: str) -> None:
@@ -328,7 +328,94 @@ def test_a_connection_the_server_closed_is_replaced_within_the_call(postgres_url
     claimed = store.claim(stored.id, "w", time.time(), 30.0)  # a write after the outage
     assert claimed is not None
     assert claimed.status is Status.RUNNING
-    store.engine.dispose()
+    store.dispose()
+
+
+def test_an_early_insert_is_seen_at_once_and_durable_after_the_wait(store: JobStore) -> None:
+    """``add_job(durable=False)``: the row is visible to other connections when the call
+    returns; on PostgreSQL it was committed without waiting for the disk, and
+    ``wait_durable`` returns only once the log is flushed past it."""
+    stored = store.add_job(job(), durable=False)
+    found = store.get_job(stored.id)  # another pool's connection on PostgreSQL
+    assert found is not None
+    assert found.status is Status.QUEUED
+    assert isinstance(store, SqlJobStore)
+    if store.engine.dialect.name != "postgresql":
+        assert store.early is store.engine
+        store.wait_durable()
+        return
+    with store.early.connect() as early, store.engine.connect() as main:
+        assert early.execute(sa.text("SHOW synchronous_commit")).scalar_one() == "off"
+        assert main.execute(sa.text("SHOW synchronous_commit")).scalar_one() == "on"
+        written = main.execute(sa.text("SELECT pg_current_wal_insert_lsn()")).scalar_one()
+    store.wait_durable()
+    with store.engine.connect() as main:
+        assert main.execute(sa.text("SELECT pg_current_wal_flush_lsn() >= CAST(:lsn AS pg_lsn)"),
+                            {"lsn": written}).scalar_one()
+
+
+def test_without_the_flush_function_every_insert_waits_for_the_disk(
+        postgres_url: str, caplog: pytest.LogCaptureFixture) -> None:
+    """A database where EXECUTE on pg_logical_emit_message was revoked: ``init`` says so and
+    the store falls back to durable inserts, instead of a 500 on every submission."""
+    role = f"bonefit_plain_{uuid.uuid4().hex[:8]}"
+    admin = sa.create_engine(postgres_url, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.execute(sa.text(f"CREATE ROLE {role} LOGIN"))
+        conn.execute(sa.text(f"GRANT ALL ON SCHEMA public TO {role}"))
+        conn.execute(sa.text(f"GRANT ALL ON ALL TABLES IN SCHEMA public TO {role}"))
+        conn.execute(sa.text("REVOKE EXECUTE ON FUNCTION pg_logical_emit_message(boolean, text, "
+                             "text) FROM PUBLIC"))
+    store = SqlJobStore.from_url(sa.make_url(postgres_url).set(username=role, password=None)
+                                 .render_as_string(hide_password=False))
+    try:
+        store.init()
+        assert store.early is store.engine
+        assert "cannot flush on demand" in caplog.text
+        stored = store.add_job(job(), durable=False)
+        store.wait_durable()
+        assert store.get_job(stored.id) is not None
+    finally:
+        store.dispose()
+        with admin.connect() as conn:
+            conn.execute(sa.text("GRANT EXECUTE ON FUNCTION pg_logical_emit_message(boolean, "
+                                 "text, text) TO PUBLIC"))
+            conn.execute(sa.text(f"DROP OWNED BY {role}"))
+            conn.execute(sa.text(f"DROP ROLE {role}"))
+        admin.dispose()
+
+
+@pytest.mark.parametrize("durable", [True, False])
+def test_an_insert_sent_again_after_its_commit_finds_its_own_row(postgres_url: str,
+                                                                durable: bool) -> None:
+    """The server committed the insert but the connection died before its answer: the store
+    sends it again on a new connection, meets its own id, and returns its own row (not the
+    tenant's first job without an idempotency key, nor an integrity error)."""
+    import psycopg
+
+    store = SqlJobStore.from_url(postgres_url)
+    store.init()
+    older = store.add_job(job("lost-answer"))  # a job without a key, as the new one
+    lost: list[str] = []
+
+    def lose_the_answer(conn: sa.Connection, _cursor: Any, statement: str, *_: Any) -> None:
+        if statement.startswith("INSERT INTO bonefit_jobs") and not lost:
+            lost.append(statement)  # autocommit: the row is committed already
+            dbapi = conn.connection.dbapi_connection
+            assert dbapi is not None
+            dbapi.close()
+            raise psycopg.OperationalError("server closed the connection unexpectedly")
+
+    for engine in {store.engine, store.early}:
+        sa.event.listen(engine, "after_cursor_execute", lose_the_answer)
+    new = job("lost-answer")
+    try:
+        stored = store.add_job(new, durable=durable)
+    finally:
+        store.dispose()
+    assert lost
+    assert stored.id == new.id != older.id
+    assert stored.created_at == new.created_at
 
 
 def test_an_unreachable_queue_is_unavailable() -> None:

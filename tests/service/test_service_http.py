@@ -25,14 +25,17 @@ from bonefit.service.queue import queue_error
 from bonefit.service.runtime import Runtime
 from bonefit.service.settings import Settings
 from bonefit.service.sql_store import SqlJobStore, sql_error
+from bonefit.service.worker import Worker
 from tests.service.helpers import (
     AUTH_A,
     FAKE_KINDS,
     KEYS,
     TestClient,
+    drain,
     local_queue,
     local_runtime,
     sensor_csv,
+    submit,
     upload,
 )
 from tests.service.test_service_api import assert_problem
@@ -83,7 +86,7 @@ def sql_client(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[TestC
         with TestClient(app, headers=AUTH_A, raise_server_exceptions=False) as c:
             yield c
     finally:
-        store.engine.dispose()
+        store.dispose()
 
 
 def test_a_long_content_type_is_refused_on_every_store(sql_client: TestClient) -> None:
@@ -135,9 +138,9 @@ def test_an_empty_or_unprintable_idempotency_key_is_refused(client: TestClient,
 
 
 @pytest.mark.parametrize(("method", "path", "allowed"), [
-    ("PUT", "/v1/recordings", {"GET", "POST"}),
-    ("POST", "/v1/recordings/0abc", {"GET", "DELETE"}),
-    ("DELETE", "/v1/jobs", {"GET", "POST"}),
+    ("PUT", "/v1/recordings", {"GET", "HEAD", "POST"}),
+    ("POST", "/v1/recordings/0abc", {"GET", "HEAD", "DELETE"}),
+    ("DELETE", "/v1/jobs", {"GET", "HEAD", "POST"}),
     ("GET", "/v1/jobs/0abc/cancel", {"POST"}),
 ])
 def test_a_405_lists_every_allowed_method(client: TestClient, method: str, path: str,
@@ -146,6 +149,27 @@ def test_a_405_lists_every_allowed_method(client: TestClient, method: str, path:
     body = assert_problem(r, 405)
     assert {m.strip() for m in r.headers["allow"].split(",")} == allowed
     assert all(m in str(body["detail"]) for m in allowed)
+
+
+def test_head_answers_with_the_headers_of_get(settings: Settings, runtime: Runtime,
+                                              worker: Worker) -> None:
+    """HEAD on every kind of GET route (a JSON document, a problem, a download), over HTTP:
+    the status and headers GET gives, no body, and the connection stays usable."""
+    app = create_app(runtime=runtime, kinds=FAKE_KINDS, housekeeping=False)
+    with serving(app) as port, httpx.Client(base_url=f"http://127.0.0.1:{port}",
+                                            headers=AUTH_A, timeout=SECONDS) as client:
+        job = submit(client, upload(client)["id"])
+        drain(runtime, worker)
+        for path in (f"/v1/jobs/{job['id']}", "/v1/jobs/nope", "/healthz",
+                     f"/v1/jobs/{job['id']}/result?format=json"):
+            got, head = client.get(path), client.head(path)
+            assert head.status_code == got.status_code, path
+            assert head.content == b""
+            for name in ("content-type", "content-length", "etag", "content-disposition"):
+                assert head.headers.get(name) == got.headers.get(name), (path, name)
+        cancel = client.head(f"/v1/jobs/{job['id']}/cancel")  # no GET there
+        assert (cancel.status_code, cancel.headers["allow"], cancel.content) == (405, "POST", b"")
+        assert client.get("/healthz").status_code == 200  # the same connection goes on
 
 
 # --- a real server: connections --------------------------------------------------------------

@@ -20,7 +20,7 @@ from huey import MemoryHuey
 
 from bonefit.estimation.progress import Progress
 from bonefit.service.app import API_STEPS, create_app
-from bonefit.service.errors import BackendError, StorageFull
+from bonefit.service.errors import BackendError, StorageFull, StoreUnavailable
 from bonefit.service.housekeeping import housekeeping
 from bonefit.service.jobs import Job, Recording, new_id
 from bonefit.service.kinds import Input, Kind, SkeletonParams
@@ -428,12 +428,31 @@ def test_a_job_submitted_on_a_full_database_is_a_507(client: TestClient, runtime
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     rec = upload(client)
 
-    def database_full(*args: Any) -> None:
+    def database_full(*args: Any, **kwargs: Any) -> None:
         raise disk_full_error()
 
     monkeypatch.setattr(runtime.store, "add_job", database_full)
     r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": rec["id"]})
     assert (r.status_code, r.json()["storage"]) == (507, "job database")
+
+
+def test_a_job_is_acknowledged_only_once_durable(client: TestClient, runtime: Runtime,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """The job is queued before its row reaches the disk (a worker may start meanwhile), but
+    the 202 waits for ``wait_durable``: a database that dies in between is a 503 problem."""
+    rec = upload(client)
+    queued_first: list[set[str]] = []
+
+    def database_gone() -> None:
+        queued_first.append(runtime.queue.pending())
+        raise StoreUnavailable("the job database is unreachable (OperationalError)")
+
+    monkeypatch.setattr(runtime.store, "wait_durable", database_gone)
+    r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": rec["id"]})
+    assert r.status_code == 503, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    assert len(queued_first) == 1
+    assert len(queued_first[0]) == 1  # the id was queued before the flush was asked for
 
 
 def test_deleting_works_on_a_full_disk(client: TestClient, runtime: Runtime,

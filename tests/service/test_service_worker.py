@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import signal
@@ -16,7 +17,8 @@ from typing import Any
 import pytest
 
 from bonefit.estimation.progress import Progress
-from bonefit.service.errors import StoreUnavailable
+from bonefit.service.errors import StorageFull, StoreUnavailable
+from bonefit.service.jobs import new_id
 from bonefit.service.kinds import Input, Kind, SkeletonParams
 from bonefit.service.reaper import reap
 from bonefit.service.retention import purge
@@ -371,3 +373,35 @@ def test_a_worker_stopped_while_loading_never_says_it_is_ready(
     messages = [r.getMessage() for r in caplog.records]
     assert any("shutting down" in m for m in messages)
     assert not any(" ready " in m for m in messages)
+
+
+def test_a_message_for_a_job_not_in_the_store_is_dropped_with_a_log_line(
+        runtime: Runtime, worker: Worker, caplog: pytest.LogCaptureFixture) -> None:
+    """As when the database crashed after the job was queued but before it became durable
+    (its client got a problem, not 202): the worker says so and takes the next message."""
+    runtime.queue.enqueue(new_id())
+    with caplog.at_level(logging.INFO, logger="bonefit.worker"):
+        assert runtime.queue.run_next(worker.run_job)
+    assert "not in the job store; message dropped" in caplog.text
+    assert runtime.queue.depth() == 0
+
+
+@pytest.mark.parametrize(("full", "storage"), [
+    (OSError(errno.ENOSPC, "No space left on device"), "worker's scratch disk"),
+    (StorageFull("the artifact storage is full (OSError)", storage="artifact storage"),
+     "artifact storage"),
+])
+def test_a_full_disk_fails_the_job_with_a_507_at_once(client: TestClient, runtime: Runtime,
+                                                      full: Exception, storage: str) -> None:
+    """Writing results on a full disk: a 507 problem naming the storage, not retried (the
+    next attempt would meet the same disk) and not a 500."""
+    job = submit(client, upload(client)["id"])
+
+    def body(_progress: Progress) -> None:
+        raise full
+
+    assert drain(runtime, Worker(runtime, kind_with(body))) == 1
+    done = client.get(f"/v1/jobs/{job['id']}").json()
+    assert done["status"] == "failed"
+    assert done["attempts"] == 1
+    assert (done["error"]["status"], done["error"]["storage"]) == (507, storage)
