@@ -15,7 +15,10 @@ name) and ``--runs`` (labels such as ``auto:15,llsf:15``) restrict the run while
 ``--seeds 1,2,3,4,5`` prints only the summary statistics for each simulation seed.
 ``--noise`` changes the simulated noise (``none``, or e.g. ``orientation=0,slip=0,drop=0`` for
 the white position noise alone) to tell which noise source an error comes from; the
-acceptance verdicts are printed only for the protocol's levels.
+acceptance verdicts are printed only for the protocol's levels. ``--true-lengths`` gives the
+methods that use standard limb lengths (``auto`` with 11 sensors, ``reduced``) the rig's own
+instead of the anthropometric table scaled by the torso, to tell how much of their limb error
+the table causes (a diagnostic: no verdicts).
 
 Reports, per method and sensor count: the acceptance statistic of the skeleton issue — the
 mean error of each joint over the frames of each clip, then the median and 95th percentile
@@ -43,6 +46,7 @@ sys.path.insert(0, str(ROOT))
 
 from bonefit.estimation.bvh import BvhMotion, read_bvh  # noqa: E402
 from bonefit.estimation.errors import BonefitError  # noqa: E402
+from bonefit.estimation.limbs import torso_length  # noqa: E402
 from bonefit.estimation.model import JOINTS  # noqa: E402
 from bonefit.estimation.recording import SensorRecording  # noqa: E402
 from bonefit.estimation.simulate.sensors import (  # noqa: E402
@@ -261,10 +265,24 @@ def joint_label(mean_mm: float, q: dict[str, Any]) -> Label:
 
 
 class Variant(NamedTuple):
-    """What is simulated: the noise levels and the rig (None: the BVH's own hinges)."""
+    """What is simulated: the noise levels and the rig (None: the BVH's own hinges); with
+    ``true_lengths`` the methods that use standard limb lengths (``auto`` for 11 sensors,
+    ``reduced``) get the rig's own instead of the scaled anthropometric table: how much of
+    their error is the table's."""
 
     noise: dict[str, float]
     realistic: bool = False
+    true_lengths: bool = False
+
+    def options(self, kwargs: dict[str, str], truth: SimulationTruth) -> dict[str, Any]:
+        """``estimate_skeleton``'s keywords of a run on the recording of ``truth``."""
+        if not (self.true_lengths and kwargs["method"] in ("auto", "reduced")):
+            return dict(kwargs)
+        t = truth.joints
+        table = {"torso": torso_length(t["waist"], t["l_hip"], t["r_hip"], t["chest"])}
+        for key in ("thigh", "shank", "upperarm", "forearm"):
+            table[key] = 0.5 * (truth.bone_lengths[f"l_{key}"] + truth.bone_lengths[f"r_{key}"])
+        return {**kwargs, "anthropometry": table}
 
     def simulate(self, motion: BvhMotion, units: float, n: int, rate: float, seed: int
                  ) -> tuple[SensorRecording, SimulationTruth]:
@@ -304,7 +322,7 @@ def evaluate(data: Path, runs: list[tuple[str, int, dict[str, str]]], *, seed: i
                 key = f"{label}:{n}"
                 t0 = time.perf_counter()
                 try:
-                    result = estimate_skeleton(rec, **kwargs)  # type: ignore[arg-type]
+                    result = estimate_skeleton(rec, **variant.options(kwargs, truth))
                 except BonefitError as exc:
                     failures.append(f"{key} {name}: {exc.detail}")
                     refused.setdefault(key, []).append(name)
@@ -391,7 +409,7 @@ def print_realistic(summary: dict[str, dict[str, float]]) -> None:
 def print_checks(ev: Evaluation, summary: dict[str, dict[str, float]], variant: Variant) -> None:
     """Issue 20's figures of one evaluation: the realistic-rig statistics, do no harm where
     the data are good, and the calibration of the "data" label."""
-    if variant.realistic and variant.noise == PROTOCOL_NOISE:
+    if variant.realistic and variant.noise == PROTOCOL_NOISE and not variant.true_lengths:
         print_realistic(summary)
     for n, shared in ((15, False), (15, True), (11, False)):
         harm = no_harm(ev.labels, n, shared=shared)
@@ -447,6 +465,7 @@ def run_seeds(args: argparse.Namespace, runs: list[tuple[str, int, dict[str, str
                       max_frames=args.max_frames, only=args.only, variant=variant)
     if args.json:
         args.json.write_text(json.dumps({"noise": args.noise, "rig": args.rig,
+                                         "true_lengths": args.true_lengths,
                                          "max_frames": args.max_frames, "rows": rows},
                                         indent=1))
     return 0
@@ -465,6 +484,10 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901
     parser.add_argument("--rig", choices=("bvh", "realistic"), default="bvh",
                         help="realistic: knees and elbows 5-15 mm off their neighbours' line "
                              "with an axial rotation coupled to flexion (HingeRig)")
+    parser.add_argument("--true-lengths", action="store_true",
+                        help="give auto (11 sensors) and reduced the rig's own limb lengths "
+                             "instead of the anthropometric table scaled by the torso: how "
+                             "much of the 11-sensor limb error is the table's")
     parser.add_argument("--low-noise", action="store_true",
                         help="1 mm, 0.3 degrees, no slip (issue 20 §2; overrides --noise)")
     parser.add_argument("--noise", type=parse_noise, default=dict(PROTOCOL_NOISE),
@@ -474,11 +497,12 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901
     args = parser.parse_args(argv)
     if args.low_noise:
         args.noise = dict(LOW_NOISE)
-    variant = Variant(args.noise, args.rig == "realistic")
-    protocol = args.noise == PROTOCOL_NOISE and not variant.realistic
+    variant = Variant(args.noise, args.rig == "realistic", args.true_lengths)
+    protocol = args.noise == PROTOCOL_NOISE and not (variant.realistic or args.true_lengths)
     print("noise: " + ", ".join(f"{k} {v:g}" for k, v in args.noise.items())
           + ("" if args.noise == PROTOCOL_NOISE else " (not the evaluation protocol's)")
-          + f"; rig: {args.rig}")
+          + f"; rig: {args.rig}" + ("; the rig's own limb lengths (no verdicts)"
+                                    if args.true_lengths else ""))
     if not (args.data / "motions").is_dir():
         print(f"no motions under {args.data}", file=sys.stderr)
         return 2
