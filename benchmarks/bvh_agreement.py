@@ -10,9 +10,10 @@ skeleton with ``method="auto"``, write its BVH, read it back and measure:
   ``bonefit.estimation.bvh.JUMP_DEG`` (60°; a T-pose frame before the take turns segments 76–180°):
   no interpolation of rotations can follow them, so the half-frame numbers below leave them
   out and this column says how many were left out;
-- ``half max`` / ``p95``: positions at half frames with the channels interpolated linearly,
-  as Blender's importer keys them, against the midpoint of the JSON's neighbouring frames
-  (mm, every joint and step but the jumps); ``all``: the same max with the jumps;
+- ``half max`` / ``p95`` / ``median``: positions at half frames with the channels
+  interpolated linearly, as Blender's importer keys them, against the midpoint of the
+  JSON's neighbouring frames (mm, every joint and step but the jumps); ``all``: the same
+  max with the jumps;
   ``floor``: the same with every node turned halfway along its shortest path (a joint under
   a slip chain relative to the chain's parent, its translation moving linearly), the least
   any interpolation of rotations can reach (a fast turn's arc bulges off the chord between
@@ -168,6 +169,7 @@ def measure(result: SkeletonResult, motion: BvhMotion) -> dict[str, float | str]
             "start": float(key[:START_FRAMES].max()), "jumps": int(skip.sum()),
             "half_all": float(half.max(initial=0.0)), "half_max": float(kept.max(initial=0.0)),
             "half_p95": float(np.percentile(kept, 95)) if kept.size else 0.0,
+            "half_med": float(np.median(kept)) if kept.size else 0.0,
             "half_node": JOINTS[int(np.argmax(kept.max(axis=0)))] if kept.size else "",
             "floor": float(floor[~skip].max(initial=0.0)),
             "excess": float(excess[~skip].max(initial=0.0)),
@@ -219,7 +221,8 @@ def estimated(name: str, path: Path, units: float, fps: float | None,
 
 
 COLUMNS = (("frames", 6, "d"), ("key_max", 8, ".2f"), ("start", 7, ".2f"), ("jumps", 5, "d"),
-           ("half_max", 8, ".2f"), ("half_p95", 8, ".2f"), ("half_all", 8, ".1f"),
+           ("half_max", 8, ".2f"), ("half_p95", 8, ".2f"), ("half_med", 8, ".2f"),
+           ("half_all", 8, ".1f"),
            ("half_node", 9, "s"), ("floor", 6, ".1f"), ("excess", 6, ".1f"),
            ("half_fair", 6, ".1f"), ("jump", 6, ".1f"), ("turn", 6, ".1f"),
            ("jump_node", 10, "s"))
@@ -250,7 +253,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    heads = {"key_max": "key max", "half_max": "half max", "half_p95": "p95",
+    heads = {"key_max": "key max", "half_max": "half max", "half_p95": "p95", "half_med": "median",
              "half_all": "all", "half_node": "(joint)", "excess": "euler",
              "half_fair": "fair", "jump_node": "(node)"}
     readers = ("bvhio", "three.js") if args.readers else ()
