@@ -1367,16 +1367,17 @@ def slip_chain(residual: NDArray[np.float64], direction: NDArray[np.float64]) ->
     bend = 120.0 - 2.0 * np.degrees(np.arccos(length / (2.0 * link)))
     half = np.radians(bend / 2.0)[:, None]
     rest_span = np.cos(half) * along + np.sin(half) * across
-    base = continuous_euler(euler_degrees(
+    values = np.zeros((len(span), 3, 3))
+    values[:, 0] = continuous_euler(euler_degrees(
         Rotation.from_quat(_shortest_arc(rest_span, span / length[:, None])), _CYCLIC[axis]))
-    bend_values = np.zeros_like(base)
-    bend_values[:, 2] = bend
-    tip = -np.stack([base[:, 2] + bend, base[:, 1], base[:, 0]], axis=1)
+    values[:, 1, 2] = bend
+    values[:, 2] = -values[:, 0, ::-1]
+    values[:, 2, 0] -= bend
     links = link * np.array([0.5 * along + 0.75 ** 0.5 * across,
                              0.5 * along - 0.75 ** 0.5 * across])
     return SlipChain(reach=link * along, links=links,
                      orders=(_CYCLIC[axis], _CYCLIC[axis], _CYCLIC[axis][::-1]),
-                     values=np.stack([base, bend_values, tip], axis=1))
+                     values=values)
 
 
 def _slip_plane(direction: NDArray[np.float64]
