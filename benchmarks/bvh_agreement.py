@@ -61,9 +61,14 @@ from skeleton_accuracy import (  # noqa: E402
     thinned,
 )
 
-from bonefit.estimation.bvh import BvhMotion, forward_kinematics, jump_steps, read_bvh  # noqa: E402
+from bonefit.estimation.bvh import (  # noqa: E402
+    BvhMotion,
+    forward_kinematics,
+    is_slip_node,
+    jump_steps,
+    read_bvh,
+)
 from bonefit.estimation.io.skeleton import (  # noqa: E402
-    SLIP_NODES,
     read_skeleton_json,
     write_skeleton_bvh,
     write_skeleton_json,
@@ -97,7 +102,7 @@ def slerp_half_frames(motion: BvhMotion) -> NDArray[np.float64]:
     from scipy.spatial.transform import Rotation
 
     keyed, rotations = forward_kinematics(motion)
-    slip = [name.endswith(tuple(f"_{s}" for s in SLIP_NODES)) for name in motion.names]
+    slip = [is_slip_node(name) for name in motion.names]
     positions = np.full((motion.n_frames - 1, len(motion.names), 3), np.nan)
     world: dict[int, Rotation] = {}
     for j, parent in enumerate(motion.parents):

@@ -98,8 +98,10 @@ class BvhMotion:
                 and self.names[node].startswith(f"{self.names[parent]}_end"))
 
     def joints(self) -> tuple[str, ...]:
-        """Names of the real joints (end sites left out), in file order."""
-        return tuple(n for j, n in enumerate(self.names) if not self.is_end_site(j))
+        """Names of the real joints (end sites and slip-chain nodes left out), in file
+        order."""
+        return tuple(n for j, n in enumerate(self.names)
+                     if not self.is_end_site(j) and not is_slip_node(n))
 
     def channel_values(self, node: int) -> NDArray[np.float64]:
         """Values (F, n_channels) of one node's channels."""
@@ -1292,6 +1294,15 @@ def fold_position_channels(motion: BvhMotion, *, atol: float = 1e-6) -> BvhMotio
 SLIP_TOL_M: Final[float] = 1e-6
 """Largest distance (metres) between a joint and where a rigid skeleton would put it that a
 BVH writer leaves to the rigid skeleton (a micrometre: below the files' rounding)."""
+
+SLIP_NODES: Final[tuple[str, ...]] = ("slip_base", "slip_bend", "slip_tip")
+"""Suffixes of the three nodes of a joint's :class:`SlipChain` (``<joint>_slip_base`` …)."""
+
+
+def is_slip_node(name: str) -> bool:
+    """Whether node ``name`` belongs to a slip chain (it carries a joint; it is none)."""
+    return name.endswith(tuple(f"_{suffix}" for suffix in SLIP_NODES))
+
 
 _CYCLIC: Final[dict[int, str]] = {0: "YZX", 1: "ZXY", 2: "XYZ"}
 """Euler order of a slip chain's base and bend nodes, by the axis (x, y, z) they bend about,

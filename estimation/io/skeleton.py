@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from ..bvh import (
+    SLIP_NODES,
     SLIP_TOL_M,
     BvhMotion,
     SlipChain,
@@ -606,10 +607,6 @@ def _slips(result: SkeletonResult, nodes: _Nodes, frame: NDArray[np.float64],
         if float(np.linalg.norm(residual, axis=1).max()) > SLIP_TOL_M:
             out[j] = slip_chain(residual, offsets[j])
     return out
-
-
-SLIP_NODES: Final[tuple[str, ...]] = ("slip_base", "slip_bend", "slip_tip")
-"""Suffixes of the three nodes of a joint's slip chain (``<joint>_slip_base`` …)."""
 
 
 @dataclass(frozen=True, eq=False)

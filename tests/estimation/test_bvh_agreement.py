@@ -34,6 +34,7 @@ from bonefit.estimation.bvh import (
     write_bvh,
 )
 from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.body import find_bvh_feet
 from bonefit.estimation.io.kinematics import (
     read_kinematics,
     write_kinematics_csv,
@@ -160,6 +161,10 @@ def test_slip_chains_use_rotation_channels_only_and_turn_back_exactly_between_fr
     slipped = skeleton_to_bvh(result)
     rigid = skeleton_to_bvh(result, rigid=True)
     assert set(rigid.names) <= set(slipped.names)
+    assert slipped.joints() == rigid.joints()  # slip nodes are no joints: not in error lists
+    # nor taken for feet by translate's name search (l_ankle_slip_base is named like one)
+    feet = find_bvh_feet(slipped)
+    assert (feet.left, feet.right) == ("l_ankle", "r_ankle")
     assert len(slipped.names) == len(rigid.names) + 3 * (len(JOINTS) - 1)
     for j, chans in enumerate(slipped.channels):  # what pybvh and bvhtoolbox read alike
         if slipped.parents[j] >= 0 and chans:
