@@ -458,14 +458,15 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
 @dataclass(frozen=True, eq=False)
 class _Nodes:
     """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
-    segment frame (metres), per node that turns its rotation relative to its parent's
-    segment and its segment's world rotation (scalar-last quaternions, F × 4)."""
+    segment frame (metres) and, per node that turns, its rotation relative to its parent's
+    segment (scalar-last quaternions, F × 4) and, below the root, its joint as seen from the
+    parent's segment frame in every frame (F × 3, metres; the OFFSET is its mean)."""
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
     offsets: NDArray[np.float64]
     local: dict[str, NDArray[np.float64]]
-    world: dict[str, NDArray[np.float64]]
+    bones: dict[str, NDArray[np.float64]]
 
 
 def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
@@ -481,6 +482,7 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     offsets: list[NDArray[np.float64]] = []
     quats = {node: rotation.as_quat() for node, rotation in rotations.items()}
     local: dict[str, NDArray[np.float64]] = {"root": quats["root"]}
+    bones: dict[str, NDArray[np.float64]] = {}
     stack: list[tuple[str, str | None]] = [("root", None)]
     while stack:
         node, parent = stack.pop()
@@ -494,14 +496,14 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            delta = positions[node] - positions[parent]
-            offsets.append(rotations[parent].inv().apply(delta).mean(axis=0))
+            bones[node] = rotations[parent].inv().apply(positions[node] - positions[parent])
+            offsets.append(bones[node].mean(axis=0))
             local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
                                               quats[node])
         after = [*children[node], *([f"{node}_end"] if node in END_SITES else [])]
         stack.extend((child, node) for child in reversed(after))
     return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local,
-                  quats)
+                  bones)
 
 
 BVH_REST: Final[tuple[str, ...]] = ("auto", "segment")
@@ -583,28 +585,26 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     by_node = dict(zip(turning, chans.channels, strict=True))
     channels = [by_node.get(j, ()) for j in range(len(nodes.names))]
     channels[0] = (*ROOT_POSITION_CHANNELS, *channels[0])
-    columns = {j: chans.values[:, k] for k, j in enumerate(turning)}
-    slips = {} if rigid else _slips(result, nodes, frame, offsets)
+    slips = {} if rigid else _slips(nodes, frame, offsets)
     out = _with_slips(nodes, offsets * per_m, slips, per_m, channels=channels,
-                      columns=columns)
+                      values=(turning, chans.values))
     return BvhMotion(out.names, out.parents, out.offsets, out.channels, 1.0 / float(result.fps),
                      np.concatenate([_joint(result, "root") * per_m, *out.columns], axis=1))
 
 
-def _slips(result: SkeletonResult, nodes: _Nodes, frame: NDArray[np.float64],
-           offsets: NDArray[np.float64]) -> dict[int, SlipChain]:
+def _slips(nodes: _Nodes, frame: NDArray[np.float64], offsets: NDArray[np.float64]
+           ) -> dict[int, SlipChain]:
     """Per node whose joint strays from its rigid place (its OFFSET under its parent node,
     ``offsets`` in metres, parent frames turned by their rest rotations ``frame``) by more
     than ``SLIP_TOL_M``, the slip chain that carries it there."""
     out: dict[int, SlipChain] = {}
     for j, name in enumerate(nodes.names):
-        parent = nodes.parents[j]
-        if parent < 0 or name not in nodes.local:
+        if name not in nodes.bones:
             continue
-        above = compose_quaternions(nodes.world[nodes.names[parent]], frame[parent][None])
-        bone = _joint(result, name) - _joint(result, nodes.names[parent])
-        residual = Rotation.from_quat(above).inv().apply(bone) - offsets[j]
-        if float(np.linalg.norm(residual, axis=1).max()) > SLIP_TOL_M:
+        # the joint in the parent node's frame, C_parentᵀ · bone, minus the OFFSET
+        rest = Rotation.from_quat(frame[nodes.parents[j]]).as_matrix()
+        residual = nodes.bones[name] @ rest - offsets[j]
+        if float(np.sqrt(np.einsum("ij,ij->i", residual, residual).max())) > SLIP_TOL_M:
             out[j] = slip_chain(residual, offsets[j])
     return out
 
@@ -623,10 +623,12 @@ class _Tree:
 
 def _with_slips(nodes: _Nodes, offsets: NDArray[np.float64], slips: dict[int, SlipChain],
                 per_m: float, *, channels: list[tuple[str, ...]],
-                columns: dict[int, NDArray[np.float64]]) -> _Tree:
-    """``nodes`` (with their ``channels`` and value ``columns``) with each slip chain
-    inserted above its joint, which then sits at OFFSET zero under the chain's tip; parents
-    before children."""
+                values: tuple[list[int], NDArray[np.float64]]) -> _Tree:
+    """``nodes`` (with their ``channels``, and the rotation channel values (F, N, 3) of the
+    N nodes listed in ``values``) with each slip chain inserted above its joint, which then
+    sits at OFFSET zero under the chain's tip; parents before children."""
+    turning, block = values
+    columns = {j: block[:, k] for k, j in enumerate(turning)}
     tree = _Hierarchy()
     placed: dict[int, int] = {}
     for j, name in enumerate(nodes.names):
@@ -641,8 +643,10 @@ def _with_slips(nodes: _Nodes, offsets: NDArray[np.float64], slips: dict[int, Sl
                                   chain.values[:, k])
             offset = np.zeros(3)
         placed[j] = tree.add(name, parent, offset, channels[j], columns.get(j))
+    # without chains the columns are the (F, N, 3) block as it is: one copy, not N
     return _Tree(tuple(tree.names), tuple(tree.parents), np.asarray(tree.offsets, dtype=float),
-                 tuple(tree.channels), tuple(tree.columns))
+                 tuple(tree.channels),
+                 tuple(tree.columns) if slips else (block.reshape(len(block), -1),))
 
 
 @dataclass
