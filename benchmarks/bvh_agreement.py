@@ -10,10 +10,12 @@ skeleton with ``method="auto"``, write its BVH, read it back and measure:
   ``bonefit.estimation.bvh.JUMP_DEG`` (60°; a T-pose frame before the take turns segments 76–180°):
   no interpolation of rotations can follow them, so the half-frame numbers below leave them
   out and this column says how many were left out;
-- ``half max`` / ``p95``: positions at half frames with the channels interpolated linearly,
-  as Blender's importer keys them, against the midpoint of the JSON's neighbouring frames
-  (mm, every joint and step but the jumps); ``all``: the same max with the jumps;
-  ``floor``: the same with every node turned halfway along its shortest path, the least
+- ``half max`` / ``p95`` / ``median``: positions at half frames with the channels
+  interpolated linearly, as Blender's importer keys them, against the midpoint of the
+  JSON's neighbouring frames (mm, every joint and step but the jumps); ``all``: the same
+  max with the jumps;
+  ``floor``: the same with every node turned halfway along its shortest path (a joint under
+  a slip chain relative to the chain's parent, its translation moving linearly), the least
   any interpolation of rotations can reach (a fast turn's arc bulges off the chord between
   the two frames' positions); ``euler``: the largest distance between the Euler-interpolated
   and the shortest-path half frames, the part the channels are to blame for; ``fair``:
@@ -23,11 +25,12 @@ skeleton with ``method="auto"``, write its BVH, read it back and measure:
 - with ``--readers``: ``bvhio`` and ``three.js``, the largest distance of the joints as those
   readers place them at the frames from the JSON's (mm).
 
-``--order ZXY`` writes every node in one Euler order (the writer before per-node orders) and
-``--rest segment`` every node in its segment frame (the writer before rest rotations), to
-compare. ``--cache DIR`` keeps each clip's estimated skeleton (JSON) for the next run;
-``--bvh-from DIR`` measures ``DIR/<clip>.bvh`` (clip name with ``/`` as ``__``, written from
-the cached JSON by another version of the writer) instead of writing. Usage::
+``--order ZXY`` writes every node in one Euler order (the writer before per-node orders),
+``--rest segment`` every node in its segment frame (the writer before rest rotations) and
+``--rigid`` a rigid skeleton (the writer before slip chains), to compare. ``--cache DIR``
+keeps each clip's estimated skeleton (JSON) for the next run; ``--bvh-from DIR`` measures
+``DIR/<clip>.bvh`` (clip name with ``/`` as ``__``, written from the cached JSON by another
+version of the writer) instead of writing. Usage::
 
     .venv/bin/python benchmarks/bvh_agreement.py [--data ../shared/data] [--only salsa]
         [--max-frames 1500] [--order ZXY] [--rest segment] [--readers] [--cache DIR]
@@ -58,7 +61,13 @@ from skeleton_accuracy import (  # noqa: E402
     thinned,
 )
 
-from bonefit.estimation.bvh import BvhMotion, forward_kinematics, jump_steps, read_bvh  # noqa: E402
+from bonefit.estimation.bvh import (  # noqa: E402
+    BvhMotion,
+    forward_kinematics,
+    is_slip_node,
+    jump_steps,
+    read_bvh,
+)
 from bonefit.estimation.io.skeleton import (  # noqa: E402
     read_skeleton_json,
     write_skeleton_bvh,
@@ -87,23 +96,34 @@ def half_frames(motion: BvhMotion) -> BvhMotion:
 def slerp_half_frames(motion: BvhMotion) -> NDArray[np.float64]:
     """Node positions (F - 1, J, 3) at half frames with every node turned halfway along
     its shortest path: the best any rotation interpolation can do (the arc, not the chord
-    between the JSON's neighbouring frames)."""
+    between the JSON's neighbouring frames). A joint under a slip chain is taken relative
+    to the chain's parent (the chain turned back, its translation moving linearly between
+    the frames); the chain's own nodes are NaN."""
     from scipy.spatial.transform import Rotation
 
-    local = motion.local_rotations()
-    trans = motion.local_translations()
-    trans = (trans[:-1] + trans[1:]) / 2
-    positions = np.empty_like(trans)
-    world: list[Rotation] = []
+    keyed, rotations = forward_kinematics(motion)
+    slip = [is_slip_node(name) for name in motion.names]
+    positions = np.full((motion.n_frames - 1, len(motion.names), 3), np.nan)
+    world: dict[int, Rotation] = {}
     for j, parent in enumerate(motion.parents):
-        step = (local[j][:-1].inv() * local[j][1:]).as_rotvec()
-        halfway = local[j][:-1] * Rotation.from_rotvec(step / 2)
+        while parent >= 0 and slip[parent]:
+            parent = motion.parents[parent]
+        if slip[j]:
+            continue
         if parent < 0:
-            positions[:, j] = trans[:, j]
-            world.append(halfway)
+            local, trans = rotations[j], keyed[:, j]
         else:
-            positions[:, j] = positions[:, parent] + world[parent].apply(trans[:, j])
-            world.append(world[parent] * halfway)
+            local = rotations[parent].inv() * rotations[j]
+            trans = rotations[parent].inv().apply(keyed[:, j] - keyed[:, parent])
+        step = (local[:-1].inv() * local[1:]).as_rotvec()
+        halfway = local[:-1] * Rotation.from_rotvec(step / 2)
+        trans = (trans[:-1] + trans[1:]) / 2
+        if parent < 0:
+            positions[:, j] = trans
+            world[j] = halfway
+        else:
+            positions[:, j] = positions[:, parent] + world[parent].apply(trans)
+            world[j] = world[parent] * halfway
     return positions
 
 
@@ -130,7 +150,7 @@ def written(result: SkeletonResult, args: argparse.Namespace, name: str) -> BvhM
     if args.bvh_from is not None:
         return read_bvh(args.bvh_from / f"{name.replace('/', '__')}.bvh")
     buf = io.StringIO()
-    write_skeleton_bvh(result, buf, euler_order=args.order, rest=args.rest)
+    write_skeleton_bvh(result, buf, euler_order=args.order, rest=args.rest, rigid=args.rigid)
     return read_bvh(io.StringIO(buf.getvalue()))
 
 
@@ -154,6 +174,7 @@ def measure(result: SkeletonResult, motion: BvhMotion) -> dict[str, float | str]
             "start": float(key[:START_FRAMES].max()), "jumps": int(skip.sum()),
             "half_all": float(half.max(initial=0.0)), "half_max": float(kept.max(initial=0.0)),
             "half_p95": float(np.percentile(kept, 95)) if kept.size else 0.0,
+            "half_med": float(np.median(kept)) if kept.size else 0.0,
             "half_node": JOINTS[int(np.argmax(kept.max(axis=0)))] if kept.size else "",
             "floor": float(floor[~skip].max(initial=0.0)),
             "excess": float(excess[~skip].max(initial=0.0)),
@@ -205,7 +226,8 @@ def estimated(name: str, path: Path, units: float, fps: float | None,
 
 
 COLUMNS = (("frames", 6, "d"), ("key_max", 8, ".2f"), ("start", 7, ".2f"), ("jumps", 5, "d"),
-           ("half_max", 8, ".2f"), ("half_p95", 8, ".2f"), ("half_all", 8, ".1f"),
+           ("half_max", 8, ".2f"), ("half_p95", 8, ".2f"), ("half_med", 8, ".2f"),
+           ("half_all", 8, ".1f"),
            ("half_node", 9, "s"), ("floor", 6, ".1f"), ("excess", 6, ".1f"),
            ("half_fair", 6, ".1f"), ("jump", 6, ".1f"), ("turn", 6, ".1f"),
            ("jump_node", 10, "s"))
@@ -223,6 +245,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--order", default=None,
                         help="one Euler order for every node (e.g. ZXY) instead of per node")
     parser.add_argument("--rest", default="auto", help="rest pose: auto or segment")
+    parser.add_argument("--rigid", action="store_true",
+                        help="write the rigid skeleton (no slip chains), as before them")
     parser.add_argument("--readers", action="store_true",
                         help="also read every BVH with bvhio and three.js")
     parser.add_argument("--cache", type=Path, default=None,
@@ -234,7 +258,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    heads = {"key_max": "key max", "half_max": "half max", "half_p95": "p95",
+    heads = {"key_max": "key max", "half_max": "half max", "half_p95": "p95", "half_med": "median",
              "half_all": "all", "half_node": "(joint)", "excess": "euler",
              "half_fair": "fair", "jump_node": "(node)"}
     readers = ("bvhio", "three.js") if args.readers else ()

@@ -98,8 +98,10 @@ class BvhMotion:
                 and self.names[node].startswith(f"{self.names[parent]}_end"))
 
     def joints(self) -> tuple[str, ...]:
-        """Names of the real joints (end sites left out), in file order."""
-        return tuple(n for j, n in enumerate(self.names) if not self.is_end_site(j))
+        """Names of the real joints (end sites and slip-chain nodes left out), in file
+        order."""
+        return tuple(n for j, n in enumerate(self.names)
+                     if not self.is_end_site(j) and not is_slip_node(n))
 
     def channel_values(self, node: int) -> NDArray[np.float64]:
         """Values (F, n_channels) of one node's channels."""
@@ -1287,3 +1289,117 @@ def fold_position_channels(motion: BvhMotion, *, atol: float = 1e-6) -> BvhMotio
         channels.append(tuple(c for c in chans if not (constant and c in _AXES)))
     return BvhMotion(motion.names, motion.parents, offsets, tuple(channels),
                      motion.frame_time, motion.values[:, keep])
+
+
+SLIP_TOL_M: Final[float] = 1e-6
+"""Largest distance (metres) between a joint and where a rigid skeleton would put it that a
+BVH writer leaves to the rigid skeleton (a micrometre: below the files' rounding)."""
+
+SLIP_NODES: Final[tuple[str, ...]] = ("slip_base", "slip_bend", "slip_tip")
+"""Suffixes of the three nodes of a joint's :class:`SlipChain` (``<joint>_slip_base`` …)."""
+
+
+def is_slip_node(name: str) -> bool:
+    """Whether node ``name`` belongs to a slip chain (it carries a joint; it is none)."""
+    return name.endswith(tuple(f"_{suffix}" for suffix in SLIP_NODES))
+
+
+_CYCLIC: Final[dict[int, str]] = {0: "YZX", 1: "ZXY", 2: "XYZ"}
+"""Euler order of a slip chain's base and bend nodes, by the axis (x, y, z) they bend about,
+which comes last."""
+
+
+@dataclass(frozen=True, eq=False)
+class SlipChain:
+    """Three rotation-only nodes that carry a joint off its rigid place.
+
+    The chain hangs from the joint's parent node: ``base`` at OFFSET ``offset − reach``
+    (``offset`` the joint's rigid OFFSET), ``bend`` at OFFSET ``links[0]`` under it, ``tip``
+    at OFFSET ``links[1]`` under that, and the joint at OFFSET zero under ``tip``. ``base``
+    turns the two links, ``bend`` bends them about one axis, and ``tip``'s channels undo
+    both exactly (the same angles negated in reverse order), at the frames and at any
+    linear interpolation of the channels between them: the joint's own channels, and
+    everything below it, turn as they would without the chain.
+
+    Attributes
+    ----------
+    reach : ndarray, shape (3,)
+        Constant part of the span, parent node frame, the residual's unit.
+    links : ndarray, shape (2, 3)
+        OFFSETs of ``bend`` (in ``base``'s frame) and ``tip`` (in ``bend``'s frame).
+    orders : tuple of str
+        Intrinsic Euler orders of ``base``, ``bend`` and ``tip``'s channels.
+    values : ndarray, shape (F, 3, 3)
+        Channel values of ``base``, ``bend`` and ``tip``, degrees, continuous over frames.
+    """
+
+    reach: NDArray[np.float64]
+    links: NDArray[np.float64]
+    orders: tuple[str, str, str]
+    values: NDArray[np.float64]
+
+
+def slip_chain(residual: NDArray[np.float64], direction: NDArray[np.float64]) -> SlipChain:
+    """The :class:`SlipChain` that puts a joint ``residual`` off its rigid place.
+
+    Every BVH reader agrees on rotation channels under constant OFFSETs, and disagrees on
+    position channels below the root (Blender and bvhio replace the OFFSET by them, three.js
+    adds them, bvhtoolbox keeps the OFFSET, pybvh refuses the file): so a joint whose
+    distance to its parent varies (an estimate's noise and slip) is reached by two links of
+    length ``r = 2 E`` (``E`` the residual's largest norm) spanning ``reach + residual``,
+    ``|reach| = r``, in the plane of the parent frame's axis least along the bone: the span
+    stays within 30° of ``reach`` and between ``r / 2`` and ``3 r / 2`` long, so the bend
+    (120° at rest) stays between 83° and 151°. ``bend`` sets the span's length, ``base``
+    turns it by the shortest arc onto its direction.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (F, 3)
+        The joint's position minus its rigid position, in the parent node's frame; not all
+        zero.
+    direction : ndarray, shape (3,)
+        The bone (parent to joint), parent node frame: ``reach`` is its part across the
+        bend axis.
+
+    Returns
+    -------
+    SlipChain
+    """
+    from scipy.spatial.transform import Rotation
+
+    largest = float(np.linalg.norm(residual, axis=1).max())
+    if not largest > 0.0:
+        raise InputError("a slip chain needs a residual that is not zero everywhere",
+                         field="residual")
+    axis, along, across = _slip_plane(direction)
+    link = 2.0 * largest
+    span = link * along + residual
+    length = np.linalg.norm(span, axis=1)
+    bend = 120.0 - 2.0 * np.degrees(np.arccos(length / (2.0 * link)))
+    half = np.radians(bend / 2.0)[:, None]
+    rest_span = np.cos(half) * along + np.sin(half) * across
+    values = np.zeros((len(span), 3, 3))
+    values[:, 0] = continuous_euler(euler_degrees(
+        Rotation.from_quat(_shortest_arc(rest_span, span / length[:, None])), _CYCLIC[axis]))
+    values[:, 1, 2] = bend
+    values[:, 2] = -values[:, 0, ::-1]
+    values[:, 2, 0] -= bend
+    links = link * np.array([0.5 * along + 0.75 ** 0.5 * across,
+                             0.5 * along - 0.75 ** 0.5 * across])
+    return SlipChain(reach=link * along, links=links,
+                     orders=(_CYCLIC[axis], _CYCLIC[axis], _CYCLIC[axis][::-1]),
+                     values=values)
+
+
+def _slip_plane(direction: NDArray[np.float64]
+                ) -> tuple[int, NDArray[np.float64], NDArray[np.float64]]:
+    """The axis (0, 1, 2) a slip chain bends about (the one least along ``direction``), the
+    unit direction of its reach (``direction`` across that axis) and the unit vector
+    ``axis × reach``."""
+    size = np.abs(direction)
+    axis = int(np.argmin(size)) if np.isfinite(size).all() else 1
+    along = np.where(np.arange(3) == axis, 0.0, direction)
+    if not np.linalg.norm(along) > 1e-12 * max(float(size.max()), 1e-300):
+        along = np.eye(3)[(axis + 1) % 3]
+    along = along / np.linalg.norm(along)
+    return axis, along, np.cross(np.eye(3)[axis], along)

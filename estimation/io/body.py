@@ -18,7 +18,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from ..bvh import BvhMotion, forward_kinematics
+from ..bvh import BvhMotion, forward_kinematics, is_slip_node
 from ..errors import InputError
 from ..kinematics import is_end_site_name as is_end_site_name  # defined with the recording
 
@@ -165,7 +165,7 @@ def _by_name(motion: BvhMotion) -> dict[str, int] | None:
     side; None unless exactly one per side."""
     found: dict[str, list[int]] = {"left": [], "right": []}
     for j, name in enumerate(motion.names):
-        if motion.is_end_site(j):
+        if motion.is_end_site(j) or is_slip_node(name):  # bonefit's own BVH: not joints
             continue
         side, role = classify(name)
         if side is not None and role == "foot":

@@ -16,7 +16,7 @@ import os
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -24,7 +24,16 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from ..bvh import BvhMotion, compose_quaternions, rest_euler_channels, write_bvh
+from ..bvh import (
+    SLIP_NODES,
+    SLIP_TOL_M,
+    BvhMotion,
+    SlipChain,
+    compose_quaternions,
+    rest_euler_channels,
+    slip_chain,
+    write_bvh,
+)
 from ..errors import InputError
 from ..model import BVH_TREE, JOINTS
 from ..numtext import (
@@ -450,12 +459,14 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
 class _Nodes:
     """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
     segment frame (metres) and, per node that turns, its rotation relative to its parent's
-    segment (scalar-last quaternions, F × 4)."""
+    segment (scalar-last quaternions, F × 4) and, below the root, its joint as seen from the
+    parent's segment frame in every frame (F × 3, metres; the OFFSET is its mean)."""
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
     offsets: NDArray[np.float64]
     local: dict[str, NDArray[np.float64]]
+    bones: dict[str, NDArray[np.float64]]
 
 
 def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
@@ -471,6 +482,7 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     offsets: list[NDArray[np.float64]] = []
     quats = {node: rotation.as_quat() for node, rotation in rotations.items()}
     local: dict[str, NDArray[np.float64]] = {"root": quats["root"]}
+    bones: dict[str, NDArray[np.float64]] = {}
     stack: list[tuple[str, str | None]] = [("root", None)]
     while stack:
         node, parent = stack.pop()
@@ -484,13 +496,14 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            delta = positions[node] - positions[parent]
-            offsets.append(rotations[parent].inv().apply(delta).mean(axis=0))
+            bones[node] = rotations[parent].inv().apply(positions[node] - positions[parent])
+            offsets.append(bones[node].mean(axis=0))
             local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
                                               quats[node])
         after = [*children[node], *([f"{node}_end"] if node in END_SITES else [])]
         stack.extend((child, node) for child in reversed(after))
-    return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local)
+    return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local,
+                  bones)
 
 
 BVH_REST: Final[tuple[str, ...]] = ("auto", "segment")
@@ -499,7 +512,8 @@ take's mean pose (``auto``), or every node in its segment frame (``segment``).""
 
 
 def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
-                    euler_order: str | None = None, rest: str = "auto") -> BvhMotion:
+                    euler_order: str | None = None, rest: str = "auto",
+                    rigid: bool = False) -> BvhMotion:
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
@@ -517,6 +531,11 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     is zero, so readers that add position channels to the OFFSET (three.js) and readers that
     replace it (Blender) agree.
 
+    A joint ever over ``SLIP_TOL_M`` off where that rigid skeleton puts it (an estimate's bone
+    lengths vary by millimetres) hangs from a slip chain (``bvh.slip_chain``): three
+    rotation-only nodes that carry it to its position and turn back exactly, at the frames
+    and between them, so every reader places every joint where the result has it.
+
     Parameters
     ----------
     result : SkeletonResult
@@ -525,16 +544,22 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
     euler_order : str, optional
-        One intrinsic rotation order for every node (``"ZXY"`` was the only one before
-        per-node orders) for tools that need a single order; by default per node.
+        One intrinsic rotation order for every skeleton node (``"ZXY"`` was the only one
+        before per-node orders) for tools that need a single order; by default per node.
+        Slip chains keep their own orders.
     rest : {"auto", "segment"}
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
+    rigid : bool
+        Leave out the slip chains: the rigid skeleton of mean OFFSETs, off the joints by
+        their residuals.
 
     Returns
     -------
     BvhMotion
-        Nodes in ``BVH_NODES`` order with end sites ``<node>_end`` after their parents.
+        Nodes in ``BVH_NODES`` order with end sites ``<node>_end`` after their parents and
+        a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``) just
+        before it.
 
     Raises
     ------
@@ -556,19 +581,101 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     frame = np.tile([0.0, 0.0, 0.0, 1.0], (len(nodes.names), 1))
     frame[turning] = chans.rest
     above = frame[[max(p, 0) for p in nodes.parents]]
-    offsets = Rotation.from_quat(above).inv().apply(nodes.offsets) * per_m
+    offsets = Rotation.from_quat(above).inv().apply(nodes.offsets)
     by_node = dict(zip(turning, chans.channels, strict=True))
-    channels = tuple(by_node.get(j, ()) for j in range(len(nodes.names)))
-    channels = ((*ROOT_POSITION_CHANNELS, *channels[0]), *channels[1:])
-    values = np.concatenate([_joint(result, "root") * per_m,
-                             chans.values.reshape(result.n_frames, -1)], axis=1)
-    return BvhMotion(nodes.names, nodes.parents, offsets, channels, 1.0 / float(result.fps),
-                     values)
+    channels = [by_node.get(j, ()) for j in range(len(nodes.names))]
+    channels[0] = (*ROOT_POSITION_CHANNELS, *channels[0])
+    slips = {} if rigid else _slips(nodes, frame, offsets)
+    out = _with_slips(nodes, offsets * per_m, slips, per_m, channels=channels,
+                      values=(turning, chans.values))
+    return BvhMotion(out.names, out.parents, out.offsets, out.channels, 1.0 / float(result.fps),
+                     np.concatenate([_joint(result, "root") * per_m, *out.columns], axis=1))
+
+
+def _slips(nodes: _Nodes, frame: NDArray[np.float64], offsets: NDArray[np.float64]
+           ) -> dict[int, SlipChain]:
+    """Per node whose joint strays from its rigid place (its OFFSET under its parent node,
+    ``offsets`` in metres, parent frames turned by their rest rotations ``frame``) by more
+    than ``SLIP_TOL_M``, the slip chain that carries it there."""
+    out: dict[int, SlipChain] = {}
+    for j, name in enumerate(nodes.names):
+        if name not in nodes.bones:
+            continue
+        # the joint in the parent node's frame, C_parentᵀ · bone, minus the OFFSET
+        rest = Rotation.from_quat(frame[nodes.parents[j]]).as_matrix()
+        residual = nodes.bones[name] @ rest - offsets[j]
+        if float(np.sqrt(np.einsum("ij,ij->i", residual, residual).max())) > SLIP_TOL_M:
+            out[j] = slip_chain(residual, offsets[j])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Tree:
+    """The skeleton BVH's nodes with slip chains: names, parents, OFFSETs (file units),
+    channels and the value columns (F, 3) of every rotation channel triple, in node order."""
+
+    names: tuple[str, ...]
+    parents: tuple[int, ...]
+    offsets: NDArray[np.float64]
+    channels: tuple[tuple[str, ...], ...]
+    columns: tuple[NDArray[np.float64], ...]
+
+
+def _with_slips(nodes: _Nodes, offsets: NDArray[np.float64], slips: dict[int, SlipChain],
+                per_m: float, *, channels: list[tuple[str, ...]],
+                values: tuple[list[int], NDArray[np.float64]]) -> _Tree:
+    """``nodes`` (with their ``channels``, and the rotation channel values (F, N, 3) of the
+    N nodes listed in ``values``) with each slip chain inserted above its joint, which then
+    sits at OFFSET zero under the chain's tip; parents before children."""
+    turning, block = values
+    columns = {j: block[:, k] for k, j in enumerate(turning)}
+    tree = _Hierarchy()
+    placed: dict[int, int] = {}
+    for j, name in enumerate(nodes.names):
+        parent = placed[nodes.parents[j]] if nodes.parents[j] >= 0 else -1
+        offset = offsets[j]
+        if j in slips:
+            chain = slips[j]
+            steps = (offset - chain.reach * per_m, *(chain.links * per_m))
+            for k, (suffix, step) in enumerate(zip(SLIP_NODES, steps, strict=True)):
+                parent = tree.add(f"{name}_{suffix}", parent, step,
+                                  tuple(f"{a}rotation" for a in chain.orders[k]),
+                                  chain.values[:, k])
+            offset = np.zeros(3)
+        placed[j] = tree.add(name, parent, offset, channels[j], columns.get(j))
+    # without chains the columns are the (F, N, 3) block as it is: one copy, not N
+    return _Tree(tuple(tree.names), tuple(tree.parents), np.asarray(tree.offsets, dtype=float),
+                 tuple(tree.channels),
+                 tuple(tree.columns) if slips else (block.reshape(len(block), -1),))
+
+
+@dataclass
+class _Hierarchy:
+    """Nodes as they are added (see :class:`_Tree`)."""
+
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[NDArray[np.float64]] = field(default_factory=list)
+    channels: list[tuple[str, ...]] = field(default_factory=list)
+    columns: list[NDArray[np.float64]] = field(default_factory=list)
+
+    def add(self, name: str, parent: int, offset: NDArray[np.float64],
+            channels: tuple[str, ...], column: NDArray[np.float64] | None) -> int:
+        """Append a node (its rotation values ``column``, None without rotations); returns
+        its index."""
+        self.names.append(name)
+        self.parents.append(parent)
+        self.offsets.append(offset)
+        self.channels.append(channels)
+        if column is not None:
+            self.columns.append(column)
+        return len(self.names) - 1
 
 
 def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
                        units: str = "cm", precision: int = 6,
-                       euler_order: str | None = None, rest: str = "auto") -> None:
+                       euler_order: str | None = None, rest: str = "auto",
+                       rigid: bool = False) -> None:
     """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
 
     Parameters
@@ -584,6 +691,9 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
     rest : {"auto", "segment"}
         Rest pose: per node the better playing of segment frame and mean pose, or every
         node in its segment frame.
+    rigid : bool
+        Leave out the slip chains: a rigid skeleton, off the JSON's joints by their
+        residuals (see :func:`skeleton_to_bvh`).
     """
-    write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest), path,
-              precision=precision)
+    write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest,
+                              rigid=rigid), path, precision=precision)

@@ -30,9 +30,11 @@ from bonefit.estimation.bvh import (
     jump_steps,
     point_joint_bvh,
     read_bvh,
+    slip_chain,
     write_bvh,
 )
 from bonefit.estimation.errors import InputError
+from bonefit.estimation.io.body import find_bvh_feet
 from bonefit.estimation.io.kinematics import (
     read_kinematics,
     write_kinematics_csv,
@@ -128,6 +130,68 @@ def test_skeleton_bvh_read_by_independent_readers_matches_the_json(
     got = joints_m(read_with(reader, path, script_for), JOINTS, 100.0)
     want = np.stack([result.joints[j] for j in JOINTS], axis=1)
     assert np.linalg.norm(got - want, axis=-1).max() < 1e-3
+
+
+@pytest.fixture(scope="module")
+def estimated(sim15: tuple[SensorRecording, SimulationTruth]) -> SkeletonResult:
+    """An estimate of the example clip: its joints are not rigid with its orientations
+    (bone lengths vary by millimetres from frame to frame)."""
+    return estimate_skeleton(sim15[0], method="auto")
+
+
+@pytest.mark.parametrize("source", ["jittered", "estimated"])
+def test_a_non_rigid_result_read_by_independent_readers_matches_the_json_exactly(
+        source: str, reader: str, script_for: Path | None, tmp_path: Path,
+        request: pytest.FixtureRequest) -> None:
+    result: SkeletonResult = (rigid_result(n_frames=40, seed=5, jitter=0.004)
+                              if source == "jittered" else request.getfixturevalue("estimated"))
+    want = np.stack([result.joints[j] for j in JOINTS], axis=1)
+    bones = np.stack([np.linalg.norm(result.joints[n] - result.joints[p], axis=-1)
+                      for n, p, _ in BVH_NODES if p is not None], axis=1)
+    assert np.ptp(bones, axis=0).max() > 2e-3  # lengths vary: no rigid skeleton fits
+    path = tmp_path / "s.bvh"
+    write_skeleton_bvh(result, path)
+    got = joints_m(read_with(reader, path, script_for), JOINTS, 100.0)
+    assert np.linalg.norm(got - want, axis=-1).max() < 1e-5  # the file's rounding only
+
+
+def test_slip_chains_use_rotation_channels_only_and_turn_back_exactly_between_frames(
+        ) -> None:
+    result = rigid_result(n_frames=40, seed=5, jitter=0.004)
+    slipped = skeleton_to_bvh(result)
+    rigid = skeleton_to_bvh(result, rigid=True)
+    assert set(rigid.names) <= set(slipped.names)
+    assert slipped.joints() == rigid.joints()  # slip nodes are no joints: not in error lists
+    # nor taken for feet by translate's name search (l_ankle_slip_base is named like one)
+    feet = find_bvh_feet(slipped)
+    assert (feet.left, feet.right) == ("l_ankle", "r_ankle")
+    assert len(slipped.names) == len(rigid.names) + 3 * (len(JOINTS) - 1)
+    for j, chans in enumerate(slipped.channels):  # what pybvh and bvhtoolbox read alike
+        if slipped.parents[j] >= 0 and chans:
+            assert len(chans) == 3
+            assert all(c.endswith("rotation") for c in chans)
+    _, turned = forward_kinematics(slipped.with_values(
+        (slipped.values[:-1] + slipped.values[1:]) / 2))
+    _, unslipped = forward_kinematics(rigid.with_values(
+        (rigid.values[:-1] + rigid.values[1:]) / 2))
+    for node in DRIVER:
+        gap = (turned[slipped.index(node)].inv() * unslipped[rigid.index(node)]).magnitude()
+        assert gap.max() < 1e-9, node
+
+
+def test_a_slip_chain_reaches_every_residual_and_refuses_none() -> None:
+    rng = np.random.default_rng(3)
+    residual = rng.normal(scale=0.01, size=(200, 3))
+    residual[50] *= 6.0  # one far frame: the links stay within their reach
+    chain = slip_chain(residual, np.array([0.05, -0.4, 0.02]))
+    base, bend, tip = (Rotation.from_euler(o, chain.values[:, k], degrees=True)
+                       for k, o in enumerate(chain.orders))
+    reached = (-chain.reach + base.apply(chain.links[0]) + (base * bend).apply(chain.links[1]))
+    np.testing.assert_allclose(reached, residual, atol=1e-12)
+    assert (base * bend * tip).magnitude().max() < 1e-12
+    assert np.abs(np.diff(chain.values, axis=0)).max() < 180.0  # continuous channels
+    with pytest.raises(InputError, match="not zero everywhere"):
+        slip_chain(np.zeros((5, 3)), np.array([0.0, 1.0, 0.0]))
 
 
 def half_frame_errors_mm(result: SkeletonResult, order: str | None = None,

@@ -115,7 +115,7 @@ def read_bvh_text(result: SkeletonResult, **options: str) -> BvhMotion:
 
 def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
     result = rigid_result(jitter=0.005, seed=3)
-    write_skeleton_bvh(result, tmp_path / "s.bvh")
+    write_skeleton_bvh(result, tmp_path / "s.bvh", rigid=True)
     motion = read_bvh(tmp_path / "s.bvh")
     positions, rotations = forward_kinematics(motion)
     rot = {n: Rotation.from_quat(result.orientations[DRIVER[n]], scalar_first=True)
@@ -126,15 +126,21 @@ def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
         assert parent is not None
         local = rot[parent].inv().apply(result.joints[node] - result.joints[parent]).mean(0)
         expect[node] = expect[parent] + rot[parent].apply(local)
-    _, segment_frames = forward_kinematics(read_bvh_text(result, rest="segment"))
+    segment = read_bvh_text(result, rest="segment")
+    _, segment_frames = forward_kinematics(segment)
+    slipped = read_bvh_text(result)
+    exact, exact_rotations = forward_kinematics(slipped)
     for node in DRIVER:
         j = motion.index(node)
         np.testing.assert_allclose(positions[:, j] / 100, expect[node], atol=1e-5)
         # every node turns with the segment it drives: by a constant rest rotation, none
-        # with rest="segment"
+        # with rest="segment"; slip chains leave that alone
         rest = rot[node].inv() * rotations[j]
         assert (rest[0].inv() * rest).magnitude().max() < 1e-5
-        assert (segment_frames[j].inv() * rot[node]).magnitude().max() < 1e-5
+        assert (segment_frames[segment.index(node)].inv() * rot[node]).magnitude().max() < 1e-5
+        k = slipped.index(node)
+        assert (exact_rotations[k].inv() * rotations[j]).magnitude().max() < 1e-5
+        np.testing.assert_allclose(exact[:, k] / 100, result.joints[node], atol=1e-7)
     # jitter makes the mean-offset skeleton differ from the raw joints, but by millimetres
     err = np.linalg.norm(positions[:, motion.index("l_ankle")] / 100
                          - result.joints["l_ankle"], axis=-1)
