@@ -302,3 +302,161 @@ def write_text_blocks(blocks: Iterable[str], target: str | os.PathLike[str] | io
         for text in blocks:
             handle.write(text)
         handle.write(end)
+
+
+# --------------------------------------------------------------------------- parsing
+
+_MAX_CELL: Final[int] = 16
+"""Characters of the longest cell :func:`decimal_rows` parses (two 8-byte words)."""
+
+_KEEP_LAST: Final = np.array([0] + [((1 << 64) - 1) << 8 * (8 - k) & ((1 << 64) - 1)
+                                    for k in range(1, 9)], dtype=np.uint64)
+"""Masks keeping the last k bytes (0 to 8) of a little-endian 8-byte word."""
+
+_KEEP_LOW: Final = _KEEP_LAST[np.minimum(np.arange(_MAX_CELL + 1), 8)]
+_KEEP_HIGH: Final = _KEEP_LAST[np.maximum(np.arange(_MAX_CELL + 1) - 8, 0)]
+_POW10: Final = 10 ** np.arange(_MAX_CELL + 1, dtype=np.uint64)
+_POW10_FLOAT: Final = np.array([float(10**k) for k in range(_MAX_CELL + 1)])
+"""Powers of ten up to 1e16, exact in float64 (up to 1e22 they are)."""
+_EXACT: Final[int] = 2**53
+
+
+@dataclass(frozen=True, eq=False)
+class _Cells:
+    """Where the cells of a block of text are: the separator ending each (C,), its
+    start (C,), its length (C,), its first character (C,), and the positions of the
+    decimal points (P,)."""
+
+    ends: NDArray[np.intp]
+    starts: NDArray[np.intp]
+    lengths: NDArray[np.intp]
+    first: NDArray[np.uint8]
+    points: NDArray[np.intp]
+
+
+def decimal_rows(data: bytes, n_cols: int) -> NDArray[np.float64] | None:
+    """The numbers of lines of ``n_cols`` comma-separated plain decimals, parsed by numpy
+    outside the interpreter lock, bit for bit as ``numpy.loadtxt`` (``strtod``) parses them.
+
+    Parameters
+    ----------
+    data : bytes
+        Lines, each ending in ``\\n``, of ``n_cols`` cells each. A cell is empty or an
+        optional sign, digits and at most one decimal point (at least one digit), at most
+        16 characters.
+    n_cols : int
+        Cells per line.
+
+    Returns
+    -------
+    ndarray, shape (R, n_cols), or None
+        The numbers, an empty cell NaN; None when ``data`` is anything else (an exponent,
+        ``nan``, a space, a quote, a comment, a blank line, a line of another length, more
+        than 15 significant digits): the caller then parses it by ``numpy.loadtxt``.
+
+    Notes
+    -----
+    A cell's digits make an integer mantissa ``m`` < 2**53 (exact in a float64) and its
+    decimal places ``d`` ≤ 15, so ``m / 10**d`` is one correctly rounded division of exact
+    values: the float ``strtod`` reads from the text. The digits are combined eight at a
+    time, within 64-bit words (SWAR), from the bytes that end each cell.
+    """
+    text = np.frombuffer(data, dtype=np.uint8)
+    if not text.size or text[-1] != ord("\n"):
+        return None
+    digit = text - np.uint8(ord("0"))
+    is_digit = digit < 10
+    cells = _cells(text, n_cols, int(np.count_nonzero(is_digit)))
+    if cells is None:
+        return None
+    places = _decimal_places(cells)
+    if places is None:
+        return None
+    np.multiply(digit, is_digit, out=digit)  # a point or sign is a 0 digit
+    mantissa = _mantissas(digit, cells, places)
+    if mantissa is None:
+        return None
+    values = mantissa.astype(np.float64)
+    values /= _POW10_FLOAT[places] if isinstance(places, int) else _POW10_FLOAT[
+        np.maximum(places, 0)]
+    np.negative(values, out=values, where=cells.first == ord("-"))
+    values[cells.lengths == 0] = np.nan
+    return values.reshape(-1, n_cols)
+
+
+def _cells(text: NDArray[np.uint8], n_cols: int, digits: int) -> _Cells | None:
+    """The cells of ``text`` (which has ``digits`` digits) when it holds only digits,
+    ``+,-.`` and newlines, every line has ``n_cols`` cells, at most :data:`_MAX_CELL`
+    characters long, with a sign only first, and no line is blank; else None."""
+    newline = text == ord("\n")
+    ends = np.flatnonzero(newline | (text == ord(",")))
+    points = np.flatnonzero(text == ord("."))
+    marks = int(np.count_nonzero((text - np.uint8(ord("+"))) < 4))  # + , - .
+    rows = int(np.count_nonzero(newline))
+    if digits + marks + rows != text.size or ends.size != rows * n_cols \
+            or not newline[ends[n_cols - 1::n_cols]].all():
+        return None
+    starts = np.empty_like(ends)
+    starts[0] = 0
+    np.add(ends[:-1], 1, out=starts[1:])
+    lengths = ends - starts
+    if lengths.max() > _MAX_CELL or (n_cols == 1 and not lengths.all()):
+        return None  # a long cell, or a blank line (no cell, for loadtxt)
+    first = text[starts]  # an empty cell's is its separator
+    signs = marks - (ends.size - rows) - points.size
+    if signs != np.count_nonzero((first == ord("-")) | (first == ord("+"))):
+        return None
+    return _Cells(ends, starts, lengths, first, points)
+
+
+def _decimal_places(cells: _Cells) -> NDArray[np.intp] | int | None:
+    """Digits after the point of each cell (C,), or one count for all; a cell without a
+    point has -1 (for :func:`_mantissas`). None for a cell with two points or no digit."""
+    points = cells.points
+    if points.size == cells.ends.size and ((points >= cells.starts)
+                                           & (points < cells.ends)).all():
+        places = cells.ends - points - 1  # one point per cell: the common layout
+        digits = cells.lengths - 1
+    else:
+        cell = np.searchsorted(cells.ends, points)
+        if (np.diff(cell) == 0).any():
+            return None
+        places = np.full(cells.ends.size, -1, dtype=np.intp)
+        places[cell] = cells.ends[cell] - points - 1
+        digits = cells.lengths - (places >= 0)
+    digits -= (cells.first == ord("-")) | (cells.first == ord("+"))
+    if ((digits <= 0) & (cells.lengths > 0)).any():
+        return None
+    low, high = int(places.min()), int(places.max())
+    return low if low == high and low >= 0 else places
+
+
+def _eight_digits(words: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """The integers written by eight digit values (0 to 9), the first byte the most
+    significant, of little-endian 64-bit words."""
+    pairs = np.uint64(0x00FF00FF00FF00FF)
+    quads = np.uint64(0x0000FFFF0000FFFF)
+    words = (words & pairs) * np.uint64(10) + ((words >> np.uint64(8)) & pairs)
+    words = (words & quads) * np.uint64(100) + ((words >> np.uint64(16)) & quads)
+    return (words & np.uint64(0xFFFFFFFF)) * np.uint64(10_000) + (words >> np.uint64(32))
+
+
+def _mantissas(digits: NDArray[np.uint8], cells: _Cells,
+               places: NDArray[np.intp] | int) -> NDArray[np.uint64] | None:
+    """Each cell's digits (``digits``: the value of each character, 0 but for digits) as
+    one integer (C,), the point left out; None if one reaches 2**53."""
+    values = np.zeros(digits.size + _MAX_CELL, dtype=np.uint8)  # leading zeros for cell 0
+    values[_MAX_CELL:] = digits
+    # the 8 bytes starting at each byte, as one little-endian word (unaligned reads)
+    words = np.ndarray((values.size - 7,), dtype="<u8", buffer=values, strides=(1,))
+    low = _eight_digits(words[cells.ends + 8] & _KEEP_LOW[cells.lengths])
+    high = _eight_digits(words[cells.ends] & _KEEP_HIGH[cells.lengths])
+    number = high * np.uint64(10**8) + low
+    # the point, a 0 digit `places` from the right: drop it
+    scale = np.uint64(10**places) if isinstance(places, int) else _POW10[np.maximum(places, 0)]
+    mantissa = number // (scale * np.uint64(10)) * scale + number % scale
+    if not isinstance(places, int):
+        mantissa = np.where(places >= 0, mantissa, number)
+    if mantissa.max(initial=0) >= _EXACT:
+        return None
+    return mantissa
