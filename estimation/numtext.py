@@ -119,17 +119,31 @@ def _scaled(block: NDArray[np.float64], layout: _Layout) -> NDArray[np.float64] 
     return None
 
 
-_TRIPLETS: Final = np.array([[ord(c) for c in f"{i:03d}"] for i in range(1000)], dtype=np.uint8)
-"""ASCII digits of 0 to 999, zero-padded."""
+def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
+    """The eight zero-padded ASCII digits (..., 8) of integers below 10**8 (...), computed
+    within 64-bit words (SWAR: two halves of four digits, four pairs, eight digits)."""
+    high = values // np.uint64(10_000)
+    words = high | ((values - high * np.uint64(10_000)) << np.uint64(32))
+    # x // 100 of x < 10**4 is (x * 10486) >> 20, and x // 10 of x < 100 is (x * 205) >> 11
+    high = ((words * np.uint64(10486)) >> np.uint64(20)) & np.uint64(0x0000007F0000007F)
+    words = high | ((words - high * np.uint64(100)) << np.uint64(16))
+    high = ((words * np.uint64(205)) >> np.uint64(11)) & np.uint64(0x000F000F000F000F)
+    words = high | ((words - high * np.uint64(10)) << np.uint64(8))
+    words |= np.uint64(0x3030303030303030)  # "0" in each byte
+    digits: NDArray[np.uint8] = words.astype("<u8", copy=False).view(np.uint8)
+    return digits.reshape(*values.shape, 8)
 
 
-def _put_digits(values: NDArray[np.int64], out: NDArray[np.uint8]) -> None:
-    """Zero-padded ASCII digits of non-negative integers (R, C) into ``out`` (R, C, W) with W
-    a multiple of 3, three at a time."""
-    q = values
-    for end in range(out.shape[-1], 0, -3):
-        q, group = np.divmod(q, 1000)
-        out[..., end - 3:end] = np.take(_TRIPLETS, group, axis=0)
+def _put_digits(values: NDArray[np.uint64], out: NDArray[np.uint8]) -> None:
+    """Zero-padded ASCII digits of non-negative integers (R, C) below 10**16 into ``out``
+    (R, C, W), W at most 16."""
+    width = out.shape[-1]
+    if width > 8:
+        high, values = np.divmod(values, np.uint64(10**8))
+        out[..., :width - 8] = _ascii8(high)[..., 16 - width:]
+        out = out[..., width - 8:]
+        width = 8
+    out[...] = _ascii8(values)[..., 8 - width:]
 
 
 def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
@@ -137,9 +151,8 @@ def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
     """Rows of ``block`` with every digit computed by numpy: each number in a fixed-width
     field of the row, a mask keeping the characters it uses."""
     d, sep = layout.decimals, layout.sep.encode()
-    whole, frac = np.divmod(np.abs(np.rint(scaled)).astype(np.int64), 10 ** d)
-    width = 3 * -(-len(str(int(whole.max(initial=0)))) // 3)
-    n_frac = 3 * -(-d // 3)
+    whole, frac = np.divmod(np.abs(np.rint(scaled)).astype(np.uint64), np.uint64(10 ** d))
+    width = len(str(int(whole.max(initial=0))))
     field = 1 + width + (1 + d if d else 0) + len(sep)
     n_rows, n_cols = block.shape
     start, end = layout.row_start.encode(), layout.row_end.encode()
@@ -147,11 +160,11 @@ def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
     mask = np.ones(line.shape, dtype=bool)
     chars = line[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
     keep = mask[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
-    if d:  # the decimals' zero padding may cover the point and int digits: written next
-        _put_digits(frac, chars[..., field - len(sep) - n_frac:field - len(sep)])
+    if d:
+        _put_digits(frac, chars[..., 2 + width:2 + width + d])
         chars[..., 1 + width] = ord(".")
     _put_digits(whole, chars[..., 1:1 + width])
-    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), whole, side="right")
+    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.uint64), whole, side="right")
     keep[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
     chars[..., 0] = ord("-")
     keep[..., 0] = np.signbit(block)
