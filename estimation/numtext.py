@@ -130,7 +130,7 @@ def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
     high = ((words * np.uint64(205)) >> np.uint64(11)) & np.uint64(0x000F000F000F000F)
     words = high | ((words - high * np.uint64(10)) << np.uint64(8))
     words |= np.uint64(0x3030303030303030)  # "0" in each byte
-    digits: NDArray[np.uint8] = words.astype("<u8", copy=False).view(np.uint8)
+    digits: NDArray[np.uint8] = np.ascontiguousarray(words, dtype="<u8").view(np.uint8)
     return digits.reshape(*values.shape, 8)
 
 

@@ -52,6 +52,12 @@ def test_savetxt_identity_and_small_blocks(monkeypatch: pytest.MonkeyPatch) -> N
     assert fixed_text(table, 6, sep=" ") == out.getvalue()
 
 
+def test_any_memory_layout() -> None:
+    table = np.random.default_rng(2).normal(size=(9, 6)) * 1e3
+    for view in (table.T, np.asfortranarray(table), table[::2, ::3]):
+        assert fixed_text(view, 4) == printf_rows(view, 4, ",")
+
+
 def test_non_finite_values_as_empty_cells_or_printf() -> None:
     table = np.array([[1.5, np.nan, -np.inf], [np.inf, 2.25, 0.0]])
     assert fixed_text(table, 2, nan="") == "1.50,,\n,2.25,0.00\n"
