@@ -119,9 +119,10 @@ def _scaled(block: NDArray[np.float64], layout: _Layout) -> NDArray[np.float64] 
     return None
 
 
-def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
-    """The eight zero-padded ASCII digits (..., 8) of integers below 10**8 (...), computed
-    within 64-bit words (SWAR: two halves of four digits, four pairs, eight digits)."""
+def _ascii8_words(values: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """Little-endian 64-bit words whose bytes are the eight zero-padded ASCII digits of
+    integers below 10**8 (...), the most significant first; computed within the words (SWAR:
+    two halves of four digits, four pairs, eight digits)."""
     high = values // np.uint64(10_000)
     words = high | ((values - high * np.uint64(10_000)) << np.uint64(32))
     # x // 100 of x < 10**4 is (x * 10486) >> 20, and x // 10 of x < 100 is (x * 205) >> 11
@@ -130,7 +131,12 @@ def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
     high = ((words * np.uint64(205)) >> np.uint64(11)) & np.uint64(0x000F000F000F000F)
     words = high | ((words - high * np.uint64(10)) << np.uint64(8))
     words |= np.uint64(0x3030303030303030)  # "0" in each byte
-    digits: NDArray[np.uint8] = np.ascontiguousarray(words, dtype="<u8").view(np.uint8)
+    return np.ascontiguousarray(words, dtype="<u8")
+
+
+def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
+    """The eight zero-padded ASCII digits (..., 8) of integers below 10**8 (...)."""
+    digits: NDArray[np.uint8] = _ascii8_words(values).view(np.uint8)
     return digits.reshape(*values.shape, 8)
 
 
@@ -139,43 +145,102 @@ def _put_digits(values: NDArray[np.uint64], out: NDArray[np.uint8]) -> None:
     (R, C, W), W at most 16."""
     width = out.shape[-1]
     if width > 8:
-        high, values = np.divmod(values, np.uint64(10**8))
+        high = values // np.uint64(10**8)
         out[..., :width - 8] = _ascii8(high)[..., 16 - width:]
+        values = values - high * np.uint64(10**8)
         out = out[..., width - 8:]
         width = 8
     out[...] = _ascii8(values)[..., 8 - width:]
+
+
+@dataclass(frozen=True, eq=False)
+class _Fields:
+    """Rows of fixed-width fields, one per number: ``sign, width digits, point, decimals,
+    sep``, between ``row_start`` and ``row_end``; ``line`` (R, L) holds the characters and
+    ``mask`` (R, L) which of them the text keeps."""
+
+    line: NDArray[np.uint8]
+    mask: NDArray[np.bool_]
+    start: int
+    field: int
+    width: int
+    decimals: int
+
+    def chars(self) -> NDArray[np.uint8]:
+        """The fields of ``line`` (R, C, field), a view."""
+        return self._of(self.line)
+
+    def keep(self) -> NDArray[np.bool_]:
+        """The fields of ``mask`` (R, C, field), a view."""
+        return self._of(self.mask)
+
+    def _of(self, rows: NDArray[Any]) -> NDArray[Any]:
+        n_cols = (rows.shape[1] - self.start) // self.field
+        return rows[:, self.start:self.start + n_cols * self.field].reshape(
+            rows.shape[0], n_cols, self.field)
+
+    def words(self, at: int) -> NDArray[np.uint64]:
+        """The 8 bytes from ``at`` in every field as one little-endian word (R, C): a view
+        for unaligned stores (``at + 8`` at most the field's width)."""
+        n_cols = (self.line.shape[1] - self.start) // self.field
+        return np.ndarray((self.line.shape[0], n_cols), dtype="<u8", buffer=self.line,
+                          offset=self.start + at, strides=(self.line.strides[0], self.field))
+
+
+def _fields(n_rows: int, n_cols: int, width: int, layout: _Layout) -> _Fields:
+    """Rows of fields with their constant characters (``-``, the point, the separators,
+    the row's start and end), from one template row."""
+    d, sep = layout.decimals, layout.sep
+    one = "-" + "0" * width + ("." + "0" * d if d else "")
+    text = layout.row_start + (one + sep) * n_cols + layout.row_end
+    row = np.frombuffer(text.encode(), dtype=np.uint8)
+    kept = np.ones(row.size, dtype=bool)
+    end = len(layout.row_start) + n_cols * (len(one) + len(sep))
+    if n_cols:
+        kept[end - len(sep):end] = False  # no separator after the last number
+    line = np.empty((n_rows, row.size), dtype=np.uint8)
+    line[...] = row
+    mask = np.empty(line.shape, dtype=bool)
+    mask[...] = kept
+    return _Fields(line, mask, len(layout.row_start), len(one) + len(sep), width, d)
+
+
+def _put_number_digits(fields: _Fields, whole: NDArray[np.uint64],
+                       frac: NDArray[np.uint64]) -> None:
+    """The digits of the integer and decimal parts into ``fields``; leading zeros of the
+    integer part masked."""
+    chars, width, d = fields.chars(), fields.width, fields.decimals
+    at = 2 + width + d - 8  # the eight digits of the decimals (d ≤ 8) ending at theirs
+    if 0 < d <= 8 and at >= 0:
+        fields.words(at)[...] = _ascii8_words(frac)  # over the point and integer digits
+        chars[..., 1 + width] = ord(".")
+        if at == 0:
+            chars[..., 0] = ord("-")
+    elif d:
+        _put_digits(frac, chars[..., 2 + width:2 + width + d])
+    if width == 1:
+        chars[..., 1] = whole.astype(np.uint8) + np.uint8(ord("0"))
+        return
+    _put_digits(whole, chars[..., 1:1 + width])
+    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.uint64), whole, side="right")
+    fields.keep()[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
 
 
 def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
                  layout: _Layout) -> str:
     """Rows of ``block`` with every digit computed by numpy: each number in a fixed-width
     field of the row, a mask keeping the characters it uses."""
-    d, sep = layout.decimals, layout.sep.encode()
-    whole, frac = np.divmod(np.abs(np.rint(scaled)).astype(np.uint64), np.uint64(10 ** d))
+    number = np.abs(np.rint(scaled)).astype(np.uint64)
+    whole = number // np.uint64(10**layout.decimals)
+    frac = number - whole * np.uint64(10**layout.decimals)
     width = len(str(int(whole.max(initial=0))))
-    field = 1 + width + (1 + d if d else 0) + len(sep)
-    n_rows, n_cols = block.shape
-    start, end = layout.row_start.encode(), layout.row_end.encode()
-    line = np.empty((n_rows, len(start) + n_cols * field + len(end)), dtype=np.uint8)
-    mask = np.ones(line.shape, dtype=bool)
-    chars = line[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
-    keep = mask[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
-    if d:
-        _put_digits(frac, chars[..., 2 + width:2 + width + d])
-        chars[..., 1 + width] = ord(".")
-    _put_digits(whole, chars[..., 1:1 + width])
-    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.uint64), whole, side="right")
-    keep[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
-    chars[..., 0] = ord("-")
+    fields = _fields(block.shape[0], block.shape[1], width, layout)
+    _put_number_digits(fields, whole, frac)
+    keep = fields.keep()
     keep[..., 0] = np.signbit(block)
-    if sep:
-        chars[..., field - len(sep):] = np.frombuffer(sep, dtype=np.uint8)
-        keep[:, -1, field - len(sep):] = False
     if layout.nan == "":
-        keep[~np.isfinite(block), :field - len(sep)] = False
-    line[:, :len(start)] = np.frombuffer(start, dtype=np.uint8)
-    line[:, line.shape[1] - len(end):] = np.frombuffer(end, dtype=np.uint8)
-    return line[mask].tobytes().decode("utf-8")
+        keep[~np.isfinite(block), :fields.field - len(layout.sep)] = False
+    return fields.line[fields.mask].tobytes().decode("utf-8")
 
 
 # --------------------------------------------------------------------------- JSON

@@ -52,6 +52,21 @@ def test_savetxt_identity_and_small_blocks(monkeypatch: pytest.MonkeyPatch) -> N
     assert fixed_text(table, 6, sep=" ") == out.getvalue()
 
 
+@pytest.mark.parametrize("decimals", range(16))
+def test_every_count_of_decimals_and_integer_digits(decimals: int) -> None:
+    """The digits of the decimals go in 8-byte words where they fit within the number's
+    field: every split of integer digits and decimals against printf."""
+    rng = np.random.default_rng(decimals)
+    for digits in range(1, 16 - decimals):
+        table = rng.uniform(-1, 1, size=(7, 3)) * 10.0 ** digits
+        table[0, 0] = -(10.0 ** (digits - 1))  # the widest integer part of the block
+        for sep, ends in ((",", ("", "\n")), (", ", (", [", "]"))):
+            text = fixed_text(table, decimals, sep=sep, row_start=ends[0], row_end=ends[1])
+            rows = "".join(ends[0] + sep.join(f"{v:.{decimals}f}" for v in row) + ends[1]
+                           for row in table.tolist())
+            assert text == rows, (decimals, digits)
+
+
 def test_any_memory_layout() -> None:
     table = np.random.default_rng(2).normal(size=(9, 6)) * 1e3
     for view in (table.T, np.asfortranarray(table), table[::2, ::3]):
