@@ -1,5 +1,6 @@
 """Numbers as text in bulk: rows of fixed-decimal numbers and JSON arrays, formatted by
-numpy a block of rows at a time instead of one Python call per number.
+numpy a block of rows at a time instead of one Python call per number; and the reverse for
+plain decimals (:func:`decimal_rows`, the sensor CSV reader's parse).
 
 A number is written as ``f"{v:.{decimals}f}"`` would write it (C ``printf``, correctly
 rounded), byte for byte: its digits come from the integer ``rint(v * 10**decimals)``, which is
