@@ -1,5 +1,6 @@
 """Numbers as text in bulk: rows of fixed-decimal numbers and JSON arrays, formatted by
-numpy a block of rows at a time instead of one Python call per number.
+numpy a block of rows at a time instead of one Python call per number; and the reverse for
+plain decimals (:func:`decimal_rows`, the sensor CSV reader's parse).
 
 A number is written as ``f"{v:.{decimals}f}"`` would write it (C ``printf``, correctly
 rounded), byte for byte: its digits come from the integer ``rint(v * 10**decimals)``, which is
@@ -119,50 +120,128 @@ def _scaled(block: NDArray[np.float64], layout: _Layout) -> NDArray[np.float64] 
     return None
 
 
-_TRIPLETS: Final = np.array([[ord(c) for c in f"{i:03d}"] for i in range(1000)], dtype=np.uint8)
-"""ASCII digits of 0 to 999, zero-padded."""
+def _ascii8_words(values: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """Little-endian 64-bit words whose bytes are the eight zero-padded ASCII digits of
+    integers below 10**8 (...), the most significant first; computed within the words (SWAR:
+    two halves of four digits, four pairs, eight digits)."""
+    high = values // np.uint64(10_000)
+    words = high | ((values - high * np.uint64(10_000)) << np.uint64(32))
+    # x // 100 of x < 10**4 is (x * 10486) >> 20, and x // 10 of x < 100 is (x * 205) >> 11
+    high = ((words * np.uint64(10486)) >> np.uint64(20)) & np.uint64(0x0000007F0000007F)
+    words = high | ((words - high * np.uint64(100)) << np.uint64(16))
+    high = ((words * np.uint64(205)) >> np.uint64(11)) & np.uint64(0x000F000F000F000F)
+    words = high | ((words - high * np.uint64(10)) << np.uint64(8))
+    words |= np.uint64(0x3030303030303030)  # "0" in each byte
+    return np.ascontiguousarray(words, dtype="<u8")
 
 
-def _put_digits(values: NDArray[np.int64], out: NDArray[np.uint8]) -> None:
-    """Zero-padded ASCII digits of non-negative integers (R, C) into ``out`` (R, C, W) with W
-    a multiple of 3, three at a time."""
-    q = values
-    for end in range(out.shape[-1], 0, -3):
-        q, group = np.divmod(q, 1000)
-        out[..., end - 3:end] = np.take(_TRIPLETS, group, axis=0)
+def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
+    """The eight zero-padded ASCII digits (..., 8) of integers below 10**8 (...)."""
+    digits: NDArray[np.uint8] = _ascii8_words(values).view(np.uint8)
+    return digits.reshape(*values.shape, 8)
+
+
+def _put_digits(values: NDArray[np.uint64], out: NDArray[np.uint8]) -> None:
+    """Zero-padded ASCII digits of non-negative integers (R, C) below 10**16 into ``out``
+    (R, C, W), W at most 16."""
+    width = out.shape[-1]
+    if width > 8:
+        high = values // np.uint64(10**8)
+        out[..., :width - 8] = _ascii8(high)[..., 16 - width:]
+        values = values - high * np.uint64(10**8)
+        out = out[..., width - 8:]
+        width = 8
+    out[...] = _ascii8(values)[..., 8 - width:]
+
+
+@dataclass(frozen=True, eq=False)
+class _Fields:
+    """Rows of fixed-width fields, one per number: ``sign, width digits, point, decimals,
+    sep``, between ``row_start`` and ``row_end``; ``line`` (R, L) holds the characters and
+    ``mask`` (R, L) which of them the text keeps."""
+
+    line: NDArray[np.uint8]
+    mask: NDArray[np.bool_]
+    start: int
+    field: int
+    width: int
+    decimals: int
+
+    def chars(self) -> NDArray[np.uint8]:
+        """The fields of ``line`` (R, C, field), a view."""
+        return self._of(self.line)
+
+    def keep(self) -> NDArray[np.bool_]:
+        """The fields of ``mask`` (R, C, field), a view."""
+        return self._of(self.mask)
+
+    def _of(self, rows: NDArray[Any]) -> NDArray[Any]:
+        n_cols = (rows.shape[1] - self.start) // self.field
+        return rows[:, self.start:self.start + n_cols * self.field].reshape(
+            rows.shape[0], n_cols, self.field)
+
+    def words(self, at: int) -> NDArray[np.uint64]:
+        """The 8 bytes from ``at`` in every field as one little-endian word (R, C): a view
+        for unaligned stores (``at + 8`` at most the field's width)."""
+        n_cols = (self.line.shape[1] - self.start) // self.field
+        return np.ndarray((self.line.shape[0], n_cols), dtype="<u8", buffer=self.line,
+                          offset=self.start + at, strides=(self.line.strides[0], self.field))
+
+
+def _fields(n_rows: int, n_cols: int, width: int, layout: _Layout) -> _Fields:
+    """Rows of fields with their constant characters (``-``, the point, the separators,
+    the row's start and end), from one template row."""
+    d, sep = layout.decimals, layout.sep
+    one = "-" + "0" * width + ("." + "0" * d if d else "")
+    text = layout.row_start + (one + sep) * n_cols + layout.row_end
+    row = np.frombuffer(text.encode(), dtype=np.uint8)
+    kept = np.ones(row.size, dtype=bool)
+    end = len(layout.row_start) + n_cols * (len(one) + len(sep))
+    if n_cols:
+        kept[end - len(sep):end] = False  # no separator after the last number
+    line = np.empty((n_rows, row.size), dtype=np.uint8)
+    line[...] = row
+    mask = np.empty(line.shape, dtype=bool)
+    mask[...] = kept
+    return _Fields(line, mask, len(layout.row_start), len(one) + len(sep), width, d)
+
+
+def _put_number_digits(fields: _Fields, whole: NDArray[np.uint64],
+                       frac: NDArray[np.uint64]) -> None:
+    """The digits of the integer and decimal parts into ``fields``; leading zeros of the
+    integer part masked."""
+    chars, width, d = fields.chars(), fields.width, fields.decimals
+    at = 2 + width + d - 8  # the eight digits of the decimals (d ≤ 8) ending at theirs
+    if 0 < d <= 8 and at >= 0:
+        fields.words(at)[...] = _ascii8_words(frac)  # over the point and integer digits
+        chars[..., 1 + width] = ord(".")
+        if at == 0:
+            chars[..., 0] = ord("-")
+    elif d:
+        _put_digits(frac, chars[..., 2 + width:2 + width + d])
+    if width == 1:
+        chars[..., 1] = whole.astype(np.uint8) + np.uint8(ord("0"))
+        return
+    _put_digits(whole, chars[..., 1:1 + width])
+    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.uint64), whole, side="right")
+    fields.keep()[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
 
 
 def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
                  layout: _Layout) -> str:
     """Rows of ``block`` with every digit computed by numpy: each number in a fixed-width
     field of the row, a mask keeping the characters it uses."""
-    d, sep = layout.decimals, layout.sep.encode()
-    whole, frac = np.divmod(np.abs(np.rint(scaled)).astype(np.int64), 10 ** d)
-    width = 3 * -(-len(str(int(whole.max(initial=0)))) // 3)
-    n_frac = 3 * -(-d // 3)
-    field = 1 + width + (1 + d if d else 0) + len(sep)
-    n_rows, n_cols = block.shape
-    start, end = layout.row_start.encode(), layout.row_end.encode()
-    line = np.empty((n_rows, len(start) + n_cols * field + len(end)), dtype=np.uint8)
-    mask = np.ones(line.shape, dtype=bool)
-    chars = line[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
-    keep = mask[:, len(start):len(start) + n_cols * field].reshape(n_rows, n_cols, field)
-    if d:  # the decimals' zero padding may cover the point and int digits: written next
-        _put_digits(frac, chars[..., field - len(sep) - n_frac:field - len(sep)])
-        chars[..., 1 + width] = ord(".")
-    _put_digits(whole, chars[..., 1:1 + width])
-    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), whole, side="right")
-    keep[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
-    chars[..., 0] = ord("-")
+    number = np.abs(np.rint(scaled)).astype(np.uint64)
+    whole = number // np.uint64(10**layout.decimals)
+    frac = number - whole * np.uint64(10**layout.decimals)
+    width = len(str(int(whole.max(initial=0))))
+    fields = _fields(block.shape[0], block.shape[1], width, layout)
+    _put_number_digits(fields, whole, frac)
+    keep = fields.keep()
     keep[..., 0] = np.signbit(block)
-    if sep:
-        chars[..., field - len(sep):] = np.frombuffer(sep, dtype=np.uint8)
-        keep[:, -1, field - len(sep):] = False
     if layout.nan == "":
-        keep[~np.isfinite(block), :field - len(sep)] = False
-    line[:, :len(start)] = np.frombuffer(start, dtype=np.uint8)
-    line[:, line.shape[1] - len(end):] = np.frombuffer(end, dtype=np.uint8)
-    return line[mask].tobytes().decode("utf-8")
+        keep[~np.isfinite(block), :fields.field - len(layout.sep)] = False
+    return fields.line[fields.mask].tobytes().decode("utf-8")
 
 
 # --------------------------------------------------------------------------- JSON
@@ -302,3 +381,161 @@ def write_text_blocks(blocks: Iterable[str], target: str | os.PathLike[str] | io
         for text in blocks:
             handle.write(text)
         handle.write(end)
+
+
+# --------------------------------------------------------------------------- parsing
+
+_MAX_CELL: Final[int] = 16
+"""Characters of the longest cell :func:`decimal_rows` parses (two 8-byte words)."""
+
+_KEEP_LAST: Final = np.array([0] + [((1 << 64) - 1) << 8 * (8 - k) & ((1 << 64) - 1)
+                                    for k in range(1, 9)], dtype=np.uint64)
+"""Masks keeping the last k bytes (0 to 8) of a little-endian 8-byte word."""
+
+_KEEP_LOW: Final = _KEEP_LAST[np.minimum(np.arange(_MAX_CELL + 1), 8)]
+_KEEP_HIGH: Final = _KEEP_LAST[np.maximum(np.arange(_MAX_CELL + 1) - 8, 0)]
+_POW10: Final = 10 ** np.arange(_MAX_CELL + 1, dtype=np.uint64)
+_POW10_FLOAT: Final = np.array([float(10**k) for k in range(_MAX_CELL + 1)])
+"""Powers of ten up to 1e16, exact in float64 (up to 1e22 they are)."""
+_EXACT: Final[int] = 2**53
+
+
+@dataclass(frozen=True, eq=False)
+class _Cells:
+    """Where the cells of a block of text are: the separator ending each (C,), its
+    start (C,), its length (C,), its first character (C,), and the positions of the
+    decimal points (P,)."""
+
+    ends: NDArray[np.intp]
+    starts: NDArray[np.intp]
+    lengths: NDArray[np.intp]
+    first: NDArray[np.uint8]
+    points: NDArray[np.intp]
+
+
+def decimal_rows(data: bytes, n_cols: int) -> NDArray[np.float64] | None:
+    """The numbers of lines of ``n_cols`` comma-separated plain decimals, parsed by numpy
+    outside the interpreter lock, bit for bit as ``numpy.loadtxt`` (``strtod``) parses them.
+
+    Parameters
+    ----------
+    data : bytes
+        Lines, each ending in ``\\n``, of ``n_cols`` cells each. A cell is empty or an
+        optional sign, digits and at most one decimal point (at least one digit), at most
+        16 characters.
+    n_cols : int
+        Cells per line.
+
+    Returns
+    -------
+    ndarray, shape (R, n_cols), or None
+        The numbers, an empty cell NaN; None when ``data`` is anything else (an exponent,
+        ``nan``, a space, a quote, a comment, a blank line, a line of another length, more
+        than 15 significant digits): the caller then parses it by ``numpy.loadtxt``.
+
+    Notes
+    -----
+    A cell's digits make an integer mantissa ``m`` < 2**53 (exact in a float64) and its
+    decimal places ``d`` ≤ 15, so ``m / 10**d`` is one correctly rounded division of exact
+    values: the float ``strtod`` reads from the text. The digits are combined eight at a
+    time, within 64-bit words (SWAR), from the bytes that end each cell.
+    """
+    text = np.frombuffer(data, dtype=np.uint8)
+    if not text.size or text[-1] != ord("\n"):
+        return None
+    digit = text - np.uint8(ord("0"))
+    is_digit = digit < 10
+    cells = _cells(text, n_cols, int(np.count_nonzero(is_digit)))
+    if cells is None:
+        return None
+    places = _decimal_places(cells)
+    if places is None:
+        return None
+    np.multiply(digit, is_digit, out=digit)  # a point or sign is a 0 digit
+    mantissa = _mantissas(digit, cells, places)
+    if mantissa is None:
+        return None
+    values = mantissa.astype(np.float64)
+    values /= _POW10_FLOAT[places] if isinstance(places, int) else _POW10_FLOAT[
+        np.maximum(places, 0)]
+    np.negative(values, out=values, where=cells.first == ord("-"))
+    values[cells.lengths == 0] = np.nan
+    return values.reshape(-1, n_cols)
+
+
+def _cells(text: NDArray[np.uint8], n_cols: int, digits: int) -> _Cells | None:
+    """The cells of ``text`` (which has ``digits`` digits) when it holds only digits,
+    ``+,-.`` and newlines, every line has ``n_cols`` cells, at most :data:`_MAX_CELL`
+    characters long, with a sign only first, and no line is blank; else None."""
+    newline = text == ord("\n")
+    ends = np.flatnonzero(newline | (text == ord(",")))
+    points = np.flatnonzero(text == ord("."))
+    marks = int(np.count_nonzero((text - np.uint8(ord("+"))) < 4))  # + , - .
+    rows = int(np.count_nonzero(newline))
+    if digits + marks + rows != text.size or ends.size != rows * n_cols \
+            or not newline[ends[n_cols - 1::n_cols]].all():
+        return None
+    starts = np.empty_like(ends)
+    starts[0] = 0
+    np.add(ends[:-1], 1, out=starts[1:])
+    lengths = ends - starts
+    if lengths.max() > _MAX_CELL or (n_cols == 1 and not lengths.all()):
+        return None  # a long cell, or a blank line (no cell, for loadtxt)
+    first = text[starts]  # an empty cell's is its separator
+    signs = marks - (ends.size - rows) - points.size
+    if signs != np.count_nonzero((first == ord("-")) | (first == ord("+"))):
+        return None
+    return _Cells(ends, starts, lengths, first, points)
+
+
+def _decimal_places(cells: _Cells) -> NDArray[np.intp] | int | None:
+    """Digits after the point of each cell (C,), or one count for all; a cell without a
+    point has -1 (for :func:`_mantissas`). None for a cell with two points or no digit."""
+    points = cells.points
+    if points.size == cells.ends.size and ((points >= cells.starts)
+                                           & (points < cells.ends)).all():
+        places = cells.ends - points - 1  # one point per cell: the common layout
+        digits = cells.lengths - 1
+    else:
+        cell = np.searchsorted(cells.ends, points)
+        if (np.diff(cell) == 0).any():
+            return None
+        places = np.full(cells.ends.size, -1, dtype=np.intp)
+        places[cell] = cells.ends[cell] - points - 1
+        digits = cells.lengths - (places >= 0)
+    digits -= (cells.first == ord("-")) | (cells.first == ord("+"))
+    if ((digits <= 0) & (cells.lengths > 0)).any():
+        return None
+    low, high = int(places.min()), int(places.max())
+    return low if low == high and low >= 0 else places
+
+
+def _eight_digits(words: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """The integers written by eight digit values (0 to 9), the first byte the most
+    significant, of little-endian 64-bit words."""
+    pairs = np.uint64(0x00FF00FF00FF00FF)
+    quads = np.uint64(0x0000FFFF0000FFFF)
+    words = (words & pairs) * np.uint64(10) + ((words >> np.uint64(8)) & pairs)
+    words = (words & quads) * np.uint64(100) + ((words >> np.uint64(16)) & quads)
+    return (words & np.uint64(0xFFFFFFFF)) * np.uint64(10_000) + (words >> np.uint64(32))
+
+
+def _mantissas(digits: NDArray[np.uint8], cells: _Cells,
+               places: NDArray[np.intp] | int) -> NDArray[np.uint64] | None:
+    """Each cell's digits (``digits``: the value of each character, 0 but for digits) as
+    one integer (C,), the point left out; None if one reaches 2**53."""
+    values = np.zeros(digits.size + _MAX_CELL, dtype=np.uint8)  # leading zeros for cell 0
+    values[_MAX_CELL:] = digits
+    # the 8 bytes starting at each byte, as one little-endian word (unaligned reads)
+    words = np.ndarray((values.size - 7,), dtype="<u8", buffer=values, strides=(1,))
+    low = _eight_digits(words[cells.ends + 8] & _KEEP_LOW[cells.lengths])
+    high = _eight_digits(words[cells.ends] & _KEEP_HIGH[cells.lengths])
+    number = high * np.uint64(10**8) + low
+    # the point, a 0 digit `places` from the right: drop it
+    scale = np.uint64(10**places) if isinstance(places, int) else _POW10[np.maximum(places, 0)]
+    mantissa = number // (scale * np.uint64(10)) * scale + number % scale
+    if not isinstance(places, int):
+        mantissa = np.where(places >= 0, mantissa, number)
+    if mantissa.max(initial=0) >= _EXACT:
+        return None
+    return mantissa

@@ -12,6 +12,8 @@ CLI's ``--help`` and the service's API process stay light.
 
 from __future__ import annotations
 
+import importlib
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -128,14 +130,14 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
     report(0.0, "reading")
     from .io.sensors import read_recording
 
+    import_meanwhile(SKELETON_MODULES)
     started = time.perf_counter()
     recording = read_recording(source.path, format=source.format, units=source.units,
                                fps=source.fps, stations=source.stations,
                                tracker_layout=source.tracker_layout,
                                progress=_share(progress, 0.0, READ_SHARE))
     read_s = time.perf_counter() - started
-    # scipy and the estimators, once the read has reported: two imports of about equal
-    # cost (a second each on a busy machine), a report after the first
+    # waits for the imports begun above if they are not done
     from .io.skeleton import write_skeleton_files
     report(READ_SHARE, "reading")
     from .skeleton import estimate_skeleton, estimate_skeleton_from_offsets
@@ -246,6 +248,29 @@ def run_translation(source: KinematicsSource, options: TranslationRunOptions,
     result = write_translation_files(result, recording, files)
     report(1.0, "writing")
     return TranslationRun(result, recording)
+
+
+SKELETON_MODULES: Final[tuple[str, ...]] = (f"{__package__}.skeleton",
+                                            f"{__package__}.io.skeleton")
+"""What a skeleton run needs after the read: the estimators and writers (and scipy)."""
+
+
+def import_meanwhile(modules: Sequence[str]) -> threading.Thread:
+    """Import ``modules`` in a thread (daemon), so that they load while the caller parses a
+    file: the parse is numpy array operations, which release the interpreter lock, and an
+    import is about a second of the start of a run. A failed import is left to the
+    caller's own import of the module, which raises it."""
+
+    def load() -> None:
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except ImportError:
+                return
+
+    thread = threading.Thread(target=load, name="bonefit-import", daemon=True)
+    thread.start()
+    return thread
 
 
 def _method_values(options: SkeletonRunOptions) -> dict[str, Any]:

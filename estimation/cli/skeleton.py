@@ -11,7 +11,6 @@ from typing import Any
 
 from ..errors import InputError
 from ..io.sensor_common import UNITS, example_path
-from ..io.skeleton import read_skeleton_offsets
 from ..io.sniff import FORMATS, detect_format
 from ..io.tracker import (
     TrackerLayout,
@@ -179,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
         check_fps(fps, "--fps")
     stations = parse_stations(args.stations) if args.stations is not None else None
     if args.offsets is not None:
+        from ..io.skeleton import read_skeleton_offsets  # scipy: only with a calibration
+
         options = dataclasses.replace(options, offsets=read_skeleton_offsets(args.offsets))
     source = _source_path(args)
     _check_output_dirs(args)

@@ -135,14 +135,10 @@ def check_recording(rec: SensorRecording, units: str) -> SensorRecording:
                              sensor=name)
     if rec.n_frames == 0:
         raise InputError("the recording has no frames", field="frames")
-    pos = np.where(valid[..., None], rec.positions, np.nan)
     counts = valid.sum(axis=1)
     rows = counts >= 2
     if rows.any():
-        with np.errstate(invalid="ignore"):
-            extent = np.linalg.norm(np.nanmax(pos[rows], axis=1) - np.nanmin(pos[rows], axis=1),
-                                    axis=-1)
-        spread = float(np.median(extent))
+        spread = float(np.median(_extents(rec.positions, valid, rows)))
         if spread > MAX_BODY_EXTENT_M:
             raise InputError(
                 f"sensors are {spread:.3g} m apart if positions are in {units}: a body is about "
@@ -152,6 +148,20 @@ def check_recording(rec: SensorRecording, units: str) -> SensorRecording:
                 f"sensors are only {spread * 1000:.3g} mm apart if positions are in {units}; "
                 f"give the file's units (units=m/cm, --units)", field="units")
     return rec
+
+
+def _extents(positions: NDArray[np.float64], valid: NDArray[np.bool_],
+             rows: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Diagonal of the box around the valid positions (F, S, 3) of each frame of ``rows``
+    (R,), m."""
+    if valid.all():  # the common case: no NaN-aware copies (the same values)
+        box = positions.max(axis=1) - positions.min(axis=1)
+    else:
+        pos = np.where(valid[rows][..., None], positions[rows], np.nan)
+        with np.errstate(invalid="ignore"):
+            box = np.nanmax(pos, axis=1) - np.nanmin(pos, axis=1)
+    extent: NDArray[np.float64] = np.linalg.norm(box, axis=-1)
+    return extent
 
 
 def time_from_fps(n_frames: int, fps: float) -> NDArray[np.float64]:

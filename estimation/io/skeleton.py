@@ -13,7 +13,9 @@ import itertools
 import json
 import math
 import os
+import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -245,9 +247,10 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
     """Write the BVH, the CSV and the NPZ and, meanwhile, the JSON, whose ``timings.write_s``
     covers all.
 
-    The JSON is streamed in this thread while the others are written in a second one (numpy
-    formats and computes outside the interpreter lock, so on two cores the two overlap); its
-    timings, written last, wait for the others.
+    The JSON is streamed in this thread while a second one writes the other files, the BVH
+    first (numpy formats and computes outside the interpreter lock, so on two cores the two
+    overlap); this thread, done with the JSON's arrays, takes the other files the second
+    has not started. The JSON's timings, written last, wait for all of them.
 
     Parameters
     ----------
@@ -276,18 +279,18 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
     started = time.perf_counter()
     report = progress or no_progress
     report(0.0, "writing")
-    files = sum(p is not None for p in (bvh_path, csv_path, npz_path))
+    files = _OtherFiles(result, (bvh_path, csv_path, npz_path), started)
     if json_path is None:
-        tally = _WriteProgress(report, 0, files)
-        _write_others(result, (bvh_path, csv_path, npz_path), started, tally.file_shown)
+        tally = _WriteProgress(report, 0, files.count)
+        files.write(tally.file_shown)
     else:
         document = skeleton_document(result, decimals=decimals)
-        tally = _WriteProgress(report, array_values(document), files)
+        tally = _WriteProgress(report, array_values(document), files.count)
         with ThreadPoolExecutor(1, thread_name_prefix="bonefit-write") as pool:
-            others = pool.submit(_write_others, result, (bvh_path, csv_path, npz_path),
-                                 started, tally.file_done)
+            others = pool.submit(files.write, tally.file_done)
 
             def timings() -> dict[str, float]:
+                files.write(tally.file_shown)  # what the other thread has not started
                 _wait(others, tally)  # raises what the other writes raised
                 return timings_document({**result.timings,
                                          "write_s": time.perf_counter() - started})
@@ -312,19 +315,30 @@ def _wait(others: Future[None], tally: _WriteProgress) -> None:
             tally.show()
 
 
-def _write_others(result: SkeletonResult,
-                  paths: tuple[PathLike | None, PathLike | None, PathLike | None],
-                  started: float, done: Callable[[], None]) -> None:
-    """The BVH, CSV and NPZ (``paths``) of :func:`write_skeleton_files` (those not None);
-    ``done()`` after each."""
-    bvh_path, csv_path, npz_path = paths
-    writes: list[tuple[PathLike | None, Callable[[PathLike], None]]] = [
-        (bvh_path, lambda path: write_skeleton_bvh(result, path)),
-        (csv_path, lambda path: write_skeleton_csv(result, path)),
-        (npz_path, lambda path: write_skeleton_npz(replace(result, timings={
-            **result.timings, "write_s": time.perf_counter() - started}), path))]
-    for path, write in writes:
-        if path is not None:
+class _OtherFiles:
+    """The BVH, CSV and NPZ of :func:`write_skeleton_files` (those with a path), the
+    longest first, each written by whichever thread takes it first."""
+
+    def __init__(self, result: SkeletonResult,
+                 paths: tuple[PathLike | None, PathLike | None, PathLike | None],
+                 started: float) -> None:
+        bvh_path, csv_path, npz_path = paths
+        writes: list[tuple[PathLike | None, Callable[[PathLike], None]]] = [
+            (bvh_path, lambda path: write_skeleton_bvh(result, path)),
+            (csv_path, lambda path: write_skeleton_csv(result, path)),
+            (npz_path, lambda path: write_skeleton_npz(replace(result, timings={
+                **result.timings, "write_s": time.perf_counter() - started}), path))]
+        self._todo = deque((path, write) for path, write in writes if path is not None)
+        self.count = len(self._todo)
+        self._lock = threading.Lock()
+
+    def write(self, done: Callable[[], None]) -> None:
+        """Write the files no thread has taken yet, one at a time; ``done()`` after each."""
+        while True:
+            with self._lock:
+                if not self._todo:
+                    return
+                path, write = self._todo.popleft()
             write(path)
             done()
 

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +20,7 @@ from bonefit.estimation.bvh import forward_kinematics, read_bvh
 from bonefit.estimation.io.sensors import example_path, read_recording, write_sensor_csv
 from bonefit.estimation.io.skeleton import BVH_NODES, read_skeleton_npz
 from bonefit.estimation.model import JOINTS, SEGMENTS
+from bonefit.estimation.pipeline import import_meanwhile
 from bonefit.estimation.recording import SensorRecording
 from bonefit.estimation.results import SkeletonResult
 
@@ -367,3 +371,44 @@ def test_bad_calibration_files(capsys: pytest.CaptureFixture[str], tmp_path: Pat
                      "no offset for joint")
     assert_bad_input(*run(capsys, "--example", "--offsets", str(tmp_path / "nope.json"))[::2],
                      "nope.json")
+
+
+# --------------------------------------------------------------------------- start-up
+
+
+def test_the_command_starts_without_scipy_and_loads_it_while_reading() -> None:
+    """scipy and the estimators (about a second) are imported by a thread while the
+    recording is parsed, not before the read starts."""
+    script = (
+        "import sys\n"
+        "from bonefit.estimation.cli import skeleton\n"
+        "assert 'scipy' not in sys.modules, 'scipy loaded before the run'\n"
+        "from bonefit.estimation import pipeline\n"
+        "from bonefit.estimation.io import sensors\n"
+        "seen = []\n"
+        "read = sensors.read_recording\n"
+        "def reading(*args, **kwargs):\n"
+        "    pipeline_thread = [t.name for t in __import__('threading').enumerate()]\n"
+        "    seen.append('bonefit-import' in pipeline_thread)\n"
+        "    return read(*args, **kwargs)\n"
+        "sensors.read_recording = reading\n"
+        "from bonefit.cli import main\n"
+        f"code = main(['skeleton', '--quiet', {str(example_path())!r}])\n"
+        "assert code == 0 and seen == [True], (code, seen)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+
+
+def test_a_failed_import_meanwhile_is_left_to_the_caller(recwarn: pytest.WarningsRecorder
+                                                         ) -> None:
+    thread = import_meanwhile(["bonefit.no_such_module", "json"])
+    thread.join(timeout=60)
+    assert not thread.is_alive()
+    assert not recwarn.list  # no unhandled exception in the thread
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("bonefit.no_such_module")
+    sys.modules.pop("colorsys", None)  # a small module nothing here has imported
+    import_meanwhile(["colorsys"]).join(timeout=60)
+    assert "colorsys" in sys.modules

@@ -184,6 +184,43 @@ def test_blocks_of_any_size_read_the_same_rows_and_name_the_same_lines(
     assert err.value.line == 38
 
 
+@pytest.mark.parametrize("layout", ["plain", "crlf-bom", "exponents"])
+def test_decimal_parse_reads_what_loadtxt_reads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                layout: str) -> None:
+    """Blocks of plain decimals (dropped samples as empty cells) are parsed by numpy array
+    operations; the recording is bit for bit the one of the loadtxt path, in every block,
+    whatever the line ends, a byte-order mark, or numbers loadtxt alone takes."""
+    monkeypatch.setattr(sensor_csv, "CHUNK_CHARS", 4096)
+    rec = small_recording(n_frames=300, seed=5)
+    write_sensor_csv(rec, tmp_path / "r.csv", decimals=9)
+    text = (tmp_path / "r.csv").read_text()
+    if layout == "crlf-bom":
+        text = "\ufeff" + text.replace("\n", "\r\n")
+    elif layout == "exponents":
+        text = text.replace("0.000", "0.000e0", 40)
+    path = write(tmp_path / "t.csv", text)
+    calls: list[bool] = []
+    decimal_rows = sensor_csv.decimal_rows
+
+    def counted(data: bytes, n_cols: int) -> np.ndarray | None:
+        got = decimal_rows(data, n_cols)
+        calls.append(got is not None)
+        return got
+
+    monkeypatch.setattr(sensor_csv, "decimal_rows", counted)
+    fast = read_sensor_csv(path)
+    assert any(calls)
+    assert all(calls) == (layout != "exponents")
+    monkeypatch.setattr(sensor_csv, "decimal_rows", lambda data, n_cols: None)
+    slow = read_sensor_csv(path)
+    for a, b in ((fast.positions, slow.positions), (fast.quaternions, slow.quaternions),
+                 (fast.time, slow.time)):
+        assert a.shape == b.shape
+        assert (a.view(np.int64) == b.view(np.int64)).all()
+    assert fast.fps == slow.fps
+    assert not fast.valid()[4, 1]
+
+
 def test_short_row_names_its_line(tmp_path: Path) -> None:
     text = csv_text(3) + "\n0.3,0,1\n"
     with pytest.raises(InputError, match="line 5 has 3 cells") as err:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 import json
+import threading
+import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -16,6 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh
 from bonefit.estimation.errors import InputError
+from bonefit.estimation.io import skeleton as skeleton_io
 from bonefit.estimation.io.skeleton import (
     BVH_NODES,
     read_skeleton_json,
@@ -377,6 +380,39 @@ def test_write_skeleton_files_times_every_write_in_the_json(tmp_path: Path) -> N
     assert 0 < doc["timings"]["write_s"] <= out.timings["write_s"]  # BVH and CSV before it
     assert (tmp_path / "s.bvh").read_text().startswith("HIERARCHY")
     assert (tmp_path / "s.csv").is_file()
+
+
+def test_the_calling_thread_takes_the_files_the_other_has_not_started(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """While a long BVH is written beside the JSON, the CSV is written by the other thread
+    (the calling one, once its JSON arrays are out; before, the second thread wrote all
+    three in turn)."""
+    writers: dict[str, str] = {}
+    bvh_writer, csv_writer = skeleton_io.write_skeleton_bvh, skeleton_io.write_skeleton_csv
+
+    def slow_bvh(result: SkeletonResult, path: Path) -> None:
+        writers["bvh"] = threading.current_thread().name
+        time.sleep(1.0)
+        bvh_writer(result, path)
+
+    def csv(result: SkeletonResult, path: Path) -> None:
+        writers["csv"] = threading.current_thread().name
+        csv_writer(result, path)
+
+    monkeypatch.setattr(skeleton_io, "write_skeleton_bvh", slow_bvh)
+    monkeypatch.setattr(skeleton_io, "write_skeleton_csv", csv)
+    result = rigid_result(n_frames=9, seed=2)
+    write_skeleton_files(result, json_path=tmp_path / "s.json", bvh_path=tmp_path / "s.bvh",
+                         csv_path=tmp_path / "s.csv", npz_path=tmp_path / "s.npz")
+    assert writers["bvh"] != writers["csv"]
+    assert {writers["bvh"], writers["csv"]} & {threading.current_thread().name}
+    assert json.loads((tmp_path / "s.json").read_text())["frames"] == 9
+    assert read_skeleton_npz(tmp_path / "s.npz").n_frames == 9
+    assert (tmp_path / "s.bvh").read_text().startswith("HIERARCHY")
+    with pytest.raises(FileNotFoundError, match=r"missing/s\.csv"):
+        write_skeleton_files(result, json_path=tmp_path / "t.json", bvh_path=tmp_path / "t.bvh",
+                             csv_path=tmp_path / "missing" / "s.csv")
+    assert not (tmp_path / "t.json").exists()
 
 
 def test_a_failed_write_beside_the_json_is_raised_and_the_json_removed(tmp_path: Path) -> None:

@@ -52,6 +52,27 @@ def test_savetxt_identity_and_small_blocks(monkeypatch: pytest.MonkeyPatch) -> N
     assert fixed_text(table, 6, sep=" ") == out.getvalue()
 
 
+@pytest.mark.parametrize("decimals", range(16))
+def test_every_count_of_decimals_and_integer_digits(decimals: int) -> None:
+    """The digits of the decimals go in 8-byte words where they fit within the number's
+    field: every split of integer digits and decimals against printf."""
+    rng = np.random.default_rng(decimals)
+    for digits in range(1, 16 - decimals):
+        table = rng.uniform(-1, 1, size=(7, 3)) * 10.0 ** digits
+        table[0, 0] = -(10.0 ** (digits - 1))  # the widest integer part of the block
+        for sep, ends in ((",", ("", "\n")), (", ", (", [", "]"))):
+            text = fixed_text(table, decimals, sep=sep, row_start=ends[0], row_end=ends[1])
+            rows = "".join(ends[0] + sep.join(f"{v:.{decimals}f}" for v in row) + ends[1]
+                           for row in table.tolist())
+            assert text == rows, (decimals, digits)
+
+
+def test_any_memory_layout() -> None:
+    table = np.random.default_rng(2).normal(size=(9, 6)) * 1e3
+    for view in (table.T, np.asfortranarray(table), table[::2, ::3]):
+        assert fixed_text(view, 4) == printf_rows(view, 4, ",")
+
+
 def test_non_finite_values_as_empty_cells_or_printf() -> None:
     table = np.array([[1.5, np.nan, -np.inf], [np.inf, 2.25, 0.0]])
     assert fixed_text(table, 2, nan="") == "1.50,,\n,2.25,0.00\n"
@@ -98,3 +119,67 @@ def test_a_later_value_is_computed_when_reached_and_laid_out_as_json_dumps(
     without_arrays = {"b": doc["b"]}
     assert "".join(json_blocks(without_arrays, **layout)) == json.dumps(plain(without_arrays),
                                                                         **layout)
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+def loadtxt_rows(data: bytes) -> np.ndarray:
+    """The reference: numpy.loadtxt of the same lines."""
+    return np.loadtxt(io.StringIO(data.decode()), delimiter=",", dtype=float, ndmin=2,
+                      comments=None, quotechar=None)
+
+
+def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and bool((a.view(np.int64) == b.view(np.int64)).all())
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_plain_decimals_parse_to_the_bits_of_loadtxt(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n_rows, n_cols = int(rng.integers(1, 60)), int(rng.integers(1, 12))
+    values = rng.normal(size=(n_rows, n_cols)) * 10.0 ** rng.integers(-9, 9, (n_rows, n_cols))
+    places = rng.integers(0, 16, (n_rows, n_cols))
+    cells = [[f"{v:.{d}f}"[:16] for v, d in zip(row, ds, strict=True)]
+             for row, ds in zip(values.tolist(), places.tolist(), strict=True)]
+    cells[0][0] = "-0.000"  # -0.0
+    if n_cols > 1:
+        cells[-1][1] = ["+.5", "7.", "-.25", "0012.50", "+3"][seed % 5]
+    data = "".join(",".join(row) + "\n" for row in cells).encode()
+    got = numtext.decimal_rows(data, n_cols)
+    assert got is not None
+    assert same_bits(got, loadtxt_rows(data))
+
+
+def test_fifteen_significant_digits_and_uniform_places_are_exact() -> None:
+    rng = np.random.default_rng(11)
+    mantissas = rng.integers(0, 10**15, size=(500, 3))
+    for places in (0, 6, 14):  # 15 digits in at most 16 characters
+        data = "".join(",".join(f"{m / 10**places:.{places}f}" if places else str(m)
+                                for m in row) + "\n" for row in mantissas.tolist()).encode()
+        got = numtext.decimal_rows(data, 3)
+        assert got is not None
+        assert same_bits(got, loadtxt_rows(data))
+
+
+def test_empty_cells_are_nan() -> None:
+    got = numtext.decimal_rows(b",1.5,\n-2,,0\n", 3)
+    assert got is not None
+    assert np.array_equal(got, [[np.nan, 1.5, np.nan], [-2.0, np.nan, 0.0]], equal_nan=True)
+
+
+@pytest.mark.parametrize("data", [
+    b"1e5,2\n", b"nan,2\n", b"1, 2\n", b"1,2\r\n", b"1,\"2\"\n", b"#1,2\n",  # loadtxt's own
+    b"1,2\n\n3,4\n", b"1,2\n3\n", b"1,2,3\n", b"1,2",                      # layout
+    b"1.2.3,4\n", b"--1,2\n", b"1-,2\n", b"+-1,2\n", b"-,2\n", b".,2\n",  # malformed
+    b"12345678901234567,1\n", b"9007199254740993,1\n", b"1,2\n\xc3\xa9,3\n", b"",
+])
+def test_anything_else_is_left_to_loadtxt(data: bytes) -> None:
+    assert numtext.decimal_rows(data, 2) is None
+
+
+def test_a_blank_line_of_one_column_is_not_an_empty_cell() -> None:
+    assert numtext.decimal_rows(b"1\n\n2\n", 1) is None  # loadtxt skips it: two rows
+    got = numtext.decimal_rows(b"1\n-2.5\n", 1)
+    assert got is not None
+    assert same_bits(got, loadtxt_rows(b"1\n-2.5\n"))
