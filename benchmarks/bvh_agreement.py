@@ -27,7 +27,8 @@ skeleton with ``method="auto"``, write its BVH, read it back and measure:
 
 ``--order ZXY`` writes every node in one Euler order (the writer before per-node orders),
 ``--rest segment`` every node in its segment frame (the writer before rest rotations) and
-``--rigid`` a rigid skeleton (the writer before slip chains), to compare. ``--cache DIR``
+``--slip-chains`` the joints exactly where the JSON has them (``skeleton_to_bvh``'s
+``slip_chains``; by default the rigid skeleton). ``--cache DIR``
 keeps each clip's estimated skeleton (JSON) for the next run; ``--bvh-from DIR`` measures
 ``DIR/<clip>.bvh`` (clip name with ``/`` as ``__``, written from the cached JSON by another
 version of the writer) instead of writing. Usage::
@@ -150,7 +151,8 @@ def written(result: SkeletonResult, args: argparse.Namespace, name: str) -> BvhM
     if args.bvh_from is not None:
         return read_bvh(args.bvh_from / f"{name.replace('/', '__')}.bvh")
     buf = io.StringIO()
-    write_skeleton_bvh(result, buf, euler_order=args.order, rest=args.rest, rigid=args.rigid)
+    write_skeleton_bvh(result, buf, euler_order=args.order, rest=args.rest,
+                       slip_chains=args.slip_chains)
     return read_bvh(io.StringIO(buf.getvalue()))
 
 
@@ -245,8 +247,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--order", default=None,
                         help="one Euler order for every node (e.g. ZXY) instead of per node")
     parser.add_argument("--rest", default="auto", help="rest pose: auto or segment")
-    parser.add_argument("--rigid", action="store_true",
-                        help="write the rigid skeleton (no slip chains), as before them")
+    parser.add_argument("--slip-chains", action="store_true",
+                        help="write slip chains: every joint where the JSON has it")
     parser.add_argument("--readers", action="store_true",
                         help="also read every BVH with bvhio and three.js")
     parser.add_argument("--cache", type=Path, default=None,

@@ -68,8 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baseline", type=Path, default=None,
                         help="another checkout of the code to time the same takes with")
     parser.add_argument("--jitter", type=float, default=0.0,
-                        help="noise (m) on the joints: an estimate's non-rigid skeleton, "
-                             "which gets slip chains (default 0: rigid)")
+                        help="noise (m) on the joints: an estimate's non-rigid skeleton "
+                             "(default 0: rigid)")
     parser.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
+from .io.outputs import SkeletonOutputs as SkeletonOutputs  # the skeleton run's outputs
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, SkeletonResult
@@ -74,17 +75,6 @@ class SkeletonRunOptions:
     w_l: float = 0.01
     smooth: bool | None = None
     offsets: Mapping[str, JointOffset] | None = None
-
-
-@dataclass(frozen=True)
-class SkeletonOutputs:
-    """Files a skeleton run writes; None: skip. JSON (metres), BVH (cm), CSV (metres), NPZ
-    (the JSON's names, arrays binary; metres)."""
-
-    json: PathLike | None = None
-    bvh: PathLike | None = None
-    csv: PathLike | None = None
-    npz: PathLike | None = None
 
 
 @dataclass(frozen=True)
@@ -154,8 +144,7 @@ def run_skeleton(source: SensorSource, options: SkeletonRunOptions, outputs: Ske
                                                 i0=options.i0, smooth=bool(options.smooth),
                                                 progress=estimating)
     result = replace(result, timings={**result.timings, "read_s": read_s})
-    result = write_skeleton_files(result, json_path=outputs.json, bvh_path=outputs.bvh,
-                                  csv_path=outputs.csv, npz_path=outputs.npz,
+    result = write_skeleton_files(result, outputs,
                                   progress=_share(progress, 1.0 - WRITE_SHARE, 1.0))
     return SkeletonRun(result, recording)
 

@@ -112,6 +112,10 @@ def register(sub: Any, summary: str) -> None:
     parser.add_argument("-o", "--output", default=None, metavar="OUT.json",
                         help="write the result as JSON")
     parser.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write a BVH file (cm)")
+    parser.add_argument("--bvh-slip-chains", action="store_true",
+                        help="in the BVH, put every joint exactly where the JSON has it: three "
+                             "rotation-only slip nodes above each joint whose bone length "
+                             "varies (off: the rigid skeleton of mean bone lengths)")
     parser.add_argument("--csv", default=None, metavar="OUT.csv",
                         help="write joint trajectories as CSV (metres)")
     parser.add_argument("--npz", default=None, metavar="OUT.npz",
@@ -197,7 +201,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--i0 {options.i0} is past the last frame "
                              f"({recording.n_frames - 1})", field="--i0")
 
-    outputs = SkeletonOutputs(json=args.output, bvh=args.bvh, csv=args.csv, npz=args.npz)
+    outputs = SkeletonOutputs(json=args.output, bvh=args.bvh, csv=args.csv, npz=args.npz,
+                              bvh_slip_chains=args.bvh_slip_chains)
     try:
         done = run_skeleton(SensorSource(source, format=fmt, units=units, fps=fps,
                                          stations=stations, tracker_layout=layout),

@@ -49,6 +49,7 @@ from ..numtext import (
 )
 from ..progress import Progress, no_progress
 from ..results import JointOffset, SkeletonResult, timings_document
+from .outputs import SkeletonOutputs
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
 from .result_json import skeleton_from_dict as skeleton_from_dict
@@ -240,9 +241,8 @@ class _WriteProgress:
         self.report(min(done / self.total, 0.99) if self.total else 0.0, "writing")
 
 
-def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None = None,
-                         bvh_path: PathLike | None = None, csv_path: PathLike | None = None,
-                         npz_path: PathLike | None = None, decimals: int = 6,
+def write_skeleton_files(result: SkeletonResult, outputs: SkeletonOutputs, *,
+                         decimals: int = 6,
                          progress: Progress | None = None) -> SkeletonResult:
     """Write the BVH, the CSV and the NPZ and, meanwhile, the JSON, whose ``timings.write_s``
     covers all.
@@ -256,8 +256,9 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
     ----------
     result : SkeletonResult
         With ``read_s`` and ``estimate_s`` in its timings when the caller measured them.
-    json_path, bvh_path, csv_path, npz_path : path, optional
-        Files to write; None: skip. The NPZ's ``timings`` stop before it.
+    outputs : SkeletonOutputs
+        Files to write (None: skip; the NPZ's ``timings`` stop before it) and whether the
+        BVH has slip chains (:func:`skeleton_to_bvh`).
     decimals : int
         Decimal places of JSON positions in metres.
     progress : callable, optional
@@ -279,7 +280,8 @@ def write_skeleton_files(result: SkeletonResult, *, json_path: PathLike | None =
     started = time.perf_counter()
     report = progress or no_progress
     report(0.0, "writing")
-    files = _OtherFiles(result, (bvh_path, csv_path, npz_path), started)
+    files = _OtherFiles(result, outputs, started)
+    json_path = outputs.json
     if json_path is None:
         tally = _WriteProgress(report, 0, files.count)
         files.write(tally.file_shown)
@@ -320,13 +322,12 @@ class _OtherFiles:
     longest first, each written by whichever thread takes it first."""
 
     def __init__(self, result: SkeletonResult,
-                 paths: tuple[PathLike | None, PathLike | None, PathLike | None],
-                 started: float) -> None:
-        bvh_path, csv_path, npz_path = paths
+                 outputs: SkeletonOutputs, started: float) -> None:
+        chains = outputs.bvh_slip_chains
         writes: list[tuple[PathLike | None, Callable[[PathLike], None]]] = [
-            (bvh_path, lambda path: write_skeleton_bvh(result, path)),
-            (csv_path, lambda path: write_skeleton_csv(result, path)),
-            (npz_path, lambda path: write_skeleton_npz(replace(result, timings={
+            (outputs.bvh, lambda path: write_skeleton_bvh(result, path, slip_chains=chains)),
+            (outputs.csv, lambda path: write_skeleton_csv(result, path)),
+            (outputs.npz, lambda path: write_skeleton_npz(replace(result, timings={
                 **result.timings, "write_s": time.perf_counter() - started}), path))]
         self._todo = deque((path, write) for path, write in writes if path is not None)
         self.count = len(self._todo)
@@ -527,7 +528,7 @@ take's mean pose (``auto``), or every node in its segment frame (``segment``).""
 
 def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
                     euler_order: str | None = None, rest: str = "auto",
-                    rigid: bool = False) -> BvhMotion:
+                    slip_chains: bool = False) -> BvhMotion:
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
@@ -545,10 +546,10 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     is zero, so readers that add position channels to the OFFSET (three.js) and readers that
     replace it (Blender) agree.
 
-    A joint ever over ``SLIP_TOL_M`` off where that rigid skeleton puts it (an estimate's bone
-    lengths vary by millimetres) hangs from a slip chain (``bvh.slip_chain``): three
-    rotation-only nodes that carry it to its position and turn back exactly, at the frames
-    and between them, so every reader places every joint where the result has it.
+    With ``slip_chains``, a joint ever over ``SLIP_TOL_M`` off where that rigid skeleton puts
+    it (an estimate's bone lengths vary by millimetres) hangs from a slip chain
+    (``bvh.slip_chain``): three rotation-only nodes that carry it to its position and turn
+    back exactly, at the frames and between them, so every reader places it as the result.
 
     Parameters
     ----------
@@ -564,16 +565,16 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     rest : {"auto", "segment"}
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
-    rigid : bool
-        Leave out the slip chains: the rigid skeleton of mean OFFSETs, off the joints by
-        their residuals.
+    slip_chains : bool
+        Add slip chains. Off by default: 3 extra nodes above most joints (a 3.5x bigger file);
+        animation tools expect the rigid skeleton of mean OFFSETs.
 
     Returns
     -------
     BvhMotion
         Nodes in ``BVH_NODES`` order with end sites ``<node>_end`` after their parents and
-        a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``) just
-        before it.
+        a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``), if
+        any, just before it.
 
     Raises
     ------
@@ -599,7 +600,7 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     by_node = dict(zip(turning, chans.channels, strict=True))
     channels = [by_node.get(j, ()) for j in range(len(nodes.names))]
     channels[0] = (*ROOT_POSITION_CHANNELS, *channels[0])
-    slips = {} if rigid else _slips(nodes, frame, offsets)
+    slips = _slips(nodes, frame, offsets) if slip_chains else {}
     out = _with_slips(nodes, offsets * per_m, slips, per_m, channels=channels,
                       values=(turning, chans.values))
     return BvhMotion(out.names, out.parents, out.offsets, out.channels, 1.0 / float(result.fps),
@@ -689,7 +690,7 @@ class _Hierarchy:
 def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
                        units: str = "cm", precision: int = 6,
                        euler_order: str | None = None, rest: str = "auto",
-                       rigid: bool = False) -> None:
+                       slip_chains: bool = False) -> None:
     """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
 
     Parameters
@@ -705,9 +706,10 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
     rest : {"auto", "segment"}
         Rest pose: per node the better playing of segment frame and mean pose, or every
         node in its segment frame.
-    rigid : bool
-        Leave out the slip chains: a rigid skeleton, off the JSON's joints by their
-        residuals (see :func:`skeleton_to_bvh`).
+    slip_chains : bool
+        Put every joint exactly where the JSON has it, through slip chains (see
+        :func:`skeleton_to_bvh`); by default the rigid skeleton, off the JSON's joints by
+        their residuals.
     """
     write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest,
-                              rigid=rigid), path, precision=precision)
+                              slip_chains=slip_chains), path, precision=precision)

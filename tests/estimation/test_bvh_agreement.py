@@ -150,7 +150,7 @@ def test_a_non_rigid_result_read_by_independent_readers_matches_the_json_exactly
                       for n, p, _ in BVH_NODES if p is not None], axis=1)
     assert np.ptp(bones, axis=0).max() > 2e-3  # lengths vary: no rigid skeleton fits
     path = tmp_path / "s.bvh"
-    write_skeleton_bvh(result, path)
+    write_skeleton_bvh(result, path, slip_chains=True)
     got = joints_m(read_with(reader, path, script_for), JOINTS, 100.0)
     assert np.linalg.norm(got - want, axis=-1).max() < 1e-5  # the file's rounding only
 
@@ -158,8 +158,8 @@ def test_a_non_rigid_result_read_by_independent_readers_matches_the_json_exactly
 def test_slip_chains_use_rotation_channels_only_and_turn_back_exactly_between_frames(
         ) -> None:
     result = rigid_result(n_frames=40, seed=5, jitter=0.004)
-    slipped = skeleton_to_bvh(result)
-    rigid = skeleton_to_bvh(result, rigid=True)
+    slipped = skeleton_to_bvh(result, slip_chains=True)
+    rigid = skeleton_to_bvh(result)
     assert set(rigid.names) <= set(slipped.names)
     assert slipped.joints() == rigid.joints()  # slip nodes are no joints: not in error lists
     # nor taken for feet by translate's name search (l_ankle_slip_base is named like one)

@@ -310,6 +310,21 @@ def test_bundled_example_end_to_end(capsys: pytest.CaptureFixture[str], tmp_path
     np.testing.assert_allclose(table[:, 1:4], doc["joints"]["root"], atol=2e-6)
 
 
+def test_bvh_slip_chains_put_the_joints_where_the_json_has_them(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    code, _out, err = run(capsys, "--example", "-o", str(tmp_path / "w.json"),
+                          "--bvh", str(tmp_path / "w.bvh"), "--bvh-slip-chains")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "w.json").read_text())
+    motion = read_bvh(tmp_path / "w.bvh")
+    assert any(name.endswith("_slip_base") for name in motion.names)
+    positions, _ = forward_kinematics(motion)
+    for joint in JOINTS:
+        err_m = np.linalg.norm(positions[:, motion.index(joint)] / 100
+                               - np.asarray(doc["joints"][joint]), axis=-1)
+        assert err_m.max() < 1e-5, joint  # the file's rounding only, at every frame
+
+
 def test_tracker_file_gives_the_same_skeleton_as_csv(capsys: pytest.CaptureFixture[str],
                                                      tmp_path: Path,
                                                      walk: SensorRecording) -> None:

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from bonefit.estimation.bvh import BvhMotion, forward_kinematics, read_bvh
 from bonefit.estimation.errors import InputError
 from bonefit.estimation.io import skeleton as skeleton_io
+from bonefit.estimation.io.outputs import SkeletonOutputs
 from bonefit.estimation.io.skeleton import (
     BVH_NODES,
     read_skeleton_json,
@@ -109,7 +110,7 @@ def test_bvh_reproduces_a_rigid_result_within_a_millimetre(tmp_path: Path) -> No
         assert err.max() < 1e-5, joint  # only the 6-decimal rounding of the file
 
 
-def read_bvh_text(result: SkeletonResult, **options: str) -> BvhMotion:
+def read_bvh_text(result: SkeletonResult, **options: str | bool) -> BvhMotion:
     """``result`` written as BVH text with ``options`` and read back."""
     buf = io.StringIO()
     write_skeleton_bvh(result, buf, **options)
@@ -118,7 +119,7 @@ def read_bvh_text(result: SkeletonResult, **options: str) -> BvhMotion:
 
 def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
     result = rigid_result(jitter=0.005, seed=3)
-    write_skeleton_bvh(result, tmp_path / "s.bvh", rigid=True)
+    write_skeleton_bvh(result, tmp_path / "s.bvh")
     motion = read_bvh(tmp_path / "s.bvh")
     positions, rotations = forward_kinematics(motion)
     rot = {n: Rotation.from_quat(result.orientations[DRIVER[n]], scalar_first=True)
@@ -131,7 +132,7 @@ def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
         expect[node] = expect[parent] + rot[parent].apply(local)
     segment = read_bvh_text(result, rest="segment")
     _, segment_frames = forward_kinematics(segment)
-    slipped = read_bvh_text(result)
+    slipped = read_bvh_text(result, slip_chains=True)
     exact, exact_rotations = forward_kinematics(slipped)
     for node in DRIVER:
         j = motion.index(node)
@@ -372,8 +373,8 @@ def test_csv_one_row_per_frame_in_metres(tmp_path: Path) -> None:
 def test_write_skeleton_files_times_every_write_in_the_json(tmp_path: Path) -> None:
     result = replace(rigid_result(n_frames=9, seed=2),
                      timings={"read_s": 0.125, "estimate_s": 0.5, "torso_s": 0.25})
-    out = write_skeleton_files(result, json_path=tmp_path / "s.json",
-                               bvh_path=tmp_path / "s.bvh", csv_path=tmp_path / "s.csv")
+    out = write_skeleton_files(result, SkeletonOutputs(
+        json=tmp_path / "s.json", bvh=tmp_path / "s.bvh", csv=tmp_path / "s.csv"))
     doc = json.loads((tmp_path / "s.json").read_text())
     assert list(doc["timings"]) == ["read_s", "estimate_s", "write_s", "torso_s"]
     assert (doc["timings"]["read_s"], doc["timings"]["estimate_s"]) == (0.125, 0.5)
@@ -390,10 +391,10 @@ def test_the_calling_thread_takes_the_files_the_other_has_not_started(
     writers: dict[str, str] = {}
     bvh_writer, csv_writer = skeleton_io.write_skeleton_bvh, skeleton_io.write_skeleton_csv
 
-    def slow_bvh(result: SkeletonResult, path: Path) -> None:
+    def slow_bvh(result: SkeletonResult, path: Path, **options: bool) -> None:
         writers["bvh"] = threading.current_thread().name
         time.sleep(1.0)
-        bvh_writer(result, path)
+        bvh_writer(result, path, **options)
 
     def csv(result: SkeletonResult, path: Path) -> None:
         writers["csv"] = threading.current_thread().name
@@ -402,22 +403,23 @@ def test_the_calling_thread_takes_the_files_the_other_has_not_started(
     monkeypatch.setattr(skeleton_io, "write_skeleton_bvh", slow_bvh)
     monkeypatch.setattr(skeleton_io, "write_skeleton_csv", csv)
     result = rigid_result(n_frames=9, seed=2)
-    write_skeleton_files(result, json_path=tmp_path / "s.json", bvh_path=tmp_path / "s.bvh",
-                         csv_path=tmp_path / "s.csv", npz_path=tmp_path / "s.npz")
+    write_skeleton_files(result, SkeletonOutputs(json=tmp_path / "s.json", bvh=tmp_path / "s.bvh",
+                                                 csv=tmp_path / "s.csv", npz=tmp_path / "s.npz"))
     assert writers["bvh"] != writers["csv"]
     assert {writers["bvh"], writers["csv"]} & {threading.current_thread().name}
     assert json.loads((tmp_path / "s.json").read_text())["frames"] == 9
     assert read_skeleton_npz(tmp_path / "s.npz").n_frames == 9
     assert (tmp_path / "s.bvh").read_text().startswith("HIERARCHY")
     with pytest.raises(FileNotFoundError, match=r"missing/s\.csv"):
-        write_skeleton_files(result, json_path=tmp_path / "t.json", bvh_path=tmp_path / "t.bvh",
-                             csv_path=tmp_path / "missing" / "s.csv")
+        write_skeleton_files(result, SkeletonOutputs(json=tmp_path / "t.json",
+                                                     bvh=tmp_path / "t.bvh",
+                                                     csv=tmp_path / "missing" / "s.csv"))
     assert not (tmp_path / "t.json").exists()
 
 
 def test_a_failed_write_beside_the_json_is_raised_and_the_json_removed(tmp_path: Path) -> None:
     result = rigid_result(n_frames=9, seed=2)
     with pytest.raises(FileNotFoundError, match=r"missing/s\.bvh"):
-        write_skeleton_files(result, json_path=tmp_path / "s.json",
-                             bvh_path=tmp_path / "missing" / "s.bvh")
+        write_skeleton_files(result, SkeletonOutputs(json=tmp_path / "s.json",
+                                                     bvh=tmp_path / "missing" / "s.bvh"))
     assert not (tmp_path / "s.json").exists()
