@@ -434,13 +434,14 @@ def paper_normal(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: floa
 class _Geometry(NamedTuple):
     """Per-frame geometry of a limb at θ: middle → distal vectors ``d`` (3, M, a row per
     component) and their lengths ``ll``, proximal → middle vectors ``e`` (3, M) and their
-    lengths ``lu``; and E."""
+    lengths ``lu``; E, and the mean of ``ll``."""
 
     d: Float
     ll: Float
     e: Float
     lu: Float
     value: float
+    ll_mean: float
 
 
 class _PaperTerms:
@@ -473,12 +474,14 @@ class _PaperTerms:
         ll = np.sqrt(np.einsum("im,im->m", d, d))
         e = k[:, None] - self.h
         lu = np.sqrt(np.einsum("im,im->m", e, e))
-        dev = ll - np.einsum("f->", ll) / m
+        ll_mean = np.einsum("f->", ll) / m
+        dev = ll - ll_mean
+        off_up, off_low = lu - l_up, ll - l_low
         value = float((np.einsum("f,f->", dev, dev)
-                       + w_l * (np.einsum("f,f->", lu - l_up, lu - l_up)
-                                + np.einsum("f,f->", ll - l_low, ll - l_low))) / m
+                       + w_l * (np.einsum("f,f->", off_up, off_up)
+                                + np.einsum("f,f->", off_low, off_low))) / m
                       + self.w_s * np.einsum("i,i->", theta, theta))
-        geometry = _Geometry(d, ll, e, lu, value)
+        geometry = _Geometry(d, ll, e, lu, value, float(ll_mean))
         self._last = (theta.copy(), geometry)
         return geometry
 
@@ -527,7 +530,7 @@ class _PaperTerms:
         z[9] = 1.0
         c, cu, cl, cul = z[10], z[11], z[12], z[13]
         np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
-        c -= (np.einsum("f->", geo.ll) / m + w_l * l_low) / m
+        c -= (geo.ll_mean + w_l * l_low) / m
         np.subtract(geo.lu, l_up, out=cu)
         cu *= w_l / m
         np.multiply(c, inv_l, out=cl)
