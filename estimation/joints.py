@@ -344,7 +344,7 @@ def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float6
 
 
 def smooth_length(m: int) -> int:
-    """The smallest ``2^a 3^b 5^c >= m`` (``m >= 1``): a length numpy's FFT transforms fast."""
+    """The smallest ``2^a 3^b 5^c >= m`` (``m >= 1``): a length scipy's FFT transforms fast."""
     best = 1 << max(m - 1, 0).bit_length()
     p5 = 1
     while p5 < best:
