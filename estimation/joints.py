@@ -9,6 +9,7 @@ from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import fft
 from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
@@ -331,10 +332,11 @@ def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float6
         return max(total, 1.0)
     # any length >= 2F - 1 gives the linear autocorrelation; a 5-smooth one is the cheapest
     size = smooth_length(2 * n - 1)
-    spec = np.fft.rfft(x, size, axis=1)
+    # scipy's pocketfft: numpy's bits with less overhead (0.245 -> 0.216 ms for 3 x 6,283)
+    spec = fft.rfft(x, size, axis=1)
     power = np.square(spec.real)
     power += np.square(spec.imag)
-    acf = np.fft.irfft(power.sum(axis=0), size)[:n] / var
+    acf = fft.irfft(power.sum(axis=0), size)[:n] / var
     nonpositive = np.flatnonzero(acf[1:] <= 0.0)
     stop = int(nonpositive[0]) + 1 if nonpositive.size else n
     tau = max(1.0, 1.0 + 2.0 * float(acf[1:stop].sum()))
@@ -342,7 +344,7 @@ def effective_samples(residuals: NDArray[np.float64], weights: NDArray[np.float6
 
 
 def smooth_length(m: int) -> int:
-    """The smallest ``2^a 3^b 5^c >= m`` (``m >= 1``): a length numpy's FFT transforms fast."""
+    """The smallest ``2^a 3^b 5^c >= m`` (``m >= 1``): a length scipy's FFT transforms fast."""
     best = 1 << max(m - 1, 0).bit_length()
     p5 = 1
     while p5 < best:

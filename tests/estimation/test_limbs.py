@@ -196,6 +196,35 @@ def numeric_jacobian(fun: Callable[[NDArray[np.float64]], NDArray[np.float64]],
     return np.column_stack(cols)
 
 
+def test_limb_in_upper_frame_matches_scipy_in_both_layouts() -> None:
+    """The limb in the upper sensor's frame (built component-major) against scipy's
+    rotations, its two layouts the same values, and the subsample of every k-th frame."""
+    leg = make_leg(n=90, noise_m=0.002, seed=5)
+    hip, pu, ru, pd, rd = leg.args()
+    limb = limbs.limb_in_upper_frame(hip, pu, ru, pd, rd)
+    np.testing.assert_allclose(limb.b, ru.inv().apply(pd - pu), atol=1e-14)
+    np.testing.assert_allclose(limb.h, ru.inv().apply(hip - pu), atol=1e-14)
+    np.testing.assert_allclose(limb.q, (ru.inv() * rd).as_matrix(), atol=1e-14)
+    rows = limb.component_major()
+    assert rows is limb.by_component
+    np.testing.assert_array_equal(rows.b, limb.b.T)
+    np.testing.assert_array_equal(rows.q, limb.q.reshape(90, 9).T)
+    np.testing.assert_array_equal(rows.h, limb.h.T)
+    plain = limbs.LimbInUpperFrame(b=limb.b, q=limb.q, h=limb.h)
+    assert plain.by_component is None
+    for got, want in zip(plain.component_major(), rows, strict=True):
+        np.testing.assert_array_equal(got, want)
+    every = limb.every(4)
+    assert every.n == 23
+    np.testing.assert_array_equal(every.q, limb.q[::4])
+    for got, want in zip(every.component_major(), rows, strict=True):
+        np.testing.assert_array_equal(got, want[:, ::4])
+    # the objective reads the component-major rows, whichever way they were built
+    x = np.concatenate([leg.knee_local, leg.ankle_local]) + 0.02
+    assert limbs.paper_normal(plain, (0.4, 0.38), 0.01, 0.01).normal(x)[0] == \
+        limbs.paper_normal(limb, (0.4, 0.38), 0.01, 0.01).normal(x)[0]
+
+
 def test_paper_jacobian_matches_finite_differences() -> None:
     leg = make_leg(n=80, noise_m=0.002, seed=6)
     limb = limbs.limb_in_upper_frame(*leg.args())
