@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Final, NamedTuple
 
@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from . import _rows as rows
 from .errors import EstimationError, InputError
-from .gaps import component_major, fill_sensor_major, sensor_major
+from .gaps import FilledGaps, fill_sensor_major
 from .joints import (
     HINGE_RULE_SD_M,
     RULE_GATE_SIGMA,
@@ -38,6 +38,7 @@ from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
 from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
+from .threads import Report, run_each
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
 METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
@@ -442,31 +443,41 @@ class SensorPoses:
     stacked: NDArray[np.float64]  # (S, F, 3), sensor-major in the order used
 
     @classmethod
-    def of(cls, recording: SensorRecording, use: Sequence[str],
-           warnings: list[str]) -> SensorPoses:
-        """Fill the gaps of the sensors ``use``; warn about gaps longer than 0.5 s; raise
-        InputError naming a sensor with no valid sample."""
-        cols = [recording.index(s) for s in use]
+    def of(cls, recording: SensorRecording, use: Sequence[str], warnings: list[str],
+           progress: Progress = no_progress) -> SensorPoses:
+        """Fill the gaps of the sensors ``use``, sensor by sensor, two at a time
+        (``threads.run_each``; ``progress(fraction, "gaps")``); warn about gaps longer than
+        0.5 s; raise InputError naming a sensor with no valid sample (the first in ``use``)."""
+        n = recording.n_frames
         # each sensor's positions contiguous, and each component of its quaternions; a
-        # fifth row per sensor for _rotations
-        pos = sensor_major(recording.positions, cols)
-        quat = np.empty((len(use), 5, recording.n_frames))
-        component_major(recording.quaternions, cols, out=quat[:, :4])
-        try:
-            gaps = fill_sensor_major(pos, quat[:, :4], time=recording.time)
-        except InputError as exc:
-            if exc.sensor is None:
-                raise
-            seg = use[int(exc.sensor)]
-            raise InputError(f"sensor {seg!r} has no valid sample (NaN or a zero quaternion "
-                             "in every frame)", sensor=seg) from None
-        for s, longest in zip(use, gaps.longest.tolist(), strict=True):
+        # fifth row per sensor for unit_rotations
+        pos = np.empty((len(use), n, 3))
+        quat = np.empty((len(use), 5, n))
+
+        def fill(k: int) -> Callable[[Report], tuple[FilledGaps, Rotation]]:
+            def task(_report: Report) -> tuple[FilledGaps, Rotation]:
+                col = recording.index(use[k])
+                pos[k] = recording.positions[:, col]
+                quat[k, :4] = recording.quaternions[:, col].T
+                try:
+                    gaps = fill_sensor_major(pos[k:k + 1], quat[k:k + 1, :4], time=recording.time)
+                except InputError as exc:
+                    if exc.sensor is None:
+                        raise
+                    raise InputError(f"sensor {use[k]!r} has no valid sample (NaN or a zero "
+                                     "quaternion in every frame)", sensor=use[k]) from None
+                return gaps, unit_rotations(quat[k:k + 1], gaps.norms2)[0]
+            return task
+
+        filled = run_each([fill(k) for k in range(len(use))], progress, "gaps", frames=n)
+        for s, (gaps, _rot) in zip(use, filled, strict=True):
+            longest = int(gaps.longest[0])
             if longest > 0.5 * recording.fps:
                 warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
                                 "interpolated")
         return cls(positions={s: pos[k] for k, s in enumerate(use)},
-                   rotations=dict(zip(use, unit_rotations(quat, gaps.norms2), strict=True)),
-                   ok={s: gaps.valid[k] for k, s in enumerate(use)},
+                   rotations={s: rot for s, (_gaps, rot) in zip(use, filled, strict=True)},
+                   ok={s: gaps.valid[0] for s, (gaps, _rot) in zip(use, filled, strict=True)},
                    quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
 
 
@@ -767,16 +778,17 @@ def _check_frames(recording: SensorRecording, i0: int) -> None:
                               field="frames")
 
 
-def sensors_used(recording: SensorRecording, method: str, warnings: list[str]) -> SensorPoses:
+def sensors_used(recording: SensorRecording, method: str, warnings: list[str],
+                 progress: Progress = no_progress) -> SensorPoses:
     """The poses of the sensors ``method`` uses (every one present; the 11 of the reduced
-    suit for ``reduced``), gaps filled; InputError naming a missing sensor, EstimationError
-    when no sensor moves."""
+    suit for ``reduced``), gaps filled (``progress(fraction, "gaps")``); InputError naming a
+    missing sensor, EstimationError when no sensor moves."""
     required: Sequence[str] = SEGMENTS if method in ("llsf", "gdke") else REDUCED_SEGMENTS
     for seg in required:
         recording.index(seg)  # raises InputError naming the missing sensor
     use = list(REDUCED_SEGMENTS) if method == "reduced" else [
         s for s in SEGMENTS if s in recording.sensors]
-    sensors = SensorPoses.of(recording, use, warnings)
+    sensors = SensorPoses.of(recording, use, warnings, progress)
     # every sample equal to its sensor's first one: one elementwise pass
     stacked = sensors.stacked
     if not (np.any(stacked[:, -1] != stacked[:, 0]) or np.any(stacked != stacked[:, :1])):
@@ -1039,6 +1051,21 @@ class LocatedJoints:
             self.warnings.extend(f"{plan.name}: {w}" for w in found.fit.warnings)
         return found.fit
 
+    def branch(self) -> LocatedJoints:
+        """An empty record for one limb located on its own (``run_each``), seeing the joints
+        and reused fits located so far; ``merge`` takes it back."""
+        return LocatedJoints(warnings=[], own=dict(self.own), joints=dict(self.joints))
+
+    def merge(self, branch: LocatedJoints) -> None:
+        """Take what ``branch`` located, and its warnings after the ones so far."""
+        self.warnings.extend(branch.warnings)
+        self.fits.update(branch.fits)
+        self.own.update(branch.own)
+        self.posterior.update(branch.posterior)
+        self.joints.update(branch.joints)
+        self.offsets.update(branch.offsets)
+        self.quality.update(branch.quality)
+
     def release(self) -> None:
         """Drop the fits once every joint is located: their paths are in ``joints``, which
         ``_smoothed`` then replaces path by path (a long take's memory)."""
@@ -1077,11 +1104,26 @@ def torso_plan(ctx: SkeletonContext, located: LocatedJoints, name: str) -> Joint
 
 
 def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress) -> None:
-    """The six torso joints, in ``_TORSO_JOINTS`` order; ``report(fraction, "torso")``
-    after each."""
-    for k, name in enumerate(_TORSO_JOINTS):
+    """The six torso joints, in ``_TORSO_JOINTS`` order: the hips and shoulders, which need
+    no other joint, two at a time (``threads.run_each``, each on a ``branch`` of
+    ``located``, merged in that order), then the waist and the neck between them;
+    ``report(fraction, "torso")`` as they are located."""
+    first = [name for name in _TORSO_JOINTS if name not in _MIDLINE]
+
+    def locate_alone(name: str) -> Callable[[Report], LocatedJoints]:
+        def task(_report: Report) -> LocatedJoints:
+            branch = located.branch()
+            branch.record(name, branch.locate(ctx, torso_plan(ctx, branch, name)))
+            return branch
+        return task
+
+    share = len(first) / len(_TORSO_JOINTS)
+    for branch in run_each([locate_alone(name) for name in first], scaled(report, 0.0, share),
+                           "torso", frames=ctx.sensors.stacked.shape[1]):
+        located.merge(branch)
+    for k, name in enumerate(_MIDLINE):
         located.record(name, located.locate(ctx, torso_plan(ctx, located, name)))
-        report((k + 1) / len(_TORSO_JOINTS), "torso")
+        report(share + (1 - share) * (k + 1) / len(_MIDLINE), "torso")
 
 
 def mirror_torso(ctx: SkeletonContext, located: LocatedJoints,
@@ -1182,16 +1224,31 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
 
 def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str, float],
                  report: Progress) -> None:
-    """The four limbs, each by its joints or by the variance cost; ``report(fraction,
-    "limbs")`` within each."""
-    for k, limb in enumerate(LIMBS.values()):
-        stage = scaled(report, k / 4, (k + 1) / 4)
-        stage(0.0, "limbs")
-        if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
-            locate_limb_joints(ctx, located, limb, std, stage)
-        else:
-            locate_limb_by_variance(ctx, located, limb, std, stage)
-        stage(1.0, "limbs")
+    """The four limbs, each by its joints or by the variance cost, two at a time
+    (``threads.run_each``; each on a ``branch`` of ``located``, merged in limb order: the
+    same result in any order); ``report(fraction, "limbs")`` within each."""
+    def limb_task(limb: Limb) -> Callable[[Report], LocatedJoints]:
+        def locate(report_limb: Report) -> LocatedJoints:
+            branch = located.branch()
+            stage = _reporting(report_limb)
+            if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
+                locate_limb_joints(ctx, branch, limb, std, stage)
+            else:
+                locate_limb_by_variance(ctx, branch, limb, std, stage)
+            return branch
+        return locate
+
+    report(0.0, "limbs")
+    for branch in run_each([limb_task(limb) for limb in LIMBS.values()], report, "limbs",
+                           frames=ctx.sensors.stacked.shape[1]):
+        located.merge(branch)
+
+
+def _reporting(report: Report) -> Progress:
+    """``report(fraction)`` as a progress callback (its stage dropped)."""
+    def progress(fraction: float, _stage: str) -> None:
+        report(fraction)
+    return progress
 
 
 def estimate_skeleton(
@@ -1297,8 +1354,7 @@ def locate_joints(recording: SensorRecording, options: SkeletonOptions, report: 
     method = options.method
     located = LocatedJoints(warnings=list(recording.warnings))
     report(0.0, "gaps")
-    sensors = sensors_used(recording, method, located.warnings)
-    report(0.03, "gaps")
+    sensors = sensors_used(recording, method, located.warnings, scaled(report, 0.0, 0.03))
     ctx = skeleton_context(sensors, options, recording.fps, scaled(report, 0.03, 0.3))
     report(0.3, "torso")
     locate_torso(ctx, located, scaled(report, 0.3, 0.45 if method == "auto" else 0.55))
@@ -1370,7 +1426,7 @@ def estimate_skeleton_from_offsets(
     warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     use = [s for s in SEGMENTS if s in recording.sensors]
-    sensors = SensorPoses.of(recording, use, warnings)
+    sensors = SensorPoses.of(recording, use, warnings, scaled(report, 0.0, 0.3))
     report(0.3, "joints")
     mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
     joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)

@@ -51,7 +51,7 @@ Anal. Chem. 36(8):1627–1639, 1964.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
 
@@ -64,6 +64,7 @@ from .joints import slip_basis, white_variance
 from .params import check_number, resolved_options
 from .progress import Progress, no_progress, scaled
 from .savgol import savgol_coeffs, savgol_filter
+from .threads import Report, run_each
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
@@ -161,21 +162,26 @@ def _smoothed_rotations(quaternions: Sequence[NDArray[np.float64]],
     White orientation noise in the regressors of a linear model biases it (errors in
     variables) and, with a slip term able to absorb anything slow, makes the slip estimate
     follow the noise; a cubic Savitzky–Golay filter over ``ROTATION_SMOOTH_S`` keeps the motion
-    (cubic over 0.2 s) and averages the noise. Sensor by sensor, along contiguous rows of
-    frames: the temporaries are those of one sensor.
+    (cubic over 0.2 s) and averages the noise. Sensor by sensor (two at a time,
+    ``threads.run_each``), along contiguous rows of frames: the temporaries are those of
+    one sensor per thread.
     """
     n = quaternions[0].shape[-1]
     out = np.empty((len(quaternions), 9, n))
     window = round(ROTATION_SMOOTH_S * fps) | 1
-    for k, (rows_, ok) in enumerate(zip(quaternions, valid, strict=True)):
-        q = quat.continuous_rows(rows_)[None]
-        if 5 <= window < n:
-            smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
-            _refit_around_gaps(q, ok[None], window, out=smooth)
-            q = smooth
-        q /= np.sqrt(np.einsum("sct,sct->st", q, q))[:, None]
-        quat.as_matrix_rows(q[0], out=out[k])
-        report((k + 1) / len(quaternions), "slip")
+
+    def smooth_one(k: int) -> Callable[[Report], None]:
+        def task(_report: Report) -> None:
+            q = quat.continuous_rows(quaternions[k])[None]
+            if 5 <= window < n:
+                smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
+                _refit_around_gaps(q, valid[k][None], window, out=smooth)
+                q = smooth
+            q /= np.sqrt(np.einsum("sct,sct->st", q, q))[:, None]
+            quat.as_matrix_rows(q[0], out=out[k])
+        return task
+
+    run_each([smooth_one(k) for k in range(len(quaternions))], report, "slip", frames=n)
     return out
 
 
@@ -337,13 +343,8 @@ def estimate_slip(
                                    [valid[s] for s in sensors], fps, scaled(report, 0.0, 0.4))
     rot = dict(zip(sensors, smoothed, strict=True))
     v_eiv = opt.rotation_noise * _noise_gain(n, fps)
-    blocks = []
-    for j, (a, b) in enumerate(pairs):
-        blocks.append(joint_block(
-            layout, j, (a, b), (rot[a], rot[b]),
-            np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
-            w=(valid[a] & valid[b]).astype(float), v_eiv=v_eiv))
-        report(0.4 + 0.55 * (j + 1) / len(pairs), "slip")
+    blocks = _joint_blocks(layout, pairs, rot, positions, valid, v_eiv=v_eiv,
+                           report=scaled(report, 0.4, 0.95))
     normal, rhs_all = _assemble(layout, blocks)
     report(0.96, "slip")
     x, blocks_c = _solve_system(normal, rhs_all, layout.n_s)
@@ -359,6 +360,26 @@ def estimate_slip(
     centres, blocks_c, corrected = _errors_in_variables(
         normal, rhs_all, layout.n_s, blocks, centres, covariances=blocks_c)
     return SlipFit(slip, centres, blocks_c, corrected, share)
+
+
+def _joint_blocks(layout: SlipLayout, pairs: Sequence[tuple[str, str]],
+                  rotations: Mapping[str, NDArray[np.float64]],
+                  positions: Mapping[str, NDArray[np.float64]],
+                  valid: Mapping[str, NDArray[np.bool_]], *, v_eiv: float,
+                  report: Progress) -> list[JointBlock]:
+    """``joint_block`` of each joint of ``pairs``, two at a time (``threads.run_each``;
+    ``report(fraction, "slip")``), from the smoothed rotations (9, F) by sensor."""
+    n = layout.basis.shape[0]
+
+    def block_of(j: int, a: str, b: str) -> Callable[[Report], JointBlock]:
+        def task(_report: Report) -> JointBlock:
+            return joint_block(layout, j, (a, b), (rotations[a], rotations[b]),
+                               np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
+                               w=(valid[a] & valid[b]).astype(float), v_eiv=v_eiv)
+        return task
+
+    return run_each([block_of(j, a, b) for j, (a, b) in enumerate(pairs)], report, "slip",
+                    frames=n)
 
 
 @dataclass(frozen=True, eq=False)
