@@ -38,7 +38,7 @@ from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
 from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
-from .threads import Report, run_each
+from .threads import Report, ignore, run_each, staged, unstaged
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
 METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
@@ -813,11 +813,15 @@ def joint_motion(sensors: SensorPoses, method: str, min_range_deg: float,
     positions, quat, ok = sensors.positions, sensors.quaternions, sensors.ok
     pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
              and (method != "reduced" or j in _TORSO_JOINTS)]
-    rom = {}
-    for k, j in enumerate(pairs):
-        a, b = JOINT_SEGMENTS[j]
-        rom[j] = range_of_motion(quat[a], quat[b], ok[a] & ok[b])
-        progress((k + 1) / len(pairs), "gaps")
+
+    def rom_of(a: str, b: str) -> Callable[[Report], float]:
+        def task(_report: Report) -> float:
+            return range_of_motion(quat[a], quat[b], ok[a] & ok[b])
+        return task
+
+    ranges = run_each([rom_of(*JOINT_SEGMENTS[j]) for j in pairs], progress, "gaps",
+                      frames=sensors.stacked.shape[1])
+    rom = dict(zip(pairs, ranges, strict=True))
     static = [j for j in pairs if rom[j] < min_range_deg]
     if 2 * len(static) > len(pairs):
         raise EstimationError(
@@ -848,12 +852,16 @@ def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz:
                         [JOINT_SEGMENTS[j] for j in pairs], fps=fps, slip_hz=slip_hz,
                         rotation_noise=rotation_noise_variance(by_sensor, sensors.ok),
                         progress=scaled(progress, 0.0, 0.9))
-    without = {}
-    for k, (s, slip) in enumerate(fit.slip.items()):
-        without[s] = sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(),
-                                                            slip)
-        progress(0.9 + 0.1 * k / len(fit.slip), "slip")
-    progress(1.0, "slip")
+
+    def without_slip(s: str) -> Callable[[Report], NDArray[np.float64]]:
+        def task(_report: Report) -> NDArray[np.float64]:
+            return sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(),
+                                                          fit.slip[s])
+        return task
+
+    without = dict(zip(fit.slip, run_each([without_slip(s) for s in fit.slip],
+                                          scaled(progress, 0.9, 1.0), "slip",
+                                          frames=sensors.stacked.shape[1]), strict=True))
     # the slips live on in ``without``; not keeping them saves (F, 3) per sensor
     return SharedSlip(replace(fit, slip={}), without, {j: i for i, j in enumerate(pairs)})
 
@@ -914,21 +922,23 @@ def shared_role(ctx: SkeletonContext, name: str) -> str | None:
     return None
 
 
-def own_fit(ctx: SkeletonContext, plan: JointPlan) -> JointFit:
+def own_fit(ctx: SkeletonContext, plan: JointPlan, report: Report = ignore) -> JointFit:
     """``joints.estimate_joint`` of the joint (for the wrists, when the shared model runs
     and the raw positions do not locate them to ``GOOD_DATA_SD_M``, on the positions
-    without slip); EstimationError naming the joint."""
+    without slip); EstimationError naming the joint. ``report(fraction)`` within."""
     a, b = JOINT_SEGMENTS[plan.name]
     sensors = ctx.sensors
-    fit = _fit_on(ctx, plan, sensors.positions[a], sensors.positions[b])
-    if ctx.shared is not None and plan.name in _DESLIPPED \
-            and fit.quality["fit_sd_m"] > GOOD_DATA_SD_M:
-        fit = _fit_on(ctx, plan, ctx.shared.without_slip[a], ctx.shared.without_slip[b])
+    refit = ctx.shared is not None and plan.name in _DESLIPPED
+    fit = _fit_on(ctx, plan, sensors.positions[a], sensors.positions[b],
+                  scaled(unstaged(report), 0.0, 0.5 if refit else 1.0))
+    if ctx.shared is not None and refit and fit.quality["fit_sd_m"] > GOOD_DATA_SD_M:
+        fit = _fit_on(ctx, plan, ctx.shared.without_slip[a], ctx.shared.without_slip[b],
+                      scaled(unstaged(report), 0.5, 1.0))
     return fit
 
 
 def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
-            pb: NDArray[np.float64]) -> JointFit:
+            pb: NDArray[np.float64], progress: Progress) -> JointFit:
     """``estimate_joint`` of the joint on the sensor positions ``pa``, ``pb``; with ``auto``
     the data alone decide where they locate the centre to ``GOOD_DATA_SD_M``."""
     a, b = JOINT_SEGMENTS[plan.name]
@@ -942,7 +952,7 @@ def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
             trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
             highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
             symmetry=plan.symmetry, prior=plan.prior if auto else None,
-            range_of_motion_deg=ctx.motion.rom.get(plan.name))
+            range_of_motion_deg=ctx.motion.rom.get(plan.name), progress=progress)
     except EstimationError as exc:
         raise EstimationError(f"{plan.name}: {exc.detail}", field=plan.name) from None
 
@@ -956,14 +966,14 @@ class LocatedJoint(NamedTuple):
     posterior: NDArray[np.float64] | None
 
 
-def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = None
-                 ) -> LocatedJoint:
+def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = None,
+                 report: Report = ignore) -> LocatedJoint:
     """Locate a joint by its plan. ``own``: its earlier ``estimate_joint`` fit, reused for
     a torso joint whose centre comes from the shared model (a refit with another prior
-    would not change its quality figures)."""
+    would not change its quality figures). ``report(fraction)`` within its own fit."""
     role = shared_role(ctx, plan.name)
     if role != "torso" or own is None:
-        own = own_fit(ctx, plan)
+        own = own_fit(ctx, plan, report)
     fit, posterior = own, None
     if role is not None and own.quality.get("fit_sd_m", math.inf) <= GOOD_DATA_SD_M:
         role = None
@@ -1039,10 +1049,12 @@ class LocatedJoints:
     offsets: dict[str, JointOffset] = field(default_factory=dict)
     quality: dict[str, Mapping[str, Any]] = field(default_factory=dict)
 
-    def locate(self, ctx: SkeletonContext, plan: JointPlan) -> JointFit:
+    def locate(self, ctx: SkeletonContext, plan: JointPlan, report: Report = ignore
+               ) -> JointFit:
         """Locate a joint by its plan, keep its own fit and posterior, and warn (unless
-        ``plan.quiet``); the fit is not recorded (``record``)."""
-        found = locate_joint(ctx, plan, self.own.get(plan.name))
+        ``plan.quiet``); the fit is not recorded (``record``). ``report(fraction)``
+        within."""
+        found = locate_joint(ctx, plan, self.own.get(plan.name), report)
         if shared_role(ctx, plan.name) == "torso":  # the only ones reused (locate_joint)
             self.own[plan.name] = found.own
         if found.posterior is not None:
@@ -1111,9 +1123,10 @@ def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress)
     first = [name for name in _TORSO_JOINTS if name not in _MIDLINE]
 
     def locate_alone(name: str) -> Callable[[Report], LocatedJoints]:
-        def task(_report: Report) -> LocatedJoints:
+        def task(report_joint: Report) -> LocatedJoints:
             branch = located.branch()
-            branch.record(name, branch.locate(ctx, torso_plan(ctx, branch, name)))
+            branch.record(name, branch.locate(ctx, torso_plan(ctx, branch, name),
+                                              report_joint))
             return branch
         return task
 
@@ -1122,8 +1135,10 @@ def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress)
                            "torso", frames=ctx.sensors.stacked.shape[1]):
         located.merge(branch)
     for k, name in enumerate(_MIDLINE):
-        located.record(name, located.locate(ctx, torso_plan(ctx, located, name)))
-        report(share + (1 - share) * (k + 1) / len(_MIDLINE), "torso")
+        step = (1 - share) / len(_MIDLINE)
+        within = scaled(report, share + k * step, share + (k + 1) * step)
+        located.record(name, located.locate(ctx, torso_plan(ctx, located, name),
+                                            staged(within, "torso")))
 
 
 def mirror_torso(ctx: SkeletonContext, located: LocatedJoints,
@@ -1175,11 +1190,11 @@ def locate_limb_joints(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
     estimator = ctx.options.estimator
     plain = ctx.options.plain
     refit_wrist = not plain and limb.is_arm
-    d_fit = located.locate(ctx, JointPlan(dist, estimator, quiet=refit_wrist))
-    stage(1 / 3, "limbs")
+    d_fit = located.locate(ctx, JointPlan(dist, estimator, quiet=refit_wrist),
+                           staged(scaled(stage, 0.0, 1 / 3), "limbs"))
     neighbours = (None, None) if plain else (located.joints[prox], d_fit.positions)
-    m_fit = located.locate(ctx, JointPlan(mid, estimator, neighbours))
-    stage(2 / 3, "limbs")
+    m_fit = located.locate(ctx, JointPlan(mid, estimator, neighbours),
+                           staged(scaled(stage, 1 / 3, 2 / 3), "limbs"))
     if refit_wrist and mid in ctx.motion.static:
         # an elbow located from priors would carry its error into the wrist's rule
         located.warnings.extend(f"{dist}: {w}" for w in d_fit.warnings)
@@ -1190,7 +1205,8 @@ def locate_limb_joints(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
         upper_len = float(rows.norms(m_fit.positions - located.joints[prox]).mean())
         forearm = upper_len * std["forearm"] / std["upperarm"]
         d_fit = located.locate(ctx, JointPlan(dist, estimator, (m_fit.positions, None),
-                                              bone_length=forearm))
+                                              bone_length=forearm),
+                               staged(scaled(stage, 2 / 3, 1.0), "limbs"))
     located.record(mid, m_fit)
     located.record(dist, d_fit)
 
@@ -1230,7 +1246,7 @@ def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str,
     def limb_task(limb: Limb) -> Callable[[Report], LocatedJoints]:
         def locate(report_limb: Report) -> LocatedJoints:
             branch = located.branch()
-            stage = _reporting(report_limb)
+            stage = unstaged(report_limb)
             if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
                 locate_limb_joints(ctx, branch, limb, std, stage)
             else:
@@ -1244,11 +1260,6 @@ def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str,
         located.merge(branch)
 
 
-def _reporting(report: Report) -> Progress:
-    """``report(fraction)`` as a progress callback (its stage dropped)."""
-    def progress(fraction: float, _stage: str) -> None:
-        report(fraction)
-    return progress
 
 
 def estimate_skeleton(
@@ -1477,9 +1488,15 @@ def _smoothed(joints: dict[str, NDArray[np.float64]], fps: float, *, smooth: boo
     smoothed path, up to 0.6 (``_completed`` follows)."""
     report(0.0, "orientations")
     if smooth:
-        for k, name in enumerate(list(joints)):
-            joints[name] = _smooth(joints[name], fps)
-            report(0.6 * (k + 1) / len(joints), "orientations")
+        def smooth_one(name: str) -> Callable[[Report], None]:
+            def task(_report: Report) -> None:
+                # replacing the value of a key present: the dict's order stays
+                joints[name] = _smooth(joints[name], fps)
+            return task
+
+        frames = next(iter(joints.values())).shape[0]
+        run_each([smooth_one(name) for name in joints], scaled(report, 0.0, 0.6),
+                 "orientations", frames=frames)
     return joints
 
 

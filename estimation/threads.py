@@ -150,17 +150,28 @@ def _run_inline(tasks: Sequence[Callable[[Report], T]], shares: Sequence[float],
     start = 0.0
     for task, share in zip(tasks, shares, strict=True):
         outer = scaled(progress, start, min(start + share, 1.0))
-        results.append(task(_staged(outer, stage)))
+        results.append(task(staged(outer, stage)))
         start += share
         outer(1.0, stage)
     return results
 
 
-def _staged(progress: Progress, stage: str) -> Report:
-    """``report(fraction)`` as ``progress(fraction, stage)``."""
+def staged(progress: Progress, stage: str) -> Report:
+    """``progress(fraction, stage)`` as a piece's ``report(fraction)``."""
     def report(fraction: float) -> None:
         progress(fraction, stage)
     return report
+
+
+def unstaged(report: Report) -> Progress:
+    """A piece's ``report(fraction)`` as a progress callback (the stage dropped)."""
+    def progress(fraction: float, _stage: str) -> None:
+        report(fraction)
+    return progress
+
+
+def ignore(fraction: float) -> None:
+    """A ``Report`` that ignores every report."""
 
 
 def _follow(futures: Sequence[Future[Any]], done: Sequence[float], shares: Sequence[float],
