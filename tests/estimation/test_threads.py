@@ -8,9 +8,13 @@ import threading
 import time
 from collections.abc import Callable
 
+import numpy as np
 import pytest
 
 from bonefit.estimation import threads
+from bonefit.estimation.recording import SensorRecording
+from bonefit.estimation.results import SkeletonResult
+from bonefit.estimation.skeleton import estimate_skeleton
 from bonefit.estimation.threads import MIN_FRAMES, Cancelled, Report, run_each
 
 LONG = MIN_FRAMES
@@ -142,3 +146,55 @@ def test_weights_must_match_the_tasks() -> None:
     with pytest.raises(ValueError, match="expected 2 positive weights"):
         run_each([sleeper(0, 0), sleeper(1, 0)], lambda f, s: None, "x", frames=LONG,
                  weights=[1.0])
+
+
+def estimate_on(workers: int, rec: SensorRecording, method: str,
+                monkeypatch: pytest.MonkeyPatch) -> SkeletonResult:
+    """``estimate_skeleton`` with ``workers`` threads, whatever the recording's length."""
+    monkeypatch.setattr(threads, "MIN_FRAMES", 0)
+    monkeypatch.setattr(threads, "workers", lambda: workers)
+    return estimate_skeleton(rec, method=method)
+
+
+@pytest.mark.parametrize(("suit", "method"), [("sim15", "auto"), ("sim11", "auto"),
+                                              ("sim11", "reduced"), ("sim15", "llsf")])
+def test_the_estimate_on_threads_is_the_estimate_in_one_thread(
+        suit: str, method: str, request: pytest.FixtureRequest,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Bit for bit, warnings and quality figures in the same order: the pieces are
+    independent and merged in a fixed order, whatever the scheduling."""
+    rec = request.getfixturevalue(suit)[0]
+    one = estimate_on(1, rec, method, monkeypatch)
+    for _ in range(2):
+        two = estimate_on(2, rec, method, monkeypatch)
+        assert list(two.joints) == list(one.joints)
+        for name, path in one.joints.items():
+            assert np.array_equal(two.joints[name], path), name
+            assert np.array_equal(two.offsets[name].local, one.offsets[name].local), name
+        assert two.warnings == one.warnings
+        assert [dict(q) for q in two.quality.values()] == [dict(q) for q in one.quality.values()]
+        for seg, rot in one.orientations.items():
+            assert np.array_equal(two.orientations[seg], rot), seg
+
+
+def test_a_cancel_in_a_threaded_stage_stops_the_estimate(
+        sim15: tuple[SensorRecording, object], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The progress callback raising in the limbs (two limbs running) propagates, and no
+    piece goes on running behind it."""
+    monkeypatch.setattr(threads, "MIN_FRAMES", 0)
+    monkeypatch.setattr(threads, "workers", lambda: 2)
+    before = threading.active_count()
+    seen: list[str] = []
+
+    class Stop(Exception):
+        pass
+
+    def progress(fraction: float, stage: str) -> None:
+        seen.append(stage)
+        if seen.count("limbs") == 3:  # the first is before the pool starts
+            raise Stop
+
+    with pytest.raises(Stop):
+        estimate_skeleton(sim15[0], progress=progress)
+    assert seen.count("limbs") == 3
+    assert threading.active_count() == before
