@@ -848,10 +848,10 @@ def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz:
     by_sensor = {s: sensors.quaternions[s] for s in sensors.positions}
     # orientation noise biases the centres of joints that rotate a few degrees toward their
     # sensors (errors in variables); the shared model corrects for it
+    noise = rotation_noise_variance(by_sensor, sensors.ok, progress=scaled(progress, 0.0, 0.1))
     fit = estimate_slip(sensors.positions, by_sensor, sensors.ok,
                         [JOINT_SEGMENTS[j] for j in pairs], fps=fps, slip_hz=slip_hz,
-                        rotation_noise=rotation_noise_variance(by_sensor, sensors.ok),
-                        progress=scaled(progress, 0.0, 0.9))
+                        rotation_noise=noise, progress=scaled(progress, 0.1, 0.9))
 
     def without_slip(s: str) -> Callable[[Report], NDArray[np.float64]]:
         def task(_report: Report) -> NDArray[np.float64]:
@@ -1509,6 +1509,6 @@ def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, R
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
     report(0.6, "orientations")
-    orientations = estimate_orientations(joints, rotations, i0=i0, up=up)
-    report(1.0, "orientations")
+    orientations = estimate_orientations(joints, rotations, i0=i0, up=up,
+                                         progress=scaled(report, 0.6, 1.0))
     return bone_lengths, orientations

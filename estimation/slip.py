@@ -107,7 +107,8 @@ class SlipFit:
 
 
 def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
-                            valid: Mapping[str, NDArray[np.bool_]]) -> float:
+                            valid: Mapping[str, NDArray[np.bool_]], *,
+                            progress: Progress | None = None) -> float:
     """Per-axis variance (rad²) of the sensors' white orientation noise, or 0 if unknown.
 
     Each sensor's quaternion series (one hemisphere frame to frame) gives the variance of its
@@ -117,15 +118,20 @@ def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
     squared norm of a third difference is ``5v χ²₃`` (its median, against outliers: 2.366).
     The sensors of one tracker share one noise level, and
     fast motion at a low frame rate only inflates an estimate, so the smallest over the
-    sensors is taken.
+    sensors is taken. Sensor by sensor, two at a time (``threads.run_each``;
+    ``progress(fraction, "slip")``).
     """
-    estimates = []
-    for name, q in quaternions.items():
-        # component-major rows (4, F): the differences run along contiguous frames
-        d3 = np.diff(quat.continuous_rows(np.asarray(q).T), n=3, axis=-1)
-        level = quat.third_difference_median(np.einsum("ct,ct->t", d3, d3), valid[name])
-        if level is not None:
-            estimates.append(level / (5.0 * 2.366))
+    def level_of(name: str) -> Callable[[Report], float | None]:
+        def task(_report: Report) -> float | None:
+            # component-major rows (4, F): the differences run along contiguous frames
+            d3 = np.diff(quat.continuous_rows(np.asarray(quaternions[name]).T), n=3, axis=-1)
+            return quat.third_difference_median(np.einsum("ct,ct->t", d3, d3), valid[name])
+        return task
+
+    frames = next(iter(quaternions.values())).shape[0] if quaternions else 0
+    levels = run_each([level_of(name) for name in quaternions], progress or no_progress,
+                      "slip", frames=frames)
+    estimates = [level / (5.0 * 2.366) for level in levels if level is not None]
     return min(estimates) if estimates else 0.0
 
 
