@@ -148,11 +148,13 @@ def _run_inline(tasks: Sequence[Callable[[Report], T]], shares: Sequence[float],
     """``run_each`` in the calling thread: the pieces one after the other."""
     results = []
     start = 0.0
-    for task, share in zip(tasks, shares, strict=True):
-        outer = scaled(progress, start, min(start + share, 1.0))
+    for k, (task, share) in enumerate(zip(tasks, shares, strict=True)):
+        # the last piece ends at 1 exactly, as the threaded run does (the shares' sum may not)
+        stop = 1.0 if k == len(tasks) - 1 else min(start + share, 1.0)
+        outer = scaled(progress, start, stop)
         results.append(task(staged(outer, stage)))
-        start += share
         outer(1.0, stage)
+        start = stop
     return results
 
 
