@@ -142,7 +142,12 @@ def slip_basis(n: int, period: float) -> NDArray[np.float64]:
     """
     k = min(int(np.ceil(2.0 * n / period)), SLIP_BASIS_MAX)
     t = (np.arange(n) + 0.5) / n
-    return np.asarray(np.sqrt(2.0) * np.cos(np.pi * np.outer(t, np.arange(1, k + 1))))
+    # in place: on a long take each (F, K) temporary is tens of MB of fresh pages
+    basis = np.outer(t, np.arange(1, k + 1))
+    basis *= np.pi
+    np.cos(basis, out=basis)
+    basis *= np.sqrt(2.0)
+    return basis
 
 
 def _slip_displacement(ra: NDArray[np.float64], rb: NDArray[np.float64],
