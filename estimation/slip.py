@@ -179,10 +179,11 @@ def _smoothed_rotations(quaternions: Sequence[NDArray[np.float64]],
     window = round(ROTATION_SMOOTH_S * fps) | 1
 
     def smooth_one(k: int) -> Callable[[Report], None]:
-        def task(_report: Report) -> None:
+        def task(report: Report) -> None:
             q = quat.continuous_rows(quaternions[k])[None]
             if 5 <= window < n:
                 smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
+                report(0.6)
                 _refit_around_gaps(q, valid[k][None], window, out=smooth)
                 q = smooth
             np.divide(q, np.sqrt(np.einsum("sct,sct->st", q, q))[:, None], out=out[k:k + 1])
