@@ -1240,14 +1240,18 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
 
 def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str, float],
                  report: Progress) -> None:
-    """The four limbs, each by its joints or by the variance cost, two at a time
-    (``threads.run_each``; each on a ``branch`` of ``located``, merged in limb order: the
-    same result in any order); ``report(fraction, "limbs")`` within each."""
+    """The four limbs, each by its joints or by the variance cost; limbs by their joints two
+    at a time (``threads.run_each``; each on a ``branch`` of ``located``, merged in limb
+    order: the same result in any order), by the variance cost one after the other (its
+    optimiser's many small steps hold the GIL); ``report(fraction, "limbs")`` within each."""
+    def by_joints(limb: Limb) -> bool:
+        return limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced"
+
     def limb_task(limb: Limb) -> Callable[[Report], LocatedJoints]:
         def locate(report_limb: Report) -> LocatedJoints:
             branch = located.branch()
             stage = unstaged(report_limb)
-            if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
+            if by_joints(limb):
                 locate_limb_joints(ctx, branch, limb, std, stage)
             else:
                 locate_limb_by_variance(ctx, branch, limb, std, stage)
@@ -1256,7 +1260,8 @@ def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str,
 
     report(0.0, "limbs")
     for branch in run_each([limb_task(limb) for limb in LIMBS.values()], report, "limbs",
-                           frames=ctx.sensors.stacked.shape[1]):
+                           frames=ctx.sensors.stacked.shape[1],
+                           threaded=all(by_joints(limb) for limb in LIMBS.values())):
         located.merge(branch)
 
 

@@ -64,7 +64,8 @@ class Cancelled(Exception):
 
 
 def run_each(tasks: Sequence[Callable[[Report], T]], progress: Progress, stage: str, *,
-             frames: int, weights: Sequence[float] | None = None) -> list[T]:
+             frames: int, weights: Sequence[float] | None = None,
+             threaded: bool = True) -> list[T]:
     """Run independent pieces of work on a few threads; their results in the order of
     ``tasks``, whatever the order they finish in.
 
@@ -86,6 +87,9 @@ def run_each(tasks: Sequence[Callable[[Report], T]], progress: Progress, stage: 
         pieces run one after the other in the calling thread, with the same results.
     weights : sequence of float, optional
         Each piece's share of the work, positive (default equal).
+    threaded : bool, default True
+        False: in the calling thread, whatever the length (pieces that mostly hold the GIL,
+        such as an optimiser's many small steps, only contend for it on threads).
 
     Returns
     -------
@@ -99,7 +103,7 @@ def run_each(tasks: Sequence[Callable[[Report], T]], progress: Progress, stage: 
         running pieces have stopped; or the exception of ``progress``.
     """
     shares = _shares(len(tasks), weights)
-    if workers() == 1 or len(tasks) <= 1 or frames < MIN_FRAMES:
+    if not threaded or workers() == 1 or len(tasks) <= 1 or frames < MIN_FRAMES:
         return _run_inline(tasks, shares, progress, stage)
     done = [0.0] * len(tasks)
     stop = threading.Event()

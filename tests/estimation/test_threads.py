@@ -135,6 +135,8 @@ def test_one_worker_or_a_short_recording_runs_in_the_calling_thread(
     tenths = [name] * 10  # ten shares of 0.1 sum to 0.9999999999999999; the run ends at 1
     run_each(tenths, lambda f, s: seen.append(f), "x", frames=MIN_FRAMES - 1)
     assert seen[-1] == 1.0
+    assert run_each([name, name], lambda f, s: None, "x", frames=LONG,
+                    threaded=False) == [here, here]
     monkeypatch.setattr(threads, "workers", lambda: 1)
     assert run_each([name, name], lambda f, s: None, "x", frames=LONG) == [here, here]
 
