@@ -17,6 +17,7 @@ from . import _rows as rows
 from . import quaternions as quat
 from .errors import EstimationError, InputError
 from .params import resolved_options
+from .progress import Progress, no_progress, scaled
 from .results import JointQuality
 
 _LOSSES = ("linear", "huber", "cauchy")
@@ -142,7 +143,12 @@ def slip_basis(n: int, period: float) -> NDArray[np.float64]:
     """
     k = min(int(np.ceil(2.0 * n / period)), SLIP_BASIS_MAX)
     t = (np.arange(n) + 0.5) / n
-    return np.asarray(np.sqrt(2.0) * np.cos(np.pi * np.outer(t, np.arange(1, k + 1))))
+    # in place: on a long take each (F, K) temporary is tens of MB of fresh pages
+    basis = np.outer(t, np.arange(1, k + 1))
+    basis *= np.pi
+    np.cos(basis, out=basis)
+    basis *= np.sqrt(2.0)
+    return basis
 
 
 def _slip_displacement(ra: NDArray[np.float64], rb: NDArray[np.float64],
@@ -710,10 +716,12 @@ class RobustFit(NamedTuple):
 
 
 def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "huber",
-               huber_k: float = 2.0, n_iterations: int = 4) -> RobustFit:
+               huber_k: float = 2.0, n_iterations: int = 4,
+               report: Callable[[float], None] | None = None) -> RobustFit:
     """Iteratively reweighted least squares of the joint equation with ``priors``:
     ``n_iterations`` reweightings by ``loss`` (none for ``"linear"``) of the per-frame
-    residual, scaled by ``huber_k`` robust standard deviations."""
+    residual, scaled by ``huber_k`` robust standard deviations; ``report(fraction)`` after
+    each solve."""
     priors = Priors() if priors is None else priors
     w0 = model.data.w0
     w = w0  # replaced, never changed in place
@@ -722,6 +730,8 @@ def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "
         system = model.normal_equations(w, first=it == 0)
         c_data, sv, weak = _solve(system.normal, system.rhs)
         c, prior_weight = with_priors(model, system, c_data, w, priors)
+        if report is not None:
+            report((it + 1) / (iterations + 1))
         if it == iterations:
             break
         w = _weights(model.frame_residuals(c, system.back), w0, loss, huber_k)
@@ -1175,8 +1185,10 @@ def estimate_joint(
     **keywords
         ``neighbours``, ``bone_length``, ``symmetry``, ``prior``: what is known of this joint
         besides its two sensors (adjacent joints, a bone length, a plane and a prior of its
-        centre), each described in ``JointHints``; and, instead of ``options``, its fields
-        (``method``, ``loss``, ``hinge_prior``, ``slip_period``, ...).
+        centre), each described in ``JointHints``; ``progress``, a callback
+        ``progress(fraction, "joints")`` called after the model and each step of the fit (on a
+        long take a fit takes seconds); and, instead of ``options``, its fields (``method``,
+        ``loss``, ``hinge_prior``, ``slip_period``, ...).
 
     Returns
     -------
@@ -1204,6 +1216,7 @@ def estimate_joint(
     """
     hints = JointHints(**{f.name: keywords.pop(f.name) for f in fields(JointHints)
                           if f.name in keywords})
+    report: Progress = keywords.pop("progress", None) or no_progress
     options = resolved_options("estimate_joint", {"estimate_joint": JointOptions}, options,
                                keywords)
     data = joint_data(positions_a, rotations_a, positions_b, rotations_b, valid)
@@ -1213,19 +1226,25 @@ def estimate_joint(
                                   warn_range_deg=options.warn_range_deg)
     model = joint_model(data, method=options.method, highpass=options.highpass,
                         slip_period=options.slip_period)
-    return fit_joint(model, options, hints, rom=rom, warnings=warnings)
+    report(0.1, "joints")
+    return fit_joint(model, options, hints, rom=rom, warnings=warnings,
+                     progress=scaled(report, 0.1, 1.0))
 
 
 def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, rom: float,
-              warnings: list[str]) -> JointFit:
+              warnings: list[str], progress: Progress = no_progress) -> JointFit:
     """The joint's fit on its model: the robust loop with the priors, the hinge decision and
     the reconstruction (``estimate_joint`` after its checks; ``rom`` the range of motion,
-    degrees, ``warnings`` so far, appended to)."""
+    degrees, ``warnings`` so far, appended to; ``progress(fraction, "joints")`` after each
+    step)."""
     data = model.data
     priors = Priors(hints.symmetry, options.symmetry_weight, hints.prior)
+    robust = scaled(progress, 0.0, 0.7)
     fit = robust_fit(model, priors, loss=options.loss, huber_k=options.huber_k,
-                     n_iterations=options.n_iterations)
+                     n_iterations=options.n_iterations,
+                     report=lambda fraction: robust(fraction, "joints"))
     sd = fit_sd(model, fit)
+    progress(0.8, "joints")
     neighbours = hints.neighbours
     if sd <= options.trust_data_sd_m and options.estimator == "llsf":
         # the data alone locate the centre: priors and rules could only add their misfit
@@ -1242,7 +1261,9 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
         if decision.rule is not None:
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
                             f"{decision.rule} rule")
+    progress(0.9, "joints")
     rec = reconstruct(model, c, fit.back)
+    progress(1.0, "joints")
     quality = _joint_quality(data, fit, rec, options, rom=rom, sd=sd)
     quality.update(_prior_quality(fit, priors, c))
     quality.update(_hinge_quality(fit, decision))  # its data_weight replaces the prior's

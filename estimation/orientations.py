@@ -7,7 +7,7 @@ bone, pointing from the distal to the proximal joint. Every function is vectoris
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -16,6 +16,8 @@ from scipy.spatial.transform import Rotation
 from . import quaternions as quat
 from .errors import EstimationError, InputError
 from .model import JOINTS, LIMBS, SEGMENTS
+from .progress import Progress, no_progress, scaled
+from .threads import Report, run_each
 
 __all__ = ["estimate_orientations"]
 
@@ -239,7 +241,7 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
                           sensor_rotations: Mapping[str, Rotation], *, i0: int = 0,
                           up: ArrayLike = (0.0, 1.0, 0.0),
                           calibration: str | Mapping[str, Rotation] = "pelvis",
-                          ) -> dict[str, Float]:
+                          progress: Progress | None = None) -> dict[str, Float]:
     """Orientation of every segment from the joint centres and the sensors.
 
     Parameters
@@ -260,6 +262,9 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
         input): ``"pelvis"`` (default) aligns them with the pelvis frame, ``"upright"`` with a
         frame whose y is ``up`` and whose z is the pelvis' forward direction made horizontal;
         a mapping gives a single rotation (segment → world) per segment.
+    progress : callable, optional
+        ``progress(fraction, "orientations")`` after the trunk, the end segments and while
+        the limbs are composed.
 
     Returns
     -------
@@ -302,11 +307,15 @@ def estimate_orientations(joints: Mapping[str, ArrayLike],
     # Memory: the results are slices of one block, and the temporaries alive at any time take
     # less room than it: glibc returns a freed heap top to the system once it exceeds twice the
     # largest block freed so far, and faulting that memory in again cost 2–3 ms a call
+    report = progress or no_progress
     slots = iter(np.empty((len(SEGMENTS) + 2, n, 4)))
     quats, parent_x, forward_i0 = _trunk(pos, slots, i0)
+    report(0.2, "orientations")
     reference = _end_references(calibration, quats["pelvis"][i0], up, forward_i0)
     _end_segments(quats, sensor_rotations, reference, i0, slots)
-    _limb_segments(quats, pos, sensor_rotations, parent_x, slots)
+    report(0.4, "orientations")
+    _limb_segments(quats, pos, sensor_rotations, parent_x, slots,
+                   progress=scaled(report, 0.4, 1.0))
     return quats
 
 
@@ -365,16 +374,29 @@ def _end_segments(quats: dict[str, Float], sensor_rotations: Mapping[str, Rotati
 
 def _limb_segments(quats: dict[str, Float], pos: Mapping[str, Float],
                    sensor_rotations: Mapping[str, Rotation], parent_x: Mapping[str, Float],
-                   slots: Iterator[Float]) -> None:
+                   slots: Iterator[Float], *, progress: Progress) -> None:
     """Thighs, shanks, upper arms and forearms (eq. 6) into ``quats``, and the feet and
-    hands that have no sensor (their lower segment's frame)."""
-    for upper, lower, distal, prox, mid, end, sign in _LIMBS:
-        upper_bone = _normalise(_rows(pos, prox, mid))
-        lower_bone = _normalise(_rows(pos, mid, end))
-        sensor = sensor_rotations.get(upper)
-        x = _flexion_axis(upper_bone, lower_bone, None if sensor is None else sensor.as_matrix(),
-                          parent_x["pelvis" if upper.endswith("thigh") else "chest"], sign)
-        quats[upper] = quat_from_xy(x, upper_bone, next(slots))
-        quats[lower] = quat_from_xy(x, lower_bone, next(slots))
+    hands that have no sensor (their lower segment's frame). The four limbs two at a time
+    (``threads.run_each``), each into its own two slots, taken in limb order."""
+    def limb(spec: tuple[str, str, str, str, str, str, float],
+             into: tuple[Float, Float]) -> Callable[[Report], tuple[Float, Float]]:
+        upper, _lower, _distal, prox, mid, end, sign = spec
+
+        def task(_report: Report) -> tuple[Float, Float]:
+            upper_bone = _normalise(_rows(pos, prox, mid))
+            lower_bone = _normalise(_rows(pos, mid, end))
+            sensor = sensor_rotations.get(upper)
+            x = _flexion_axis(upper_bone, lower_bone,
+                              None if sensor is None else sensor.as_matrix(),
+                              parent_x["pelvis" if upper.endswith("thigh") else "chest"], sign)
+            return quat_from_xy(x, upper_bone, into[0]), quat_from_xy(x, lower_bone, into[1])
+        return task
+
+    tasks = [limb(spec, (next(slots), next(slots))) for spec in _LIMBS]
+    frames = next(iter(pos.values())).shape[0]
+    done = run_each(tasks, progress, "orientations", frames=frames)
+    for (upper, lower, distal, *_), (q_upper, q_lower) in zip(_LIMBS, done, strict=True):
+        quats[upper] = q_upper
+        quats[lower] = q_lower
         if distal not in quats:
             quats[distal] = quats[lower]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Final, NamedTuple
 
@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from . import _rows as rows
 from .errors import EstimationError, InputError
-from .gaps import component_major, fill_sensor_major, sensor_major
+from .gaps import FilledGaps, fill_sensor_major
 from .joints import (
     HINGE_RULE_SD_M,
     RULE_GATE_SIGMA,
@@ -38,6 +38,7 @@ from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
 from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
+from .threads import Report, ignore, run_each, staged, unstaged
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
 METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
@@ -442,31 +443,41 @@ class SensorPoses:
     stacked: NDArray[np.float64]  # (S, F, 3), sensor-major in the order used
 
     @classmethod
-    def of(cls, recording: SensorRecording, use: Sequence[str],
-           warnings: list[str]) -> SensorPoses:
-        """Fill the gaps of the sensors ``use``; warn about gaps longer than 0.5 s; raise
-        InputError naming a sensor with no valid sample."""
-        cols = [recording.index(s) for s in use]
+    def of(cls, recording: SensorRecording, use: Sequence[str], warnings: list[str],
+           progress: Progress = no_progress) -> SensorPoses:
+        """Fill the gaps of the sensors ``use``, sensor by sensor, two at a time
+        (``threads.run_each``; ``progress(fraction, "gaps")``); warn about gaps longer than
+        0.5 s; raise InputError naming a sensor with no valid sample (the first in ``use``)."""
+        n = recording.n_frames
         # each sensor's positions contiguous, and each component of its quaternions; a
-        # fifth row per sensor for _rotations
-        pos = sensor_major(recording.positions, cols)
-        quat = np.empty((len(use), 5, recording.n_frames))
-        component_major(recording.quaternions, cols, out=quat[:, :4])
-        try:
-            gaps = fill_sensor_major(pos, quat[:, :4], time=recording.time)
-        except InputError as exc:
-            if exc.sensor is None:
-                raise
-            seg = use[int(exc.sensor)]
-            raise InputError(f"sensor {seg!r} has no valid sample (NaN or a zero quaternion "
-                             "in every frame)", sensor=seg) from None
-        for s, longest in zip(use, gaps.longest.tolist(), strict=True):
+        # fifth row per sensor for unit_rotations
+        pos = np.empty((len(use), n, 3))
+        quat = np.empty((len(use), 5, n))
+
+        def fill(k: int) -> Callable[[Report], tuple[FilledGaps, Rotation]]:
+            def task(_report: Report) -> tuple[FilledGaps, Rotation]:
+                col = recording.index(use[k])
+                pos[k] = recording.positions[:, col]
+                quat[k, :4] = recording.quaternions[:, col].T
+                try:
+                    gaps = fill_sensor_major(pos[k:k + 1], quat[k:k + 1, :4], time=recording.time)
+                except InputError as exc:
+                    if exc.sensor is None:
+                        raise
+                    raise InputError(f"sensor {use[k]!r} has no valid sample (NaN or a zero "
+                                     "quaternion in every frame)", sensor=use[k]) from None
+                return gaps, unit_rotations(quat[k:k + 1], gaps.norms2)[0]
+            return task
+
+        filled = run_each([fill(k) for k in range(len(use))], progress, "gaps", frames=n)
+        for s, (gaps, _rot) in zip(use, filled, strict=True):
+            longest = int(gaps.longest[0])
             if longest > 0.5 * recording.fps:
                 warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
                                 "interpolated")
         return cls(positions={s: pos[k] for k, s in enumerate(use)},
-                   rotations=dict(zip(use, unit_rotations(quat, gaps.norms2), strict=True)),
-                   ok={s: gaps.valid[k] for k, s in enumerate(use)},
+                   rotations={s: rot for s, (_gaps, rot) in zip(use, filled, strict=True)},
+                   ok={s: gaps.valid[0] for s, (gaps, _rot) in zip(use, filled, strict=True)},
                    quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
 
 
@@ -767,16 +778,17 @@ def _check_frames(recording: SensorRecording, i0: int) -> None:
                               field="frames")
 
 
-def sensors_used(recording: SensorRecording, method: str, warnings: list[str]) -> SensorPoses:
+def sensors_used(recording: SensorRecording, method: str, warnings: list[str],
+                 progress: Progress = no_progress) -> SensorPoses:
     """The poses of the sensors ``method`` uses (every one present; the 11 of the reduced
-    suit for ``reduced``), gaps filled; InputError naming a missing sensor, EstimationError
-    when no sensor moves."""
+    suit for ``reduced``), gaps filled (``progress(fraction, "gaps")``); InputError naming a
+    missing sensor, EstimationError when no sensor moves."""
     required: Sequence[str] = SEGMENTS if method in ("llsf", "gdke") else REDUCED_SEGMENTS
     for seg in required:
         recording.index(seg)  # raises InputError naming the missing sensor
     use = list(REDUCED_SEGMENTS) if method == "reduced" else [
         s for s in SEGMENTS if s in recording.sensors]
-    sensors = SensorPoses.of(recording, use, warnings)
+    sensors = SensorPoses.of(recording, use, warnings, progress)
     # every sample equal to its sensor's first one: one elementwise pass
     stacked = sensors.stacked
     if not (np.any(stacked[:, -1] != stacked[:, 0]) or np.any(stacked != stacked[:, :1])):
@@ -801,11 +813,15 @@ def joint_motion(sensors: SensorPoses, method: str, min_range_deg: float,
     positions, quat, ok = sensors.positions, sensors.quaternions, sensors.ok
     pairs = [j for j, (a, b) in JOINT_SEGMENTS.items() if a in positions and b in positions
              and (method != "reduced" or j in _TORSO_JOINTS)]
-    rom = {}
-    for k, j in enumerate(pairs):
-        a, b = JOINT_SEGMENTS[j]
-        rom[j] = range_of_motion(quat[a], quat[b], ok[a] & ok[b])
-        progress((k + 1) / len(pairs), "gaps")
+
+    def rom_of(a: str, b: str) -> Callable[[Report], float]:
+        def task(_report: Report) -> float:
+            return range_of_motion(quat[a], quat[b], ok[a] & ok[b])
+        return task
+
+    ranges = run_each([rom_of(*JOINT_SEGMENTS[j]) for j in pairs], progress, "gaps",
+                      frames=sensors.stacked.shape[1])
+    rom = dict(zip(pairs, ranges, strict=True))
     static = [j for j in pairs if rom[j] < min_range_deg]
     if 2 * len(static) > len(pairs):
         raise EstimationError(
@@ -832,16 +848,20 @@ def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz:
     by_sensor = {s: sensors.quaternions[s] for s in sensors.positions}
     # orientation noise biases the centres of joints that rotate a few degrees toward their
     # sensors (errors in variables); the shared model corrects for it
+    noise = rotation_noise_variance(by_sensor, sensors.ok, progress=scaled(progress, 0.0, 0.1))
     fit = estimate_slip(sensors.positions, by_sensor, sensors.ok,
                         [JOINT_SEGMENTS[j] for j in pairs], fps=fps, slip_hz=slip_hz,
-                        rotation_noise=rotation_noise_variance(by_sensor, sensors.ok),
-                        progress=scaled(progress, 0.0, 0.9))
-    without = {}
-    for k, (s, slip) in enumerate(fit.slip.items()):
-        without[s] = sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(),
-                                                            slip)
-        progress(0.9 + 0.1 * k / len(fit.slip), "slip")
-    progress(1.0, "slip")
+                        rotation_noise=noise, progress=scaled(progress, 0.1, 0.9))
+
+    def without_slip(s: str) -> Callable[[Report], NDArray[np.float64]]:
+        def task(_report: Report) -> NDArray[np.float64]:
+            return sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(),
+                                                          fit.slip[s])
+        return task
+
+    without = dict(zip(fit.slip, run_each([without_slip(s) for s in fit.slip],
+                                          scaled(progress, 0.9, 1.0), "slip",
+                                          frames=sensors.stacked.shape[1]), strict=True))
     # the slips live on in ``without``; not keeping them saves (F, 3) per sensor
     return SharedSlip(replace(fit, slip={}), without, {j: i for i, j in enumerate(pairs)})
 
@@ -902,21 +922,23 @@ def shared_role(ctx: SkeletonContext, name: str) -> str | None:
     return None
 
 
-def own_fit(ctx: SkeletonContext, plan: JointPlan) -> JointFit:
+def own_fit(ctx: SkeletonContext, plan: JointPlan, report: Report = ignore) -> JointFit:
     """``joints.estimate_joint`` of the joint (for the wrists, when the shared model runs
     and the raw positions do not locate them to ``GOOD_DATA_SD_M``, on the positions
-    without slip); EstimationError naming the joint."""
+    without slip); EstimationError naming the joint. ``report(fraction)`` within."""
     a, b = JOINT_SEGMENTS[plan.name]
     sensors = ctx.sensors
-    fit = _fit_on(ctx, plan, sensors.positions[a], sensors.positions[b])
-    if ctx.shared is not None and plan.name in _DESLIPPED \
-            and fit.quality["fit_sd_m"] > GOOD_DATA_SD_M:
-        fit = _fit_on(ctx, plan, ctx.shared.without_slip[a], ctx.shared.without_slip[b])
+    refit = ctx.shared is not None and plan.name in _DESLIPPED
+    fit = _fit_on(ctx, plan, sensors.positions[a], sensors.positions[b],
+                  scaled(unstaged(report), 0.0, 0.5 if refit else 1.0))
+    if ctx.shared is not None and refit and fit.quality["fit_sd_m"] > GOOD_DATA_SD_M:
+        fit = _fit_on(ctx, plan, ctx.shared.without_slip[a], ctx.shared.without_slip[b],
+                      scaled(unstaged(report), 0.5, 1.0))
     return fit
 
 
 def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
-            pb: NDArray[np.float64]) -> JointFit:
+            pb: NDArray[np.float64], progress: Progress) -> JointFit:
     """``estimate_joint`` of the joint on the sensor positions ``pa``, ``pb``; with ``auto``
     the data alone decide where they locate the centre to ``GOOD_DATA_SD_M``."""
     a, b = JOINT_SEGMENTS[plan.name]
@@ -930,7 +952,7 @@ def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
             trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
             highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
             symmetry=plan.symmetry, prior=plan.prior if auto else None,
-            range_of_motion_deg=ctx.motion.rom.get(plan.name))
+            range_of_motion_deg=ctx.motion.rom.get(plan.name), progress=progress)
     except EstimationError as exc:
         raise EstimationError(f"{plan.name}: {exc.detail}", field=plan.name) from None
 
@@ -944,14 +966,14 @@ class LocatedJoint(NamedTuple):
     posterior: NDArray[np.float64] | None
 
 
-def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = None
-                 ) -> LocatedJoint:
+def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = None,
+                 report: Report = ignore) -> LocatedJoint:
     """Locate a joint by its plan. ``own``: its earlier ``estimate_joint`` fit, reused for
     a torso joint whose centre comes from the shared model (a refit with another prior
-    would not change its quality figures)."""
+    would not change its quality figures). ``report(fraction)`` within its own fit."""
     role = shared_role(ctx, plan.name)
     if role != "torso" or own is None:
-        own = own_fit(ctx, plan)
+        own = own_fit(ctx, plan, report)
     fit, posterior = own, None
     if role is not None and own.quality.get("fit_sd_m", math.inf) <= GOOD_DATA_SD_M:
         role = None
@@ -1027,10 +1049,12 @@ class LocatedJoints:
     offsets: dict[str, JointOffset] = field(default_factory=dict)
     quality: dict[str, Mapping[str, Any]] = field(default_factory=dict)
 
-    def locate(self, ctx: SkeletonContext, plan: JointPlan) -> JointFit:
+    def locate(self, ctx: SkeletonContext, plan: JointPlan, report: Report = ignore
+               ) -> JointFit:
         """Locate a joint by its plan, keep its own fit and posterior, and warn (unless
-        ``plan.quiet``); the fit is not recorded (``record``)."""
-        found = locate_joint(ctx, plan, self.own.get(plan.name))
+        ``plan.quiet``); the fit is not recorded (``record``). ``report(fraction)``
+        within."""
+        found = locate_joint(ctx, plan, self.own.get(plan.name), report)
         if shared_role(ctx, plan.name) == "torso":  # the only ones reused (locate_joint)
             self.own[plan.name] = found.own
         if found.posterior is not None:
@@ -1038,6 +1062,21 @@ class LocatedJoints:
         if not plan.quiet:
             self.warnings.extend(f"{plan.name}: {w}" for w in found.fit.warnings)
         return found.fit
+
+    def branch(self) -> LocatedJoints:
+        """An empty record for one limb located on its own (``run_each``), seeing the joints
+        and reused fits located so far; ``merge`` takes it back."""
+        return LocatedJoints(warnings=[], own=dict(self.own), joints=dict(self.joints))
+
+    def merge(self, branch: LocatedJoints) -> None:
+        """Take what ``branch`` located, and its warnings after the ones so far."""
+        self.warnings.extend(branch.warnings)
+        self.fits.update(branch.fits)
+        self.own.update(branch.own)
+        self.posterior.update(branch.posterior)
+        self.joints.update(branch.joints)
+        self.offsets.update(branch.offsets)
+        self.quality.update(branch.quality)
 
     def release(self) -> None:
         """Drop the fits once every joint is located: their paths are in ``joints``, which
@@ -1077,11 +1116,29 @@ def torso_plan(ctx: SkeletonContext, located: LocatedJoints, name: str) -> Joint
 
 
 def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress) -> None:
-    """The six torso joints, in ``_TORSO_JOINTS`` order; ``report(fraction, "torso")``
-    after each."""
-    for k, name in enumerate(_TORSO_JOINTS):
-        located.record(name, located.locate(ctx, torso_plan(ctx, located, name)))
-        report((k + 1) / len(_TORSO_JOINTS), "torso")
+    """The six torso joints, in ``_TORSO_JOINTS`` order: the hips and shoulders, which need
+    no other joint, two at a time (``threads.run_each``, each on a ``branch`` of
+    ``located``, merged in that order), then the waist and the neck between them;
+    ``report(fraction, "torso")`` as they are located."""
+    first = [name for name in _TORSO_JOINTS if name not in _MIDLINE]
+
+    def locate_alone(name: str) -> Callable[[Report], LocatedJoints]:
+        def task(report_joint: Report) -> LocatedJoints:
+            branch = located.branch()
+            branch.record(name, branch.locate(ctx, torso_plan(ctx, branch, name),
+                                              report_joint))
+            return branch
+        return task
+
+    share = len(first) / len(_TORSO_JOINTS)
+    for branch in run_each([locate_alone(name) for name in first], scaled(report, 0.0, share),
+                           "torso", frames=ctx.sensors.stacked.shape[1]):
+        located.merge(branch)
+    for k, name in enumerate(_MIDLINE):
+        step = (1 - share) / len(_MIDLINE)
+        within = scaled(report, share + k * step, share + (k + 1) * step)
+        located.record(name, located.locate(ctx, torso_plan(ctx, located, name),
+                                            staged(within, "torso")))
 
 
 def mirror_torso(ctx: SkeletonContext, located: LocatedJoints,
@@ -1133,11 +1190,11 @@ def locate_limb_joints(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
     estimator = ctx.options.estimator
     plain = ctx.options.plain
     refit_wrist = not plain and limb.is_arm
-    d_fit = located.locate(ctx, JointPlan(dist, estimator, quiet=refit_wrist))
-    stage(1 / 3, "limbs")
+    d_fit = located.locate(ctx, JointPlan(dist, estimator, quiet=refit_wrist),
+                           staged(scaled(stage, 0.0, 1 / 3), "limbs"))
     neighbours = (None, None) if plain else (located.joints[prox], d_fit.positions)
-    m_fit = located.locate(ctx, JointPlan(mid, estimator, neighbours))
-    stage(2 / 3, "limbs")
+    m_fit = located.locate(ctx, JointPlan(mid, estimator, neighbours),
+                           staged(scaled(stage, 1 / 3, 2 / 3), "limbs"))
     if refit_wrist and mid in ctx.motion.static:
         # an elbow located from priors would carry its error into the wrist's rule
         located.warnings.extend(f"{dist}: {w}" for w in d_fit.warnings)
@@ -1148,7 +1205,8 @@ def locate_limb_joints(ctx: SkeletonContext, located: LocatedJoints, limb: Limb,
         upper_len = float(rows.norms(m_fit.positions - located.joints[prox]).mean())
         forearm = upper_len * std["forearm"] / std["upperarm"]
         d_fit = located.locate(ctx, JointPlan(dist, estimator, (m_fit.positions, None),
-                                              bone_length=forearm))
+                                              bone_length=forearm),
+                               staged(scaled(stage, 2 / 3, 1.0), "limbs"))
     located.record(mid, m_fit)
     located.record(dist, d_fit)
 
@@ -1182,16 +1240,31 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
 
 def locate_limbs(ctx: SkeletonContext, located: LocatedJoints, std: Mapping[str, float],
                  report: Progress) -> None:
-    """The four limbs, each by its joints or by the variance cost; ``report(fraction,
-    "limbs")`` within each."""
-    for k, limb in enumerate(LIMBS.values()):
-        stage = scaled(report, k / 4, (k + 1) / 4)
-        stage(0.0, "limbs")
-        if limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced":
-            locate_limb_joints(ctx, located, limb, std, stage)
-        else:
-            locate_limb_by_variance(ctx, located, limb, std, stage)
-        stage(1.0, "limbs")
+    """The four limbs, each by its joints or by the variance cost; limbs by their joints two
+    at a time (``threads.run_each``; each on a ``branch`` of ``located``, merged in limb
+    order: the same result in any order), by the variance cost one after the other (its
+    optimiser's many small steps hold the GIL); ``report(fraction, "limbs")`` within each."""
+    def by_joints(limb: Limb) -> bool:
+        return limb.segments[1] in ctx.sensors.positions and ctx.options.method != "reduced"
+
+    def limb_task(limb: Limb) -> Callable[[Report], LocatedJoints]:
+        def locate(report_limb: Report) -> LocatedJoints:
+            branch = located.branch()
+            stage = unstaged(report_limb)
+            if by_joints(limb):
+                locate_limb_joints(ctx, branch, limb, std, stage)
+            else:
+                locate_limb_by_variance(ctx, branch, limb, std, stage)
+            return branch
+        return locate
+
+    report(0.0, "limbs")
+    for branch in run_each([limb_task(limb) for limb in LIMBS.values()], report, "limbs",
+                           frames=ctx.sensors.stacked.shape[1],
+                           threaded=all(by_joints(limb) for limb in LIMBS.values())):
+        located.merge(branch)
+
+
 
 
 def estimate_skeleton(
@@ -1297,8 +1370,7 @@ def locate_joints(recording: SensorRecording, options: SkeletonOptions, report: 
     method = options.method
     located = LocatedJoints(warnings=list(recording.warnings))
     report(0.0, "gaps")
-    sensors = sensors_used(recording, method, located.warnings)
-    report(0.03, "gaps")
+    sensors = sensors_used(recording, method, located.warnings, scaled(report, 0.0, 0.03))
     ctx = skeleton_context(sensors, options, recording.fps, scaled(report, 0.03, 0.3))
     report(0.3, "torso")
     locate_torso(ctx, located, scaled(report, 0.3, 0.45 if method == "auto" else 0.55))
@@ -1370,7 +1442,7 @@ def estimate_skeleton_from_offsets(
     warnings: list[str] = list(recording.warnings)
     report(0.0, "gaps")
     use = [s for s in SEGMENTS if s in recording.sensors]
-    sensors = SensorPoses.of(recording, use, warnings)
+    sensors = SensorPoses.of(recording, use, warnings, scaled(report, 0.0, 0.3))
     report(0.3, "joints")
     mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
     joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
@@ -1421,9 +1493,15 @@ def _smoothed(joints: dict[str, NDArray[np.float64]], fps: float, *, smooth: boo
     smoothed path, up to 0.6 (``_completed`` follows)."""
     report(0.0, "orientations")
     if smooth:
-        for k, name in enumerate(list(joints)):
-            joints[name] = _smooth(joints[name], fps)
-            report(0.6 * (k + 1) / len(joints), "orientations")
+        def smooth_one(name: str) -> Callable[[Report], None]:
+            def task(_report: Report) -> None:
+                # replacing the value of a key present: the dict's order stays
+                joints[name] = _smooth(joints[name], fps)
+            return task
+
+        frames = next(iter(joints.values())).shape[0]
+        run_each([smooth_one(name) for name in joints], scaled(report, 0.0, 0.6),
+                 "orientations", frames=frames)
     return joints
 
 
@@ -1436,6 +1514,6 @@ def _completed(joints: dict[str, NDArray[np.float64]], rotations: Mapping[str, R
                     for seg, (a, b) in BONES.items()}
     _check_units(bone_lengths, warnings)
     report(0.6, "orientations")
-    orientations = estimate_orientations(joints, rotations, i0=i0, up=up)
-    report(1.0, "orientations")
+    orientations = estimate_orientations(joints, rotations, i0=i0, up=up,
+                                         progress=scaled(report, 0.6, 1.0))
     return bone_lengths, orientations

@@ -51,7 +51,7 @@ Anal. Chem. 36(8):1627–1639, 1964.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
 
@@ -64,6 +64,7 @@ from .joints import slip_basis, white_variance
 from .params import check_number, resolved_options
 from .progress import Progress, no_progress, scaled
 from .savgol import savgol_coeffs, savgol_filter
+from .threads import Report, run_each
 
 ROTATION_SMOOTH_S: Final[float] = 0.2
 """Window (seconds) of the cubic Savitzky–Golay filter applied to the sensor rotations used
@@ -106,7 +107,8 @@ class SlipFit:
 
 
 def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
-                            valid: Mapping[str, NDArray[np.bool_]]) -> float:
+                            valid: Mapping[str, NDArray[np.bool_]], *,
+                            progress: Progress | None = None) -> float:
     """Per-axis variance (rad²) of the sensors' white orientation noise, or 0 if unknown.
 
     Each sensor's quaternion series (one hemisphere frame to frame) gives the variance of its
@@ -116,15 +118,20 @@ def rotation_noise_variance(quaternions: Mapping[str, NDArray[np.float64]],
     squared norm of a third difference is ``5v χ²₃`` (its median, against outliers: 2.366).
     The sensors of one tracker share one noise level, and
     fast motion at a low frame rate only inflates an estimate, so the smallest over the
-    sensors is taken.
+    sensors is taken. Sensor by sensor, two at a time (``threads.run_each``;
+    ``progress(fraction, "slip")``).
     """
-    estimates = []
-    for name, q in quaternions.items():
-        # component-major rows (4, F): the differences run along contiguous frames
-        d3 = np.diff(quat.continuous_rows(np.asarray(q).T), n=3, axis=-1)
-        level = quat.third_difference_median(np.einsum("ct,ct->t", d3, d3), valid[name])
-        if level is not None:
-            estimates.append(level / (5.0 * 2.366))
+    def level_of(name: str) -> Callable[[Report], float | None]:
+        def task(_report: Report) -> float | None:
+            # component-major rows (4, F): the differences run along contiguous frames
+            d3 = np.diff(quat.continuous_rows(np.asarray(quaternions[name]).T), n=3, axis=-1)
+            return quat.third_difference_median(np.einsum("ct,ct->t", d3, d3), valid[name])
+        return task
+
+    frames = next(iter(quaternions.values())).shape[0] if quaternions else 0
+    levels = run_each([level_of(name) for name in quaternions], progress or no_progress,
+                      "slip", frames=frames)
+    estimates = [level / (5.0 * 2.366) for level in levels if level is not None]
     return min(estimates) if estimates else 0.0
 
 
@@ -154,28 +161,35 @@ def _noise_gain(n: int, fps: float) -> float:
 def _smoothed_rotations(quaternions: Sequence[NDArray[np.float64]],
                         valid: Sequence[NDArray[np.bool_]], fps: float,
                         report: Progress = no_progress) -> NDArray[np.float64]:
-    """Rotation matrices of sensors' quaternions, low-passed, component-major: (S, 9, F)
-    (``quaternions.as_matrix_rows``), from each sensor's quaternions given component-major
-    (4, F); samples with ``valid`` (F,) False (filled gaps) carry no weight.
+    """Sensors' quaternions, low-passed and normalised, component-major: (S, 4, F), from each
+    sensor's quaternions given component-major (4, F); samples with ``valid`` (F,) False
+    (filled gaps) carry no weight. Each joint's block makes their rotation matrices
+    (``quaternions.as_matrix_rows``) for itself: kept for every sensor at once they took
+    9 × 8 bytes per frame and sensor (1 GB at a million frames and 15 sensors), these 4 × 8.
 
     White orientation noise in the regressors of a linear model biases it (errors in
     variables) and, with a slip term able to absorb anything slow, makes the slip estimate
     follow the noise; a cubic Savitzky–Golay filter over ``ROTATION_SMOOTH_S`` keeps the motion
-    (cubic over 0.2 s) and averages the noise. Sensor by sensor, along contiguous rows of
-    frames: the temporaries are those of one sensor.
+    (cubic over 0.2 s) and averages the noise. Sensor by sensor (two at a time,
+    ``threads.run_each``), along contiguous rows of frames: the temporaries are those of
+    one sensor per thread.
     """
     n = quaternions[0].shape[-1]
-    out = np.empty((len(quaternions), 9, n))
+    out = np.empty((len(quaternions), 4, n))
     window = round(ROTATION_SMOOTH_S * fps) | 1
-    for k, (rows_, ok) in enumerate(zip(quaternions, valid, strict=True)):
-        q = quat.continuous_rows(rows_)[None]
-        if 5 <= window < n:
-            smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
-            _refit_around_gaps(q, ok[None], window, out=smooth)
-            q = smooth
-        q /= np.sqrt(np.einsum("sct,sct->st", q, q))[:, None]
-        quat.as_matrix_rows(q[0], out=out[k])
-        report((k + 1) / len(quaternions), "slip")
+
+    def smooth_one(k: int) -> Callable[[Report], None]:
+        def task(report: Report) -> None:
+            q = quat.continuous_rows(quaternions[k])[None]
+            if 5 <= window < n:
+                smooth = savgol_filter(q, window, 3, axis=-1, mode="interp")
+                report(0.6)
+                _refit_around_gaps(q, valid[k][None], window, out=smooth)
+                q = smooth
+            np.divide(q, np.sqrt(np.einsum("sct,sct->st", q, q))[:, None], out=out[k:k + 1])
+        return task
+
+    run_each([smooth_one(k) for k in range(len(quaternions))], report, "slip", frames=n)
     return out
 
 
@@ -337,13 +351,8 @@ def estimate_slip(
                                    [valid[s] for s in sensors], fps, scaled(report, 0.0, 0.4))
     rot = dict(zip(sensors, smoothed, strict=True))
     v_eiv = opt.rotation_noise * _noise_gain(n, fps)
-    blocks = []
-    for j, (a, b) in enumerate(pairs):
-        blocks.append(joint_block(
-            layout, j, (a, b), (rot[a], rot[b]),
-            np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
-            w=(valid[a] & valid[b]).astype(float), v_eiv=v_eiv))
-        report(0.4 + 0.55 * (j + 1) / len(pairs), "slip")
+    blocks = _joint_blocks(layout, pairs, rot, positions, valid, v_eiv=v_eiv,
+                           report=scaled(report, 0.4, 0.95))
     normal, rhs_all = _assemble(layout, blocks)
     report(0.96, "slip")
     x, blocks_c = _solve_system(normal, rhs_all, layout.n_s)
@@ -359,6 +368,27 @@ def estimate_slip(
     centres, blocks_c, corrected = _errors_in_variables(
         normal, rhs_all, layout.n_s, blocks, centres, covariances=blocks_c)
     return SlipFit(slip, centres, blocks_c, corrected, share)
+
+
+def _joint_blocks(layout: SlipLayout, pairs: Sequence[tuple[str, str]],
+                  rotations: Mapping[str, NDArray[np.float64]],
+                  positions: Mapping[str, NDArray[np.float64]],
+                  valid: Mapping[str, NDArray[np.bool_]], *, v_eiv: float,
+                  report: Progress) -> list[JointBlock]:
+    """``joint_block`` of each joint of ``pairs``, two at a time (``threads.run_each``;
+    ``report(fraction, "slip")``), from the smoothed quaternions (4, F) by sensor."""
+    n = layout.basis.shape[0]
+
+    def block_of(j: int, a: str, b: str) -> Callable[[Report], JointBlock]:
+        def task(_report: Report) -> JointBlock:
+            pair = (quat.as_matrix_rows(rotations[a]), quat.as_matrix_rows(rotations[b]))
+            return joint_block(layout, j, (a, b), pair,
+                               np.subtract(positions[b].T, positions[a].T, out=np.empty((3, n))),
+                               w=(valid[a] & valid[b]).astype(float), v_eiv=v_eiv)
+        return task
+
+    return run_each([block_of(j, a, b) for j, (a, b) in enumerate(pairs)], report, "slip",
+                    frames=n)
 
 
 @dataclass(frozen=True, eq=False)

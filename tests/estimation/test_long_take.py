@@ -70,3 +70,14 @@ def test_progress_within_every_stage(long_take: LongTake) -> None:
     for stage in STAGES:
         own = sorted({f for f, s in long_take.reports if s == stage})
         assert len(own) >= 4, (stage, own)
+
+
+def test_every_fit_reports_from_inside(long_take: LongTake) -> None:
+    """The single pieces of work that were silent on long takes report from inside (issue 19:
+    at least once a second at 144k frames): each sensor's gap fill, and each joint fit after
+    each robust solve (6 torso joints, 8 limb joints, the arms' wrists twice), not only
+    after a joint or limb is done."""
+    count = {stage: len([f for f, s in long_take.reports if s == stage]) for stage in STAGES}
+    assert count["gaps"] >= 15 + 14, count  # the sensors' fills, then the joints' motion
+    assert count["torso"] >= 5 * 6, count
+    assert count["limbs"] >= 5 * 8, count
