@@ -69,6 +69,7 @@ local minima and the optimizer's steps decide which one a start falls into.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
@@ -635,18 +636,35 @@ def _coarse(limb: LimbInUpperFrame) -> LimbInUpperFrame | None:
     return limb.every(step) if step >= 2 else None
 
 
+def _reporting(normal: Callable[[Float], Normal], report: Progress, start: float, end: float
+               ) -> Callable[[Float], Normal]:
+    """``normal`` reporting ``start`` → ``end`` (approached, never reached) in ever smaller
+    steps before each call: one per Levenberg–Marquardt iteration, a pass over the frames,
+    whose number is not known ahead. An exception ``report`` raises (a cancelled job) stops
+    the fit."""
+    count = itertools.count()
+
+    def reported(theta: Float) -> Normal:
+        report(end - (end - start) * 0.8 ** next(count), "limbs")
+        return normal(theta)
+    return reported
+
+
 def _fit_paper_ls(limb: LimbInUpperFrame, x0: Float, lengths: tuple[float, float], *,
-                  w_s: float, w_l: float, objective: PaperObjective) -> tuple[Float, int, bool]:
-    """Least squares on E: on a subsample first, then on every frame (``objective``)."""
+                  w_s: float, w_l: float, objective: PaperObjective, report: Progress
+                  ) -> tuple[Float, int, bool]:
+    """Least squares on E: on a subsample first, then on every frame (``objective``);
+    ``report`` 0 → 0.3 from the iterations."""
     n_eval = 0
     coarse = _coarse(limb)
     if coarse is not None:
         sub = paper_normal(coarse, lengths, w_s, w_l)
-        x0, n_coarse, _ = levenberg_marquardt(sub.cost, sub.normal, x0, rtol=_COARSE_RTOL,
-                                              damping=_ROUGH_START,
+        x0, n_coarse, _ = levenberg_marquardt(sub.cost, _reporting(sub.normal, report, 0.0, 0.1),
+                                              x0, rtol=_COARSE_RTOL, damping=_ROUGH_START,
                                               newton_rtol=_COARSE_NEWTON_GAIN)
         n_eval += n_coarse
-    x, n_full, ok = levenberg_marquardt(objective.cost, objective.normal, x0,
+    x, n_full, ok = levenberg_marquardt(objective.cost,
+                                        _reporting(objective.normal, report, 0.1, 0.3), x0,
                                         damping=_ROUGH_START if coarse is None else 1e-6)
     return x, n_eval + n_full, ok
 
@@ -971,8 +989,12 @@ def _straight_start(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Flo
 
 
 def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[float, float],
-                  robust_scale: float | None) -> tuple[Float, int, bool, dict[str, Any]]:
+                  robust_scale: float | None, report: Progress,
+                  ) -> tuple[Float, int, bool, dict[str, Any]]:
+    """The improved objective from each start on the subsample, the best polished on every
+    frame; ``report`` 0.3 → 0.6 by subsample fit, 0.6 → 1 from the polish's iterations."""
     n_eval, ok = 0, False
+    fits = itertools.count(1)
     coarse = _coarse(limb) or limb
     motion_deg = _relative_motion_deg(limb)
     # Little relative rotation between the two sensors means the data hardly constrain the
@@ -995,6 +1017,7 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
                                 ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
             n_eval += int(sol.nfev + sol.njev)
             x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
+            report(0.3 + 0.3 * next(fits) / (len(starts) * _ALTERNATE), "limbs")
             new_axis, doubt = _hinge_axis(limb, x[3:6])
             if new_axis @ axis < 0:
                 new_axis = -new_axis
@@ -1013,7 +1036,8 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     fun, jac = improved_problem(limb, lengths, axis, _prior_weights(doubt, gain),
                                 robust_scale=robust_scale)
     if coarse is not limb:
-        x, more, ok = levenberg_marquardt(*normal_from_residuals(fun, jac), x)
+        cost, normal = normal_from_residuals(fun, jac)
+        x, more, ok = levenberg_marquardt(cost, _reporting(normal, report, 0.6, 1.0), x)
         n_eval += more
     r = fun(x)
     return x[:6], n_eval, ok, {
@@ -1144,13 +1168,14 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
         theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s=w_s, w_l=w_l, progress=report)
         quality["optimizer"] = "nelder-mead"
         return theta, n_eval, ok, quality
-    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s=w_s, w_l=w_l, objective=objective)
+    theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s=w_s, w_l=w_l, objective=objective,
+                                      report=report)
     quality["optimizer"] = "least-squares"
     if method == "improved":
         report(0.3, "limbs")
         theta, more, ok, extra = _fit_improved(
             measured, [theta, x0, _straight_start(measured, lengths)], lengths,
-            options.robust_scale)
+            options.robust_scale, report)
         n_eval += more
         quality.update(extra)
         quality["fitted_frames"] = measured.n

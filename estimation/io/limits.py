@@ -37,9 +37,12 @@ from ..params import MAX_FPS  # the estimators' bound, checked here while readin
 MAX_FRAMES: Final[int] = 5_000_000
 """Frames (data rows) of one recording: 5.8 h at 240 Hz, 1.4 h at 1 kHz."""
 
-MAX_VALUES: Final[int] = 100_000_000
-"""Numbers in one array or table (800 MB as float64): 5 M frames × 20 values, or a 2-hour
-240 Hz take of 15 sensors × 7 values with room to spare."""
+MAX_VALUES: Final[int] = 200_000_000
+"""Numbers in one array or table (1.6 GB as float64): a million frames of a 23-sensor suit
+(1 + 23 × 7 columns, 162 M) or 1.9 M frames (2.2 h at 240 Hz) of a 15-sensor one. The CLI's
+skeleton of a million frames × 15 sensors peaked at 5.0 GB (47 bytes per value), so a table at
+the limit needs about 9.5 GB; the service bounds a job's memory on its own
+(``job_memory_mb``)."""
 
 MAX_SENSORS: Final[int] = 256
 """Sensors or tracker stations of one recording (a full suit has 15 to 23)."""

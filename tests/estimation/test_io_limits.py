@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from bonefit.estimation.errors import InputError, LimitError
-from bonefit.estimation.io import limits
+from bonefit.estimation.io import limits, sensor_csv
 from bonefit.estimation.io.kinematics import (
     read_acceleration_csv,
     read_kinematics_csv,
@@ -388,3 +388,41 @@ def test_npz_path_that_is_a_directory_or_missing(tmp_path: Path) -> None:
         read_sensor_npz(tmp_path)
     with pytest.raises(FileNotFoundError):
         read_sensor_npz(tmp_path / "absent.npz")
+
+
+def test_max_values_admits_a_million_frames_of_a_full_suit() -> None:
+    """A million frames of a 15- or 23-sensor suit (time and 7 values per sensor) are read
+    (issue 19: time linear up to 1 M frames end to end); twice as many frames of 15 sensors
+    are not, with a message giving the count and the limit."""
+    for sensors in (15, 23):
+        limits.check_rows(1_000_000, 1 + 7 * sensors)
+    with pytest.raises(LimitError) as caught:
+        limits.check_rows(2_000_000, 1 + 7 * 15, line=9)
+    assert caught.value.limit == "MAX_VALUES"
+    assert caught.value.detail == ("the file has 212000000 values (rows × columns); the limit "
+                                   "is 200000000 (MAX_VALUES)")
+    assert caught.value.line == 9
+
+
+def test_a_csv_beyond_max_values_is_refused_at_the_block_crossing_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A sensor CSV past ``MAX_VALUES`` is refused, naming the first row beyond it, once the
+    block of lines that crosses the limit is parsed: what it keeps is bounded by the limit and
+    a block, not by the file."""
+    lines = example_path().read_text().splitlines()
+    header_line = next(k for k, t in enumerate(lines, 1) if not t.startswith("#"))
+    columns = len(lines[header_line - 1].split(","))
+    rows = [t.split(",", 1)[1] for t in lines[header_line:]] * 10  # 3,000 rows, 3 MB
+    path = tmp_path / "walk.csv"
+    path.write_text("\n".join([*lines[:header_line],
+                               *(f"{k / 60:.6f},{r}" for k, r in enumerate(rows))]) + "\n")
+    monkeypatch.setattr(sensor_csv, "CHUNK_CHARS", 16 * 1024)  # 16 rows a block
+    whole, caught = peak_bytes(lambda: read_sensor_csv(path))
+    assert caught is None
+    monkeypatch.setattr(limits, "MAX_VALUES", 20 * columns)
+    peak, caught = peak_bytes(lambda: read_sensor_csv(path))
+    assert isinstance(caught, LimitError), caught
+    assert caught.limit == "MAX_VALUES"
+    assert caught.line == header_line + 21
+    assert "the limit is" in caught.detail
+    assert peak < whole / 4, (peak, whole)

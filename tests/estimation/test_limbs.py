@@ -423,6 +423,37 @@ def test_progress_is_reported_in_order() -> None:
     assert all(b >= a for a, b in itertools.pairwise(seen))
 
 
+class Cancelled(Exception):
+    pass
+
+
+@pytest.mark.parametrize("method", ["paper", "improved"])
+def test_least_squares_fits_report_from_inside(method: str) -> None:
+    """Each Levenberg–Marquardt iteration (a pass over every frame) and each subsample fit of
+    the improved method reports, in order (issue 19: the limbs of an 11-sensor suit were
+    silent between 0, 0.3 and 1 for seconds on long takes); a progress that raises (a
+    cancelled job) stops the fit inside."""
+    leg = make_leg(n=2400, noise_m=0.002, noise_deg=0.5, seed=3)
+    seen: list[float] = []
+    estimate_limb(*leg.args(), standard_lengths=(0.42, 0.41), method=method,
+                  progress=lambda f, stage: seen.append(f))
+    assert all(b >= a for a, b in itertools.pairwise(seen))
+    inside = [f for f in seen if 0.0 < f < 1.0]
+    # the subsample's and every frame's fits of E: at least one iteration each
+    assert len([f for f in inside if f < 0.3]) >= 2, seen
+    if method == "improved":
+        # three starts on the subsample, then the polish on every frame
+        assert len([f for f in inside if 0.3 < f <= 0.6]) >= 3, seen
+        assert len([f for f in inside if f > 0.6]) >= 1, seen
+
+    def cancel(fraction: float, _stage: str) -> None:
+        if 0.0 < fraction < 1.0:
+            raise Cancelled
+    with pytest.raises(Cancelled):
+        estimate_limb(*leg.args(), standard_lengths=(0.42, 0.41), method=method,
+                      progress=cancel)
+
+
 def make_offline_knee(seed: int, n: int = 1200) -> Leg:
     """A leg whose knee sits 12 mm off the hip–ankle line along the flexion axis and is not a
     pure hinge (±2.3° of abduction at 3.1 rad/s besides 0–69° of flexion), as real knees

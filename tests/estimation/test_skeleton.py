@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bonefit.estimation import skeleton
+from bonefit.estimation import skeleton, threads
 from bonefit.estimation.bvh import BvhMotion
 from bonefit.estimation.errors import EstimationError, InputError
 from bonefit.estimation.gaps import component_major, fill_sensor_major, sensor_major
@@ -265,6 +265,49 @@ def test_progress_is_reported(sim15: Sim) -> None:
     assert fractions[0] == 0.0
     assert fractions[-1] == 1.0
     assert {"gaps", "torso", "limbs", "orientations"} <= {s for _, s in seen}
+
+
+@pytest.mark.parametrize("method", ["auto", "reduced"])
+def test_eleven_sensor_limbs_report_from_inside(sim11: Sim, method: str) -> None:
+    """The four limbs the variance cost fits report from inside each fit (issue 19): each
+    least-squares iteration and, for ``auto``, each subsample fit of the improved method,
+    not only at each limb's start, middle and end (4 × 3 reports before)."""
+    rec, _ = sim11
+    seen: list[tuple[float, str]] = []
+    estimate_skeleton(rec, method=method, progress=lambda f, s: seen.append((f, s)))
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions)
+    limbs = [f for f, s in seen if s == "limbs"]
+    assert len(limbs) >= 4 * (5 if method == "reduced" else 9), limbs
+
+class Stop(Exception):
+    pass
+
+
+def test_eleven_sensor_limbs_on_two_threads_are_the_limbs_in_turn(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a long take the variance cost's four limbs run two at a time (``run_each``) with
+    the joints they give one after the other, bit for bit; a progress that raises while they
+    run stops them from inside (each reports every iteration)."""
+    rec, _ = simulate_sensors(example_motion(threads.MIN_FRAMES, fps=240.0, seed=4),
+                              units_m=0.01, n_sensors=11, seed=4, fps=240.0)
+    two = estimate_skeleton(rec, method="auto")
+    monkeypatch.setattr(threads, "workers", lambda: 1)
+    one = estimate_skeleton(rec, method="auto")
+    for joint in JOINTS:
+        assert np.array_equal(two.joints[joint], one.joints[joint]), joint
+    monkeypatch.undo()
+    seen: list[float] = []
+
+    def cancel(fraction: float, stage: str) -> None:
+        if stage == "limbs":
+            seen.append(fraction)
+            if len(seen) == 2:  # the pieces are running
+                raise Stop
+
+    with pytest.raises(Stop):
+        estimate_skeleton(rec, method="auto", progress=cancel)
+    assert len(seen) == 2
 
 
 def test_bad_options(sim15: Sim) -> None:
