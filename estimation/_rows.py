@@ -7,22 +7,8 @@ matrices three times as long as ``apply``), and these run on every frame of ever
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import NDArray
-
-if TYPE_CHECKING:  # scipy only where a Rotation is made: not in the API process
-    from scipy.spatial.transform import Rotation
-
-
-def matrices(rotations: Rotation | NDArray[np.float64]) -> NDArray[np.float64]:
-    """The rotation matrices (F, 3, 3) of ``rotations``: a Rotation's ``as_matrix()``, or an
-    array of them as it is (``skeleton.SensorPoses.matrices``: each sensor's once per
-    estimate rather than once per joint and limb it belongs to)."""
-    if isinstance(rotations, np.ndarray):
-        return rotations
-    return np.asarray(rotations.as_matrix())
 
 
 def norms(v: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -259,9 +259,8 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
 
     Parameters
     ----------
-    rotations_a, rotations_b : Rotation of length F, or ndarray, shape (F, 4) or (F, 3, 3)
-        Sensor → world rotations of the two bodies (arrays: scalar-first quaternions, or
-        rotation matrices).
+    rotations_a, rotations_b : Rotation of length F, or ndarray, shape (F, 4)
+        Sensor → world rotations of the two bodies (arrays: scalar-first quaternions).
     valid : ndarray of bool, shape (F,), optional
         Frames to use (default: all).
 
@@ -272,7 +271,10 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
         after a 9-frame moving average of the rotation vectors so that white orientation
         noise does not count as motion.
     """
-    qa, qb = _scalar_first(rotations_a), _scalar_first(rotations_b)
+    qa = (rotations_a if isinstance(rotations_a, np.ndarray)
+          else rotations_a.as_quat(scalar_first=True))
+    qb = (rotations_b if isinstance(rotations_b, np.ndarray)
+          else rotations_b.as_quat(scalar_first=True))
     # everything runs on (4, F) and (3, F) rows: each component contiguous
     rel = quat.relative(qa.T, qb.T, axis=0)
     if valid is not None:
@@ -291,16 +293,6 @@ def range_of_motion(rotations_a: Rotation | NDArray[np.float64],
     # the percentile of the squared norms, and the square root of its two order statistics
     squared = rows.dots(dev.T, dev.T)
     return float(2.0 * np.degrees(percentile(squared, 95.0, np.sqrt)) / n_avg)
-
-
-def _scalar_first(rotations: Rotation | NDArray[np.float64]) -> NDArray[np.float64]:
-    """Scalar-first quaternions (F, 4) of a Rotation, of rotation matrices (F, 3, 3) or of
-    quaternions (F, 4), as they are."""
-    if not isinstance(rotations, np.ndarray):
-        return np.asarray(rotations.as_quat(scalar_first=True))
-    if rotations.ndim == 3:
-        return np.asarray(Rotation.from_matrix(rotations).as_quat(scalar_first=True))
-    return rotations
 
 
 def percentile(x: NDArray[np.float64], q: float,
@@ -480,8 +472,8 @@ class JointData:
         return self.excluded if 2 * self.excluded.size <= self.n else None
 
 
-def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation | NDArray[np.float64],
-               positions_b: NDArray[np.float64], rotations_b: Rotation | NDArray[np.float64],
+def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation,
+               positions_b: NDArray[np.float64], rotations_b: Rotation,
                valid: NDArray[np.bool_] | None = None) -> JointData:
     """Check and prepare two sensors' samples (arguments as in ``estimate_joint``).
 
@@ -496,9 +488,8 @@ def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation | NDArray
     pa_raw = np.asarray(positions_a, dtype=float)
     pb_raw = np.asarray(positions_b, dtype=float)
     n = pa_raw.shape[0]
-    ra, rb = rows.matrices(rotations_a), rows.matrices(rotations_b)
-    if pa_raw.shape != (n, 3) or pb_raw.shape != (n, 3) or ra.shape != (n, 3, 3) \
-            or rb.shape != (n, 3, 3):
+    if pa_raw.shape != (n, 3) or pb_raw.shape != (n, 3) or len(rotations_a) != n \
+            or len(rotations_b) != n:
         raise InputError("positions must be (F, 3) and rotations of length F for both sensors",
                          field="positions")
     pa, ok_a = _fill_nan_positions(pa_raw)
@@ -516,7 +507,7 @@ def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation | NDArray
     if n - excluded.size < 3:
         raise EstimationError("fewer than 3 frames where both sensors are valid",
                               field="positions")
-    return JointData(pa, pb, ra, rb, pb - pa,
+    return JointData(pa, pb, rotations_a.as_matrix(), rotations_b.as_matrix(), pb - pa,
                      ok_a, ok_b, both, excluded, both.astype(float))
 
 
@@ -933,8 +924,7 @@ def reconstruct(model: JointModel, c: NDArray[np.float64], back: NDArray[np.floa
     return Reconstruction(positions, residuals, squared)
 
 
-def _motion_range(rotations_a: Rotation | NDArray[np.float64],
-                  rotations_b: Rotation | NDArray[np.float64], both: NDArray[np.bool_], *,
+def _motion_range(rotations_a: Rotation, rotations_b: Rotation, both: NDArray[np.bool_], *,
                   measured: float | None, min_range_deg: float, warn_range_deg: float
                   ) -> tuple[float, list[str]]:
     """The range of motion (degrees) and its warnings; EstimationError below the minimum."""
@@ -1172,9 +1162,8 @@ class JointHints:
 
 
 def estimate_joint(
-    positions_a: NDArray[np.float64], rotations_a: Rotation | NDArray[np.float64],
-    positions_b: NDArray[np.float64], rotations_b: Rotation | NDArray[np.float64], *,
-    valid: NDArray[np.bool_] | None = None,
+    positions_a: NDArray[np.float64], rotations_a: Rotation, positions_b: NDArray[np.float64],
+    rotations_b: Rotation, *, valid: NDArray[np.bool_] | None = None,
     range_of_motion_deg: float | None = None, options: JointOptions | None = None,
     **keywords: Any,
 ) -> JointFit:
@@ -1184,8 +1173,8 @@ def estimate_joint(
     ----------
     positions_a, positions_b : ndarray, shape (F, 3)
         Sensor origins in the world frame, metres (NaN rows are dropped samples).
-    rotations_a, rotations_b : Rotation of length F, or ndarray, shape (F, 3, 3)
-        Sensor → world rotations (arrays: their matrices).
+    rotations_a, rotations_b : Rotation, length F
+        Sensor → world rotations.
     valid : ndarray of bool, shape (F,) or (F, 2), optional
         Frames (or per-sensor samples) to fit; defaults to the finite ones.
     range_of_motion_deg : float, optional

@@ -284,19 +284,18 @@ class _World(NamedTuple):
     rd: Float
 
 
-def _world(proximal: ArrayLike, upper_positions: ArrayLike,
-           upper_rotations: Rotation | NDArray[np.float64], distal_positions: ArrayLike,
-           distal_rotations: Rotation | NDArray[np.float64]) -> _World:
+def _world(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,
+           distal_positions: ArrayLike, distal_rotations: Rotation) -> _World:
     hip = _as_frames("proximal", proximal)
     pu = _as_frames("upper_positions", upper_positions)
     pd = _as_frames("distal_positions", distal_positions)
-    ru, rd = rows.matrices(upper_rotations), rows.matrices(distal_rotations)
     n = hip.shape[0]
-    if pu.shape[0] != n or pd.shape[0] != n or ru.shape != (n, 3, 3) or rd.shape != (n, 3, 3):
+    if pu.shape[0] != n or pd.shape[0] != n or len(upper_rotations) != n \
+            or len(distal_rotations) != n:
         raise InputError("limb inputs have different numbers of frames", field="frames")
     if n < 3:
         raise EstimationError(f"{n} frames are too few to locate limb joints", field="frames")
-    return _World(hip, pu, ru, pd, rd)
+    return _World(hip, pu, upper_rotations.as_matrix(), pd, distal_rotations.as_matrix())
 
 
 def _in_upper_frame(world: _World) -> LimbInUpperFrame:
@@ -322,8 +321,8 @@ def _by_component(a: Float) -> Float:
 
 
 def limb_in_upper_frame(proximal: ArrayLike, upper_positions: ArrayLike,
-                        upper_rotations: Rotation | Float, distal_positions: ArrayLike,
-                        distal_rotations: Rotation | Float) -> LimbInUpperFrame:
+                        upper_rotations: Rotation, distal_positions: ArrayLike,
+                        distal_rotations: Rotation) -> LimbInUpperFrame:
     """A limb's inputs (as for :func:`estimate_limb`), checked and expressed in the upper
     sensor's frame: the first step of every limb fit.
 
@@ -1042,9 +1041,8 @@ def _flexion_range_deg(limb: LimbInUpperFrame, x: Float, axis: Float) -> float:
 
 # five input arrays, scipy style (as estimate_joint's four), the subject's lengths, the
 # measured frames, progress and the options object: nine
-def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike,  # noqa: PLR0913
-                  upper_rotations: Rotation | Float, distal_positions: ArrayLike,
-                  distal_rotations: Rotation | Float, *,
+def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rotation,  # noqa: PLR0913
+                  distal_positions: ArrayLike, distal_rotations: Rotation, *,
                   standard_lengths: tuple[float, float], valid: ArrayLike | None = None,
                   progress: Progress | None = None, options: LimbOptions | None = None,
                   **keywords: Any) -> LimbFit:
@@ -1056,12 +1054,12 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike,  # noqa: PLR0
         Hip (shoulder) world positions per frame, metres, from the torso step.
     upper_positions : array_like, shape (F, 3)
         Thigh (upper-arm) sensor origin per frame, world frame, metres.
-    upper_rotations : Rotation of length F, or ndarray, shape (F, 3, 3)
-        Thigh (upper-arm) sensor → world rotation per frame (arrays: its matrices).
+    upper_rotations : Rotation, length F
+        Thigh (upper-arm) sensor → world rotation per frame.
     distal_positions : array_like, shape (F, 3)
         Foot (hand) sensor origin per frame, world frame, metres.
-    distal_rotations : Rotation of length F, or ndarray, shape (F, 3, 3)
-        Foot (hand) sensor → world rotation per frame (arrays: its matrices).
+    distal_rotations : Rotation, length F
+        Foot (hand) sensor → world rotation per frame.
     standard_lengths : (float, float)
         Standard upper and lower segment lengths ``L_{j−1,j}``, ``L_{j,j+1}`` (thigh and shank,
         or upper arm and forearm), metres; see :func:`standard_lengths`.

@@ -38,7 +38,7 @@ from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
 from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
-from .threads import MIN_FRAMES, Report, batches, ignore, run_each, staged, unstaged
+from .threads import Report, batches, ignore, run_each, staged, unstaged
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
 METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
@@ -267,9 +267,9 @@ class PairPoses(NamedTuple):
     slip, sensor → world rotations and valid samples (F,), of sensor a and of sensor b."""
 
     pa_true: NDArray[np.float64]
-    ra_rot: Rotation | NDArray[np.float64]  # Rotation or its matrices (F, 3, 3)
+    ra_rot: Rotation
     pb_true: NDArray[np.float64]
-    rb_rot: Rotation | NDArray[np.float64]
+    rb_rot: Rotation
     ok_a: NDArray[np.bool_]
     ok_b: NDArray[np.bool_]
 
@@ -300,7 +300,7 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     pa_true, ra_rot, pb_true, rb_rot, ok_a, ok_b = poses
     symmetry, prior, anchor, hinge_axis = priors
     mean = shared.centres[j].reshape(6)
-    ra, rb = rows.matrices(ra_rot), rows.matrices(rb_rot)
+    ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
     count = max(int(both.sum()), 1)
     # frame a to frame b over the frames: c_b = N̄ c_a + o, N̄ = mean R_bᵀR_a (frame a's
@@ -441,14 +441,6 @@ class SensorPoses:
     # (F, 4) scalar-first, filled and normalised: transposed rows, each component contiguous
     quaternions: dict[str, NDArray[np.float64]]
     stacked: NDArray[np.float64]  # (S, F, 3), sensor-major in the order used
-    # (F, 3, 3) each, on a short recording only (``MIN_FRAMES``): every joint and limb of a
-    # sensor uses its matrices, which cost more than their numbers there to compute again
-    # and again; on a long take, 72 bytes a frame a sensor, they are made where used
-    matrices: dict[str, NDArray[np.float64]]
-
-    def rotation(self, segment: str) -> Rotation | NDArray[np.float64]:
-        """The sensor's rotations: its matrices where kept (``rows.matrices``)."""
-        return self.matrices.get(segment, self.rotations[segment])
 
     @classmethod
     def of(cls, recording: SensorRecording, use: Sequence[str], warnings: list[str],
@@ -462,7 +454,6 @@ class SensorPoses:
         # fifth row per sensor for unit_rotations
         pos = np.empty((len(use), n, 3))
         quat = np.empty((len(use), 5, n))
-        matrices: dict[str, NDArray[np.float64]] = {}
 
         def fill(ks: range) -> Callable[[Report], tuple[FilledGaps, list[Rotation]]]:
             def task(_report: Report) -> tuple[FilledGaps, list[Rotation]]:
@@ -479,11 +470,7 @@ class SensorPoses:
                     name = use[ks.start + int(exc.sensor)]
                     raise InputError(f"sensor {name!r} has no valid sample (NaN or a zero "
                                      "quaternion in every frame)", sensor=name) from None
-                rots = unit_rotations(quat[part], gaps.norms2)
-                if n < MIN_FRAMES:
-                    matrices.update((use[k], rot.as_matrix()) for k, rot in zip(ks, rots,
-                                                                                strict=True))
-                return gaps, rots
+                return gaps, unit_rotations(quat[part], gaps.norms2)
             return task
 
         filled = run_each([fill(ks) for ks in batches(len(use), frames=n)], progress, "gaps",
@@ -497,8 +484,7 @@ class SensorPoses:
                     warnings.append(f"sensor {use[k]!r}: a gap of {longest / recording.fps:.2f} "
                                     "s was interpolated")
         return cls(positions={s: pos[k] for k, s in enumerate(use)}, rotations=rotations, ok=ok,
-                   quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos,
-                   matrices={s: matrices[s] for s in use if s in matrices})
+                   quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -875,7 +861,7 @@ def shared_slip(sensors: SensorPoses, pairs: Sequence[str], fps: float, slip_hz:
 
     def without_slip(s: str) -> Callable[[Report], NDArray[np.float64]]:
         def task(_report: Report) -> NDArray[np.float64]:
-            return sensors.positions[s] - rows.apply_each(rows.matrices(sensors.rotation(s)),
+            return sensors.positions[s] - rows.apply_each(sensors.rotations[s].as_matrix(),
                                                           fit.slip[s])
         return task
 
@@ -966,7 +952,7 @@ def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
     auto = opt.method == "auto"
     try:
         return estimate_joint(
-            pa, sensors.rotation(a), pb, sensors.rotation(b), method=plan.estimator,
+            pa, sensors.rotations[a], pb, sensors.rotations[b], method=plan.estimator,
             loss=opt.loss, valid=np.column_stack([sensors.ok[a], sensors.ok[b]]),
             neighbours=plan.neighbours, hinge_prior=0.0 if opt.plain else 0.01,
             trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
@@ -1001,7 +987,7 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
         a, b = JOINT_SEGMENTS[plan.name]
         sensors, without = ctx.sensors, ctx.shared.without_slip
         axis = own.quality.get("axis") if own.quality.get("hinge") else None
-        poses = PairPoses(without[a], sensors.rotation(a), without[b], sensors.rotation(b),
+        poses = PairPoses(without[a], sensors.rotations[a], without[b], sensors.rotations[b],
                           sensors.ok[a], sensors.ok[b])
         priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor) if role == "torso"
                   else SharedPriors(prior=(own.local_a, LIMB_PRIOR_SIGMA_M),
@@ -1192,7 +1178,7 @@ def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
                                              + offsets["r_hip"].local) / 3.0)
     # the mean of R_tᵀ (C − p) over the frames: the chest joint in the chest sensor's frame
     sensors = ctx.sensors
-    chest_local = rows.sum_transposed(rows.matrices(sensors.rotation("chest")),
+    chest_local = rows.sum_transposed(sensors.rotations["chest"].as_matrix(),
                                       joints["chest"] - sensors.positions["chest"]
                                       ) / joints["chest"].shape[0]
     offsets["chest"] = JointOffset("chest", chest_local)
@@ -1240,8 +1226,8 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
     assert isinstance(opt, VarianceCostOptions)  # llsf and gdke need every sensor
     keys = limb.length_keys
     lf = estimate_limb(
-        located.joints[limb.joints[0]], sensors.positions[upper], sensors.rotation(upper),
-        sensors.positions[distal], sensors.rotation(distal),
+        located.joints[limb.joints[0]], sensors.positions[upper], sensors.rotations[upper],
+        sensors.positions[distal], sensors.rotations[distal],
         standard_lengths=(std[keys[0]], std[keys[1]]),
         method="paper" if opt.method == "reduced" else "improved",
         optimizer=opt.optimizer if isinstance(opt, ReducedOptions) else "least-squares",
@@ -1464,7 +1450,7 @@ def estimate_skeleton_from_offsets(
     use = [s for s in SEGMENTS if s in recording.sensors]
     sensors = SensorPoses.of(recording, use, warnings, scaled(report, 0.0, 0.3))
     report(0.3, "joints")
-    mats = {seg: rows.matrices(sensors.rotation(seg)) for seg in {seg for seg, _ in local.values()}}
+    mats = {seg: sensors.rotations[seg].as_matrix() for seg in {seg for seg, _ in local.values()}}
     joints = {name: sensors.positions[seg] + rows.apply(mats[seg], vec)
               for name, (seg, vec) in local.items()}
     finish = scaled(report, 0.6, 1.0)

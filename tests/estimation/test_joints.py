@@ -536,23 +536,3 @@ def test_hinge_axis_sign_is_canonical(rig_factory: RigFactory) -> None:
     nudged = estimate_joint(rig.positions_a * (1 + 1e-15), rig.rotations_a, rig.positions_b,
                             rig.rotations_b, loss="linear")
     np.testing.assert_allclose(nudged.quality["axis"], axis, atol=1e-9)
-
-
-def test_rotation_matrices_give_the_fit_of_the_rotations(rig_factory: RigFactory) -> None:
-    """Rotations as their matrices (F, 3, 3), as the skeleton passes each sensor's once: the
-    same fit bit for bit; the range of motion from them within rounding; a wrong shape named."""
-    rig = rig_factory("ball", rom_deg=60.0, noise_m=0.002, noise_deg=0.5, seed=3)
-    ra, rb = rig.rotations_a.as_matrix(), rig.rotations_b.as_matrix()
-    fit = estimate_joint(rig.positions_a, rig.rotations_a, rig.positions_b, rig.rotations_b)
-    same = estimate_joint(rig.positions_a, ra, rig.positions_b, rb)
-    assert np.array_equal(same.positions, fit.positions)
-    assert np.array_equal(same.local_a, fit.local_a)
-    quality, other = dict(fit.quality), dict(same.quality)
-    assert other.keys() == quality.keys()
-    for key, value in quality.items():  # the range of motion: from the matrices' quaternions
-        assert other[key] == (pytest.approx(value, rel=1e-9) if isinstance(value, float)
-                              else value), key
-    assert range_of_motion(ra, rb) == pytest.approx(
-        range_of_motion(rig.rotations_a, rig.rotations_b), rel=1e-9)
-    with pytest.raises(InputError, match="rotations of length F"):
-        estimate_joint(rig.positions_a, ra[:, :2], rig.positions_b, rb)

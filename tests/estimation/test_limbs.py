@@ -457,18 +457,3 @@ def test_hinge_rule_does_not_override_an_off_line_knee_the_data_locate() -> None
         fit = estimate_limb(*leg.args(), standard_lengths=(0.40, 0.41), method="improved")
         assert mean_error(fit.middle, leg.knee) < 0.0085
         assert mean_error(fit.distal, leg.ankle) < 0.020
-
-
-@pytest.mark.parametrize("method", ["paper", "improved"])
-def test_rotation_matrices_give_the_limb_of_the_rotations(method: str) -> None:
-    """Sensor rotations as their matrices (F, 3, 3): the same limb bit for bit."""
-    leg = make_leg(noise_m=0.002, noise_deg=0.5, seed=5)
-    lengths = (0.9 * THIGH, 1.1 * SHANK)
-    fit = estimate_limb(*leg.args(), standard_lengths=lengths, method=method)
-    same = estimate_limb(leg.hip, leg.upper_pos, leg.upper_rot.as_matrix(), leg.distal_pos,
-                         leg.distal_rot.as_matrix(), standard_lengths=lengths, method=method)
-    assert np.array_equal(same.middle, fit.middle)
-    assert np.array_equal(same.distal, fit.distal)
-    with pytest.raises(InputError, match="different numbers of frames"):
-        estimate_limb(leg.hip, leg.upper_pos, leg.upper_rot.as_matrix()[1:], leg.distal_pos,
-                      leg.distal_rot, standard_lengths=lengths, method=method)

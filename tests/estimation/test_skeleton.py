@@ -14,7 +14,7 @@ from bonefit.estimation.bvh import BvhMotion
 from bonefit.estimation.errors import EstimationError, InputError
 from bonefit.estimation.gaps import component_major, fill_gaps, fill_sensor_major, sensor_major
 from bonefit.estimation.joints import JointFit
-from bonefit.estimation.model import JOINTS, REDUCED_SEGMENTS
+from bonefit.estimation.model import JOINTS
 from bonefit.estimation.recording import SensorRecording
 from bonefit.estimation.results import JointOffset
 from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
@@ -550,7 +550,7 @@ def test_sensor_poses_in_one_step_or_sensor_by_sensor_are_the_same(
         monkeypatch.setattr(threads, "MIN_FRAMES", 0)
         monkeypatch.setattr(threads, "workers", lambda: 2)
     rec = sim11[0]
-    use = list(REDUCED_SEGMENTS)
+    use = list(skeleton.REDUCED_SEGMENTS)
     assert len(threads.batches(len(use), frames=rec.n_frames)) == (len(use) if per_sensor else 1)
     poses = SensorPoses.of(rec, use, [])
     for k, seg in enumerate(use):
@@ -568,24 +568,3 @@ def test_sensor_poses_in_one_step_or_sensor_by_sensor_are_the_same(
     with pytest.raises(InputError, match=f"sensor '{use[3]}' has no valid sample") as err:
         SensorPoses.of(replace(rec, positions=positions), use, [])
     assert err.value.sensor == use[3]
-
-
-@pytest.mark.parametrize("method", ["reduced", "auto"])
-def test_kept_rotation_matrices_change_nothing(method: str, sim11: Sim,
-                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    """Each sensor's rotation matrices kept once (a short recording) or made where used (a
-    long take): the same estimate bit for bit."""
-    rec = sim11[0]
-    poses = SensorPoses.of(rec, list(REDUCED_SEGMENTS), [])
-    assert set(poses.matrices) == set(REDUCED_SEGMENTS)
-    for seg, mats in poses.matrices.items():
-        assert np.array_equal(mats, poses.rotations[seg].as_matrix()), seg
-    kept = estimate_skeleton(rec, method=method)
-    monkeypatch.setattr(skeleton, "MIN_FRAMES", 0)
-    assert SensorPoses.of(rec, ["pelvis"], []).matrices == {}
-    made = estimate_skeleton(rec, method=method)
-    for name, path in kept.joints.items():
-        assert np.array_equal(made.joints[name], path), name
-    for seg, rot in kept.orientations.items():
-        assert np.array_equal(made.orientations[seg], rot), seg
-    assert [dict(q) for q in made.quality.values()] == [dict(q) for q in kept.quality.values()]
