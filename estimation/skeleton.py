@@ -38,7 +38,7 @@ from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
 from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
-from .threads import Report, ignore, run_each, staged, unstaged
+from .threads import Report, batches, ignore, run_each, staged, unstaged
 from .vocabulary import OPTIMIZERS, SKELETON_METHODS, TORSO_ESTIMATORS
 
 METHODS: Final[tuple[str, ...]] = SKELETON_METHODS
@@ -445,39 +445,45 @@ class SensorPoses:
     @classmethod
     def of(cls, recording: SensorRecording, use: Sequence[str], warnings: list[str],
            progress: Progress = no_progress) -> SensorPoses:
-        """Fill the gaps of the sensors ``use``, sensor by sensor, two at a time
-        (``threads.run_each``; ``progress(fraction, "gaps")``); warn about gaps longer than
-        0.5 s; raise InputError naming a sensor with no valid sample (the first in ``use``)."""
+        """Fill the gaps of the sensors ``use``: all in one step on a short recording, sensor
+        by sensor two at a time on a long one (``threads.batches``, ``threads.run_each``;
+        ``progress(fraction, "gaps")``); warn about gaps longer than 0.5 s; raise InputError
+        naming a sensor with no valid sample (the first in ``use``)."""
         n = recording.n_frames
         # each sensor's positions contiguous, and each component of its quaternions; a
         # fifth row per sensor for unit_rotations
         pos = np.empty((len(use), n, 3))
         quat = np.empty((len(use), 5, n))
 
-        def fill(k: int) -> Callable[[Report], tuple[FilledGaps, Rotation]]:
-            def task(_report: Report) -> tuple[FilledGaps, Rotation]:
-                col = recording.index(use[k])
-                pos[k] = recording.positions[:, col]
-                quat[k, :4] = recording.quaternions[:, col].T
+        def fill(ks: range) -> Callable[[Report], tuple[FilledGaps, list[Rotation]]]:
+            def task(_report: Report) -> tuple[FilledGaps, list[Rotation]]:
+                for k in ks:
+                    col = recording.index(use[k])
+                    pos[k] = recording.positions[:, col]
+                    quat[k, :4] = recording.quaternions[:, col].T
+                part = slice(ks.start, ks.stop)
                 try:
-                    gaps = fill_sensor_major(pos[k:k + 1], quat[k:k + 1, :4], time=recording.time)
+                    gaps = fill_sensor_major(pos[part], quat[part, :4], time=recording.time)
                 except InputError as exc:
                     if exc.sensor is None:
                         raise
-                    raise InputError(f"sensor {use[k]!r} has no valid sample (NaN or a zero "
-                                     "quaternion in every frame)", sensor=use[k]) from None
-                return gaps, unit_rotations(quat[k:k + 1], gaps.norms2)[0]
+                    name = use[ks.start + int(exc.sensor)]
+                    raise InputError(f"sensor {name!r} has no valid sample (NaN or a zero "
+                                     "quaternion in every frame)", sensor=name) from None
+                return gaps, unit_rotations(quat[part], gaps.norms2)
             return task
 
-        filled = run_each([fill(k) for k in range(len(use))], progress, "gaps", frames=n)
-        for s, (gaps, _rot) in zip(use, filled, strict=True):
-            longest = int(gaps.longest[0])
-            if longest > 0.5 * recording.fps:
-                warnings.append(f"sensor {s!r}: a gap of {longest / recording.fps:.2f} s was "
-                                "interpolated")
-        return cls(positions={s: pos[k] for k, s in enumerate(use)},
-                   rotations={s: rot for s, (_gaps, rot) in zip(use, filled, strict=True)},
-                   ok={s: gaps.valid[0] for s, (gaps, _rot) in zip(use, filled, strict=True)},
+        filled = run_each([fill(ks) for ks in batches(len(use), frames=n)], progress, "gaps",
+                          frames=n)
+        rotations, ok = {}, {}
+        for ks, (gaps, rots) in zip(batches(len(use), frames=n), filled, strict=True):
+            for i, k in enumerate(ks):
+                rotations[use[k]], ok[use[k]] = rots[i], gaps.valid[i]
+                longest = int(gaps.longest[i])
+                if longest > 0.5 * recording.fps:
+                    warnings.append(f"sensor {use[k]!r}: a gap of {longest / recording.fps:.2f} "
+                                    "s was interpolated")
+        return cls(positions={s: pos[k] for k, s in enumerate(use)}, rotations=rotations, ok=ok,
                    quaternions={s: quat[k, :4].T for k, s in enumerate(use)}, stacked=pos)
 
 

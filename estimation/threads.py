@@ -58,6 +58,16 @@ def workers() -> int:
     return max(1, min(MAX_WORKERS, cpus))
 
 
+def batches(n: int, *, frames: int) -> list[range]:
+    """Items ``0 .. n - 1`` grouped into the pieces of :func:`run_each`: one group of all of
+    them where it runs its pieces in the calling thread (fewer than ``MIN_FRAMES`` frames, or
+    one worker), as one vectorised step over all costs less than ``n`` small ones; one group
+    per item otherwise, so that the pieces overlap."""
+    if workers() == 1 or frames < MIN_FRAMES:
+        return [range(n)] if n else []
+    return [range(k, k + 1) for k in range(n)]
+
+
 class Cancelled(Exception):
     """Raised by a piece's ``report`` in :func:`run_each` once another piece failed or the
     progress callback raised: the piece stops there."""

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from bonefit.estimation import skeleton, threads
 from bonefit.estimation.bvh import BvhMotion
 from bonefit.estimation.errors import EstimationError, InputError
-from bonefit.estimation.gaps import component_major, fill_sensor_major, sensor_major
+from bonefit.estimation.gaps import component_major, fill_gaps, fill_sensor_major, sensor_major
 from bonefit.estimation.joints import JointFit
 from bonefit.estimation.model import JOINTS
 from bonefit.estimation.recording import SensorRecording
@@ -21,6 +21,7 @@ from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion,
 from bonefit.estimation.skeleton import (
     Anchor,
     PairPoses,
+    SensorPoses,
     SharedPriors,
     estimate_chest,
     estimate_root,
@@ -581,3 +582,32 @@ def test_a_custom_anthropometric_table_must_be_positive_and_finite(sim15: Sim) -
     with pytest.raises(InputError) as info:
         estimate_skeleton(rec, method="reduced", anthropometry=table)
     assert info.value.field == "anthropometry.shank"
+
+
+@pytest.mark.parametrize("per_sensor", [False, True])
+def test_sensor_poses_in_one_step_or_sensor_by_sensor_are_the_same(
+        per_sensor: bool, sim11: Sim, monkeypatch: pytest.MonkeyPatch) -> None:
+    """All sensors' gaps filled in one step (a short recording) or one piece per sensor
+    (threads): the same poses bit for bit, and an empty sensor named, the first in order."""
+    if per_sensor:
+        monkeypatch.setattr(threads, "MIN_FRAMES", 0)
+        monkeypatch.setattr(threads, "workers", lambda: 2)
+    rec = sim11[0]
+    use = list(skeleton.REDUCED_SEGMENTS)
+    assert len(threads.batches(len(use), frames=rec.n_frames)) == (len(use) if per_sensor else 1)
+    poses = SensorPoses.of(rec, use, [])
+    for k, seg in enumerate(use):
+        pos, quat, filled = fill_gaps(rec.positions[:, rec.index(seg)],
+                                      rec.quaternions[:, rec.index(seg)], time=rec.time)
+        assert np.array_equal(poses.positions[seg], pos), seg
+        assert np.array_equal(poses.stacked[k], pos), seg
+        assert np.array_equal(poses.ok[seg], ~filled), seg
+        assert np.array_equal(poses.rotations[seg].as_quat(scalar_first=True),
+                              Rotation.from_quat(quat, scalar_first=True).as_quat(
+                                  scalar_first=True)), seg
+    positions = rec.positions.copy()
+    for seg in (use[7], use[3]):
+        positions[:, rec.index(seg)] = np.nan
+    with pytest.raises(InputError, match=f"sensor '{use[3]}' has no valid sample") as err:
+        SensorPoses.of(replace(rec, positions=positions), use, [])
+    assert err.value.sensor == use[3]
