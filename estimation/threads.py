@@ -60,10 +60,10 @@ def workers() -> int:
 
 def batches(n: int, *, frames: int) -> list[range]:
     """Items ``0 .. n - 1`` grouped into the pieces of :func:`run_each`: one group of all of
-    them where it runs its pieces in the calling thread (fewer than ``MIN_FRAMES`` frames, or
-    one worker), as one vectorised step over all costs less than ``n`` small ones; one group
-    per item otherwise, so that the pieces overlap."""
-    if workers() == 1 or frames < MIN_FRAMES:
+    them on a short recording (fewer than ``MIN_FRAMES`` frames), as one vectorised step over
+    all costs less than ``n`` small ones; one group per item on a long one, so that the pieces
+    overlap on two workers and, on one, each reports progress when it is done."""
+    if frames < MIN_FRAMES:
         return [range(n)] if n else []
     return [range(k, k + 1) for k in range(n)]
 

@@ -207,10 +207,11 @@ def test_a_cancel_in_a_threaded_stage_stops_the_estimate(
 
 
 @pytest.mark.usefixtures("two_workers")
-def test_batches_are_one_piece_where_run_each_runs_inline(monkeypatch: pytest.MonkeyPatch
-                                                          ) -> None:
+def test_batches_are_one_piece_on_a_short_recording_only(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
     assert threads.batches(3, frames=MIN_FRAMES - 1) == [range(3)]
     assert threads.batches(3, frames=LONG) == [range(0, 1), range(1, 2), range(2, 3)]
     assert threads.batches(0, frames=1) == threads.batches(0, frames=LONG) == []
+    # one worker: a long take's items still one by one, each reporting when it is done
     monkeypatch.setattr(threads, "workers", lambda: 1)
-    assert threads.batches(3, frames=LONG) == [range(3)]
+    assert threads.batches(3, frames=LONG) == [range(0, 1), range(1, 2), range(2, 3)]
