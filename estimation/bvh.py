@@ -704,36 +704,47 @@ error 50:1 at equal weight and chose, for a dancer's shoulder, an order 2.3x fur
 half frames (9.2° against 4.0°); it now decides between orders that play back alike."""
 
 
+PRUNE_STRIDE: Final[int] = 8
+"""Every how many of a choice's steps a lower bound of an option's cost is summed over
+(:func:`_least_option`): options the bounds rule out are not costed in full, the choice is
+the same."""
+
+
 @dataclass(frozen=True, eq=False)
 class _Steps:
-    """Steps between frames a choice is made on: the rotations before and after (S, 4,
-    scalar last), the turn (S, degrees), which steps are motion (not jumps) and the halfway
-    rotations (S, 4)."""
+    """Steps between frames a choice is made on: the rotations before and after (S), the
+    turn (S, degrees), which steps are motion (not jumps) and the halfway rotations (4, S)."""
 
-    before: NDArray[np.float64]
-    after: NDArray[np.float64]
+    before: Rotation
+    after: Rotation
     turn: NDArray[np.float64]
     keep: NDArray[np.bool_]
     halfway: NDArray[np.float64]  # (4, S): a contiguous row per component
 
     @classmethod
     def of(cls, before: NDArray[np.float64], after: NDArray[np.float64]) -> _Steps:
+        """The steps from ``before`` to ``after`` (S, 4), unit quaternions, scalar last."""
+        from scipy.spatial.transform import Rotation
+
         turn = _quat_angle(before, after)
-        return cls(before, after, turn, turn <= JUMP_DEG,
-                   np.ascontiguousarray(_halfway(before, after).T))
+        return cls(Rotation.from_quat(before), Rotation.from_quat(after), turn,
+                   turn <= JUMP_DEG, np.ascontiguousarray(_halfway(before, after).T))
+
+    def every(self, stride: int) -> _Steps:
+        """Every ``stride``-th step, the same values."""
+        return _Steps(self.before[::stride], self.after[::stride], self.turn[::stride],
+                      self.keep[::stride], np.ascontiguousarray(self.halfway[:, ::stride]))
 
 
 def _step_cost(steps: _Steps, order: str) -> float:
     """Sum over the steps of the squared half-frame error and, weighted by ``SWING_WEIGHT``,
     the squared channel swing beyond the node's own turn (degrees²): both grow near gimbal
     lock. Steps turning more than :data:`JUMP_DEG` (jumps in the data) are left out."""
-    from scipy.spatial.transform import Rotation
-
-    if len(steps.turn) == 0:
-        return 0.0
-    before = euler_degrees(Rotation.from_quat(steps.before), order)
-    after = _next_euler(before, euler_degrees(Rotation.from_quat(steps.after), order))
-    swing = np.maximum(np.abs(after - before).max(axis=1) - steps.turn, 0.0)
+    before = euler_degrees(steps.before, order)
+    after = _next_euler(before, euler_degrees(steps.after, order))
+    change = np.abs(after - before).T  # the greatest of three columns, without a reduction
+    swing = np.maximum(np.maximum(np.maximum(change[0], change[1]), change[2]) - steps.turn,
+                       0.0)
     half = _angle_between(_euler_rows(order, (before + after) / 2), steps.halfway)
     keep = steps.keep
     return float(np.sum(half[keep] ** 2) + SWING_WEIGHT * np.sum(swing[keep] ** 2))
@@ -750,9 +761,12 @@ def _euler_rows(order: str, angles: NDArray[np.float64]) -> NDArray[np.float64]:
     for k in (1, 2):  # q · (sin · axis, cos)
         a = _UNIT_AXES[order[k]]
         b, c = (a + 1) % 3, (a + 2) % 3
-        q = np.stack([cos[k] * q[a] + sin[k] * q[3], cos[k] * q[b] + sin[k] * q[c],
-                      cos[k] * q[c] - sin[k] * q[b], cos[k] * q[3] - sin[k] * q[a]]
-                     )[np.argsort([a, b, c, 3])]
+        turned = np.empty_like(q)
+        turned[a] = cos[k] * q[a] + sin[k] * q[3]
+        turned[b] = cos[k] * q[b] + sin[k] * q[c]
+        turned[c] = cos[k] * q[c] - sin[k] * q[b]
+        turned[3] = cos[k] * q[3] - sin[k] * q[a]
+        q = turned
     return q
 
 
@@ -828,15 +842,38 @@ def _best_channels(seen: NDArray[np.float64], orders: tuple[str, ...], centre: b
     if centre and len(seen) > 1:
         rests.append(Rotation.from_quat(seen).mean().inv().as_quat())
     first = _choice_steps(len(seen))
-    costs, options = [], []
-    for rest in rests:
-        steps = _Steps.of(_quat_multiply(seen[first], rest[None]),
-                          _quat_multiply(seen[first + 1], rest[None]))
-        for order in orders:
-            costs.append(_step_cost(steps, order))
-            options.append((rest, order))
-    cost = np.array(costs)
-    return options[int(np.flatnonzero(cost <= cost.min() * 1.001 + 1e-9)[0])]
+    if len(first) == 0:
+        return rests[0], orders[0]
+    steps = [_Steps.of(_quat_multiply(seen[first], rest[None]),
+                       _quat_multiply(seen[first + 1], rest[None])) for rest in rests]
+    options = [(rest, order) for rest in rests for order in orders]
+    return options[_least_option(steps, orders)]
+
+
+def _least_option(steps: list[_Steps], orders: tuple[str, ...]) -> int:
+    """Index (rest-major) of the option (steps of a rest rotation, order) the choice takes:
+    the first whose :func:`_step_cost` is within a tie (0.1 %, plus 1e-9) of the least.
+
+    Options are costed in full only until that is decided: each one's cost summed over every
+    :data:`PRUNE_STRIDE`-th step is a lower bound (no term is negative), so an option whose
+    bound exceeds a tie of a cost already known cannot be taken, and a known cost within a
+    tie of every bound and cost is taken if no earlier option can be."""
+    options = [(k, order) for k in range(len(steps)) for order in orders]
+    coarse = [s.every(PRUNE_STRIDE) for s in steps]
+    # the margin covers rounding: a bound sums a subset of the same terms
+    bound = np.array([_step_cost(coarse[k], order) for k, order in options]) * (1.0 - 1e-6)
+    cost = np.full(len(options), np.nan)  # nan: not costed yet
+    while True:
+        known = ~np.isnan(cost)
+        tie = (np.min(cost[known]) if known.any() else np.inf) * 1.001 + 1e-9
+        out = np.where(known, cost > tie, bound > tie * (1.0 + 1e-6))
+        first = int(np.argmin(out))
+        least = np.min(np.where(known, cost, bound))
+        if known[first] and cost[first] <= least * 1.001 + 1e-9:
+            return first
+        if known[first]:
+            first = int(np.argmin(np.where(known, np.inf, bound)))
+        cost[first] = _step_cost(steps[options[first][0]], options[first][1])
 
 
 def rest_euler_channels(parents: tuple[int, ...] | list[int],
