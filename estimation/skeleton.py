@@ -473,10 +473,10 @@ class SensorPoses:
                 return gaps, unit_rotations(quat[part], gaps.norms2)
             return task
 
-        filled = run_each([fill(ks) for ks in batches(len(use), frames=n)], progress, "gaps",
-                          frames=n)
+        pieces = batches(len(use), frames=n)
+        filled = run_each([fill(ks) for ks in pieces], progress, "gaps", frames=n)
         rotations, ok = {}, {}
-        for ks, (gaps, rots) in zip(batches(len(use), frames=n), filled, strict=True):
+        for ks, (gaps, rots) in zip(pieces, filled, strict=True):
             for i, k in enumerate(ks):
                 rotations[use[k]], ok[use[k]] = rots[i], gaps.valid[i]
                 longest = int(gaps.longest[i])

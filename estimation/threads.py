@@ -30,7 +30,6 @@ def limit_blas_threads(environ: MutableMapping[str, str] = os.environ) -> None:
         environ.setdefault(name, value)
 
 
-
 MAX_WORKERS: Final[int] = 2
 """Threads of :func:`run_each`: the independent pieces of one estimate (sensors, joints,
 limbs) run two at a time, on a long take the two cores this service was sized for; more
