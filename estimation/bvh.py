@@ -13,6 +13,7 @@ import itertools
 import os
 import warnings
 from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
@@ -22,6 +23,7 @@ from numpy.typing import NDArray
 
 from .errors import InputError
 from .numtext import fixed_blocks, write_text_blocks
+from .threads import MIN_FRAMES, workers
 
 if TYPE_CHECKING:  # scipy is imported where it is used: the readers serve processes without it
     from scipy.spatial.transform import Rotation
@@ -735,8 +737,9 @@ class _Steps:
 
     def every(self, stride: int) -> _Steps:
         """Every ``stride``-th step, the same values."""
-        return _Steps(*(np.ascontiguousarray(rows[..., ::stride]) for rows in (
-            self.before, self.after, self.turn, self.keep, self.halfway)))
+        return _Steps(np.ascontiguousarray(self.before[:, ::stride]),
+                      np.ascontiguousarray(self.after[:, ::stride]), self.turn[::stride],
+                      self.keep[::stride], np.ascontiguousarray(self.halfway[:, ::stride]))
 
 
 def _step_cost(steps: _Steps, order: str) -> float:
@@ -962,24 +965,39 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
     quaternion curves", SIGGRAPH 1985). A constant change of each node's frame (a rest
     pose) moves the take into the well-conditioned part of the chart.
     """
+    orders = _orders(order)
+    n_frames = len(rotations[0]) if rotations else 0
+    values = np.zeros((n_frames, len(rotations), 3))
+    rests: list[NDArray[np.float64]] = []
+    chosen: list[str] = []
+    pending: list[Future[None]] = []
+    # on a long take a second thread writes each node's channels while the next is chosen
+    overlap = n_frames >= MIN_FRAMES and workers() > 1
+    with ThreadPoolExecutor(1, thread_name_prefix="bonefit-euler") as side:
+        for n, rotation in enumerate(rotations):
+            above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
+            given = rotation if isinstance(rotation, np.ndarray) else rotation.as_quat()
+            seen = _quat_multiply(_conjugate(above)[None], given)
+            rest, best = _best_channels(seen, orders, centre)
+            rests.append(rest)
+            chosen.append(best)
+            task = (values[:, n], _quat_multiply(seen, rest[None]), best)
+            if overlap:
+                pending.append(side.submit(_put_channels, *task))
+            else:
+                _put_channels(*task)
+        for done in pending:
+            done.result()
+    return NodeChannels(channels=tuple(tuple(f"{axis}rotation" for axis in o) for o in chosen),
+                        values=values, rest=np.array(rests).reshape(-1, 4))
+
+
+def _put_channels(out: NDArray[np.float64], local: NDArray[np.float64], order: str) -> None:
+    """Write into ``out`` (F, 3) the continuous channels of ``order`` of the rotations
+    ``local`` (F, 4), scalar-last quaternions."""
     from scipy.spatial.transform import Rotation
 
-    orders = _orders(order)
-    rests: list[NDArray[np.float64]] = []
-    chosen: list[tuple[NDArray[np.float64], str]] = []
-    for n, rotation in enumerate(rotations):
-        above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
-        given = rotation if isinstance(rotation, np.ndarray) else rotation.as_quat()
-        seen = _quat_multiply(_conjugate(above)[None], given)
-        rest, best = _best_channels(seen, orders, centre)
-        rests.append(rest)
-        chosen.append((_quat_multiply(seen, rest[None]), best))
-    values = [continuous_euler(euler_degrees(Rotation.from_quat(local), o))
-              for local, o in chosen]
-    return NodeChannels(
-        channels=tuple(tuple(f"{axis}rotation" for axis in o) for _, o in chosen),
-        values=np.stack(values, axis=1) if values else np.zeros((0, 0, 3)),
-        rest=np.array(rests).reshape(-1, 4))
+    out[...] = continuous_euler(euler_degrees(Rotation.from_quat(local), order))
 
 
 def euler_channels(rotations: list[Rotation], order: str | None = None

@@ -411,6 +411,19 @@ def test_euler_angle_rows_are_scipys_angles_up_to_whole_turns(order: str) -> Non
                                0.0, atol=1e-9)
 
 
+def test_a_long_takes_channels_are_each_nodes_continuous_euler_angles() -> None:
+    # from threads.MIN_FRAMES frames a second thread writes the channels of chosen nodes
+    rng = np.random.default_rng(8)
+    walks = [Rotation.from_rotvec(np.cumsum(rng.normal(scale=0.02, size=(24_000, 3)), axis=0))
+             for _ in range(3)]
+    channels, values = euler_channels(walks)
+    assert values.shape == (24_000, 3, 3)
+    for n, walk in enumerate(walks):
+        order = "".join(c[0] for c in channels[n])
+        np.testing.assert_allclose(values[:, n], continuous_euler(euler_degrees(walk, order)),
+                                   rtol=0, atol=1e-9)
+
+
 def test_compose_quaternions_is_scipys_product_bit_for_bit() -> None:
     p, q = Rotation.random(500, rng=1), Rotation.random(500, rng=2)
     assert np.array_equal(compose_quaternions(p.inv().as_quat(), q.as_quat()),
