@@ -762,8 +762,9 @@ def euler_angle_rows(order: str, quat: NDArray[np.float64]) -> NDArray[np.float6
 
     scipy's method for ``Rotation.as_euler`` (Bernardes and Viollet 2022; at gimbal lock,
     within 1e-7 rad, the third angle is zero) with the middle angle as an arcsine and the
-    outer ones left unwrapped, on contiguous rows: about half the cost of
-    :func:`euler_degrees` for the Euler-order choice's many candidates.
+    outer ones left unwrapped, on contiguous rows: cheaper than :func:`euler_degrees` (about
+    0.7 of its CPU time on 20,000 rotations, and no Rotation objects to build) for the
+    Euler-order choice's many candidates.
 
     Parameters
     ----------
@@ -940,7 +941,8 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
     least sum of the squared :func:`half_frame_error` plus ``SWING_WEIGHT`` times the squared
     channel swing beyond the node's turn, over the steps of the take that are not jumps
     (:data:`JUMP_DEG`; at most :data:`MAX_CHOICE_STEPS` steps, evenly sampled); ties within
-    0.1 % go to the given frame and the first order listed.
+    0.1 % go to the given frame and the first order listed. From ``threads.MIN_FRAMES``
+    frames a second thread writes each node's channels while the next node is chosen.
 
     Parameters
     ----------
