@@ -23,7 +23,9 @@ from bonefit.estimation.bvh import (
     BvhMotion,
     compose_quaternions,
     continuous_euler,
+    euler_angle_rows,
     euler_channels,
+    euler_degrees,
     fold_position_channels,
     forward_kinematics,
     half_frame_error,
@@ -386,6 +388,40 @@ def test_continuous_euler_of_slow_motion_with_jumps_matches_frame_by_frame() -> 
     assert np.abs(angles[:, 1]).max() > 85.0
     np.testing.assert_allclose(continuous_euler(angles), sequential_continuous_euler(angles),
                                atol=1e-9)
+
+
+@pytest.mark.parametrize("order", ["ZXY", "ZYX", "YXZ", "YZX", "XYZ", "XZY"])
+def test_euler_angle_rows_are_scipys_angles_up_to_whole_turns(order: str) -> None:
+    rng = np.random.default_rng(3)
+    middle = np.concatenate([rng.uniform(-90.0, 90.0, 300),  # anywhere, at and next to lock
+                             [90.0, -90.0] * 50, 90.0 - 10.0 ** rng.uniform(-9, -1, 100)])
+    outer = rng.uniform(-180.0, 180.0, (len(middle), 2))
+    rotations = Rotation.from_euler(order, np.column_stack([outer[:, 0], middle, outer[:, 1]]),
+                                    degrees=True)
+    expected = euler_degrees(rotations, order)
+    rows = euler_angle_rows(order, np.ascontiguousarray(rotations.as_quat().T))
+    assert rows.shape == (3, len(middle))
+    off = rows.T - expected
+    np.testing.assert_allclose(off - 360.0 * np.round(off / 360.0), 0.0, atol=1e-5)
+    assert np.abs(rows).max() <= 360.0
+    # away from lock the arcsine loses nothing that matters
+    regular = np.abs(np.abs(expected[:, 1]) - 90.0) > 1.0
+    np.testing.assert_allclose(rows.T[regular] - expected[regular]
+                               - 360.0 * np.round((rows.T[regular] - expected[regular]) / 360.0),
+                               0.0, atol=1e-9)
+
+
+def test_a_long_takes_channels_are_each_nodes_continuous_euler_angles() -> None:
+    # from threads.MIN_FRAMES frames a second thread writes the channels of chosen nodes
+    rng = np.random.default_rng(8)
+    walks = [Rotation.from_rotvec(np.cumsum(rng.normal(scale=0.02, size=(24_000, 3)), axis=0))
+             for _ in range(3)]
+    channels, values = euler_channels(walks)
+    assert values.shape == (24_000, 3, 3)
+    for n, walk in enumerate(walks):
+        order = "".join(c[0] for c in channels[n])
+        np.testing.assert_allclose(values[:, n], continuous_euler(euler_degrees(walk, order)),
+                                   rtol=0, atol=1e-9)
 
 
 def test_compose_quaternions_is_scipys_product_bit_for_bit() -> None:
