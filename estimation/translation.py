@@ -445,7 +445,14 @@ class ContactOptions:
         fit then has the foot's axes); without such a point, the ankle rolled back by the
         heel lift read from its rise above the other ankle (``stance.rise_tilt``). Needs
         ``use_toes``. Off by default: it fails the real recording's held-out check
-        (docs/translation.md).
+        (docs/translation.md); ``choose_toes`` decides instead.
+    choose_toes : bool
+        Where a foot has no toe joint but a toe point can be extrapolated (as
+        ``extrapolate_toes`` does), decode the contacts with the ankle and with the toe
+        point and keep the model whose decoding costs less per 10 ms (quality
+        ``toe_model``, ``decoded_cost_ankle``, ``decoded_cost_extrapolated``): a foot whose
+        kinematics do not roll like the data says stays on the ankle. Doubles the decoding's
+        cost on such files; nothing changes with toe joints.
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
         is fitted to the readings of the planted foot (``stance.estimate_sensor_offset``)
@@ -1169,10 +1176,11 @@ def _chosen_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
     chosen = "extrapolated" if feet is extended else "ankle"
     if extended is not None and opt.choose_toes and feet is not extended:
         states_x, info_x = _contact_states(recording, extended, names, root, opt)
-        info["decoded_cost_ankle"] = info["decoded_cost"]
+        costs = {"decoded_cost_ankle": info["decoded_cost"],
+                 "decoded_cost_extrapolated": info_x["decoded_cost"]}
         if info_x["decoded_cost"] < info["decoded_cost"]:
             feet, states, info, chosen = extended, states_x, info_x, "extrapolated"
-        info["decoded_cost_extrapolated"] = info_x["decoded_cost"]
+        info.update(costs)
     if extended is not None:
         info["toe_model"] = chosen
     return feet, states, info
