@@ -254,7 +254,7 @@ def test_default_chooses_the_toe_point_that_the_readings_support(seed: int, fps:
     forced = estimate_translation(rec, extrapolate_toes=True)
     np.testing.assert_array_equal(result.root, forced.root)
     ankle = estimate_translation(rec, choose_toes=False)
-    assert "toe_model" in ankle.quality and ankle.quality["toe_model"] == "ankle"
+    assert ankle.quality["toe_model"] == "ankle"
     err = truth.horizontal_errors(result.root)["mean_pct"]
     assert err < 3.0
     assert err < truth.horizontal_errors(ankle.root)["mean_pct"] - 2.0
