@@ -54,6 +54,7 @@ from .stance import (
     foot_point,
     heading_by_knees,
     leg_joints,
+    leg_length,
     rise_tilt,
     roll_advance,
     sensor_track,
@@ -256,7 +257,7 @@ def _balls(p: NDArray[np.float64], feet: list[_Feet], root: int) -> list[_Feet]:
     out = []
     for k, foot in enumerate(feet):
         ankle, other = p[:, foot.heel], p[:, feet[1 - k].heel]
-        leg = float(np.median(np.linalg.norm(p[:, root] - ankle, axis=1)))
+        leg = leg_length(p, foot.heel, root)
         end = foot_point(p, foot.heel, leg) if foot.toe is None and leg > 0 else None
         if end is not None:
             ball = ball_on_foot(ankle, p[:, end], ankle[:, 1] <= other[:, 1], leg)
@@ -1198,7 +1199,7 @@ def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
         return feet
     p = recording.positions
     ankles = [f.heel for f in feet]
-    leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
+    leg = leg_length(p, ankles[0], root)
     found = [leg_joints(p, ankle, leg) for ankle in ankles]
     legs = [lg for lg in found if lg is not None]
     if len(legs) < 2 or leg <= 0:
