@@ -151,6 +151,31 @@ def foot_point(positions: NDArray[np.float64], ankle: int, leg_m: float) -> int 
     return int(np.argmax(np.where(ok, mean, -np.inf))) if ok.any() else None
 
 
+def leg_length(positions: NDArray[np.float64], ankle: int, root: int) -> float:
+    """Hips → ankle length, metres: the median distance of ``ankle`` from ``root`` in
+    ``positions`` (F, J, 3, metres), or from the leg's own hip (:func:`leg_joints`) where the
+    root is nearer to the ankle than the knee is, so cannot be the pelvis (files whose root
+    is a dummy at the floor, e.g. Bandai Namco's moving ``joint_Root``); the knee is the
+    farthest joint whose distance to the ankle is constant to :data:`SHANK_RIGIDITY` (a
+    crouching karateka's pelvis stays 1.4 shank lengths from the ankle), measured on at
+    most about 1000 frames evenly spread (the test has a wide margin; long takes stay
+    cheap)."""
+    to_root = float(np.median(np.linalg.norm(positions[:, root] - positions[:, ankle],
+                                             axis=1)))
+    sample = positions[::max(1, positions.shape[0] // 1000)]
+    d = np.linalg.norm(sample - sample[:, ankle:ankle + 1], axis=2)
+    rigid = d.std(axis=0) < SHANK_RIGIDITY * np.maximum(d.mean(axis=0), 1e-9)
+    rigid[ankle] = False
+    shank = float(d.mean(axis=0)[rigid].max()) if rigid.any() else 0.0
+    if shank <= 0 or to_root >= shank:
+        return to_root
+    found = leg_joints(positions, ankle, 2.0 * shank)
+    if found is None:
+        return to_root
+    return float(np.median(np.linalg.norm(positions[:, found[1]] - positions[:, ankle],
+                                          axis=1)))
+
+
 def ball_on_foot(ankle: NDArray[np.float64], point: NDArray[np.float64],
                  flat: NDArray[np.bool_], leg_m: float) -> NDArray[np.float64]:
     """Ball of the foot (3,) in :func:`foot_axes` of ``ankle`` and a ``point`` rigid with the

@@ -54,6 +54,7 @@ from .stance import (
     foot_point,
     heading_by_knees,
     leg_joints,
+    leg_length,
     rise_tilt,
     roll_advance,
     sensor_track,
@@ -256,7 +257,7 @@ def _balls(p: NDArray[np.float64], feet: list[_Feet], root: int) -> list[_Feet]:
     out = []
     for k, foot in enumerate(feet):
         ankle, other = p[:, foot.heel], p[:, feet[1 - k].heel]
-        leg = float(np.median(np.linalg.norm(p[:, root] - ankle, axis=1)))
+        leg = leg_length(p, foot.heel, root)
         end = foot_point(p, foot.heel, leg) if foot.toe is None and leg > 0 else None
         if end is not None:
             ball = ball_on_foot(ankle, p[:, end], ankle[:, 1] <= other[:, 1], leg)
@@ -445,7 +446,14 @@ class ContactOptions:
         fit then has the foot's axes); without such a point, the ankle rolled back by the
         heel lift read from its rise above the other ankle (``stance.rise_tilt``). Needs
         ``use_toes``. Off by default: it fails the real recording's held-out check
-        (docs/translation.md).
+        (docs/translation.md); ``choose_toes`` decides instead.
+    choose_toes : bool
+        Where a foot has no toe joint but a toe point can be extrapolated (as
+        ``extrapolate_toes`` does), decode the contacts with the ankle and with the toe
+        point and keep the model whose decoding costs less per 10 ms (quality
+        ``toe_model``, ``decoded_cost_ankle``, ``decoded_cost_extrapolated``): a foot whose
+        kinematics do not roll like the data says stays on the ankle. Doubles the decoding's
+        cost on such files; nothing changes with toe joints.
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
         is fitted to the readings of the planted foot (``stance.estimate_sensor_offset``)
@@ -473,6 +481,7 @@ class ContactOptions:
     floor_ramp_s: float = 0.25
     use_toes: bool = True
     extrapolate_toes: bool = False
+    choose_toes: bool = True
     lever_arm_prior_m: float = 0.0
     use_file_contacts: bool = True
     clip_g: float | None = None
@@ -483,7 +492,7 @@ class ContactOptions:
             if name == "clip_g" and value is None:
                 continue
             check_number(value, name, low=low, high=high, low_open=low_open)
-        for name in ("adapt_relative_speed", "use_toes", "extrapolate_toes",
+        for name in ("adapt_relative_speed", "use_toes", "extrapolate_toes", "choose_toes",
                      "use_file_contacts"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}",
@@ -609,7 +618,12 @@ def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
                                       sigma, opt)
     _add_state_priors(cost, [f.sole(p) for f in feet], rel_speed / rel_scale, opt)
     cost *= 100.0 / fps  # costs are per 10 ms, whatever the frame rate
-    return _viterbi(cost, _switch_costs(opt)), {"relative_speed_scale_m_s": rel_scale}
+    switch = _switch_costs(opt)
+    states = _viterbi(cost, switch)
+    total = float(cost[np.arange(states.shape[0]), states].sum()
+                  + switch[states[:-1], states[1:]].sum())
+    return states, {"relative_speed_scale_m_s": rel_scale,
+                    "decoded_cost": total * fps / 100.0 / states.shape[0]}
 
 
 def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
@@ -1110,16 +1124,16 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     """The contact model's translation: contact states (from the file or decoded), then the
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
     lf, rf = names
-    feet = _feet(recording, lf, rf, use_toes=opt.use_toes,
-                 balls=opt.use_toes and opt.extrapolate_toes)
-    if opt.use_toes and opt.extrapolate_toes:
-        feet = _rolling_feet(recording, feet, names, root)
+    feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
+    extended = _extended_feet(recording, names, root) if opt.use_toes else None
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
+        feet = extended if extended is not None and opt.extrapolate_toes else feet
         states = _file_states(recording, names)
         extra["contacts_source"] = "file"
     else:
-        states, info = _contact_states(recording, feet, names, root, opt)
+        feet, states, info = _chosen_feet(recording, feet, extended, names=names, root=root,
+                                          opt=opt)
         extra.update(info)
         extra["contacts_source"] = "accelerometers"
     report(0.6, "contacts")
@@ -1138,6 +1152,41 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)
 
 
+def _extended_feet(recording: KinematicsRecording, names: tuple[str, str], root: int
+                   ) -> tuple[_Feet, _Feet] | None:
+    """The feet with a toe point extrapolated where the file has no toe joint: the ball of
+    the foot on a point rigid with it, else the rolled point (:func:`_rolling_feet`); None
+    when that changes nothing (both feet have toe joints, or no leg is found)."""
+    feet = _feet(recording, *names, use_toes=True, balls=True)
+    feet = _rolling_feet(recording, feet, names, root)
+    if all(f.toe is not None or (f.end is None and f.roll is None) for f in feet):
+        return None
+    return feet
+
+
+def _chosen_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
+                 extended: tuple[_Feet, _Feet] | None, *, names: tuple[str, str], root: int,
+                 opt: ContactOptions
+                 ) -> tuple[tuple[_Feet, _Feet], NDArray[np.int64], dict[str, Any]]:
+    """Feet and decoded states: with ``extended`` feet (toe points extrapolated) the model
+    whose decoding costs less per 10 ms (``choose_toes``; it explains the accelerometers and
+    the feet's kinematics better), or the extended one outright (``extrapolate_toes``)."""
+    if extended is not None and opt.extrapolate_toes:
+        feet = extended
+    states, info = _contact_states(recording, feet, names, root, opt)
+    chosen = "extrapolated" if feet is extended else "ankle"
+    if extended is not None and opt.choose_toes and feet is not extended:
+        states_x, info_x = _contact_states(recording, extended, names, root, opt)
+        costs = {"decoded_cost_ankle": info["decoded_cost"],
+                 "decoded_cost_extrapolated": info_x["decoded_cost"]}
+        if info_x["decoded_cost"] < info["decoded_cost"]:
+            feet, states, info, chosen = extended, states_x, info_x, "extrapolated"
+        info.update(costs)
+    if extended is not None:
+        info["toe_model"] = chosen
+    return feet, states, info
+
+
 def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
                   names: tuple[str, str], root: int) -> tuple[_Feet, _Feet]:
     """``feet`` where a foot without a toe joint gets a contact point that rolls from the
@@ -1150,7 +1199,7 @@ def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
         return feet
     p = recording.positions
     ankles = [f.heel for f in feet]
-    leg = float(np.median(np.linalg.norm(p[:, root] - p[:, ankles[0]], axis=1)))
+    leg = leg_length(p, ankles[0], root)
     found = [leg_joints(p, ankle, leg) for ankle in ankles]
     legs = [lg for lg in found if lg is not None]
     if len(legs) < 2 or leg <= 0:

@@ -178,6 +178,7 @@ class ContactOptionsIn(BaseModel):
     floor_ramp_s: float = _ranged(0.25, "floor_ramp_s", "Ease onto a floor level, s.")
     use_toes: StrictBool = True
     extrapolate_toes: StrictBool = False
+    choose_toes: StrictBool = True
     lever_arm_prior_m: float = _ranged(0.0, "lever_arm_prior_m",
                                        "Prior scale of the foot sensor's offset, m (0: off).")
     use_file_contacts: StrictBool = True

@@ -17,6 +17,7 @@ from bonefit.estimation.stance import (
     foot_point,
     heading_by_knees,
     leg_joints,
+    leg_length,
     rise_tilt,
     roll_advance,
     sensor_track,
@@ -175,3 +176,25 @@ def test_foot_point_is_the_joint_rigid_with_the_foot() -> None:
     positions = np.stack([hips, knee, ankle, bending, end], axis=1)
     assert foot_point(positions, 2, 0.9) == 4
     assert foot_point(positions[:, :4], 2, 0.9) is None
+
+
+def test_leg_length_from_the_hip_when_the_root_is_a_dummy_at_the_floor() -> None:
+    # two legs of 0.42 m bones bending in one plane under a pelvis at 1 m; the file's root is
+    # the pelvis, or a dummy moving along the floor (Bandai's joint_Root), nearer to the
+    # ankles than the knees are: the leg is then measured from the leg's own hip
+    t = np.linspace(0.0, 2.0, 200)
+    joints = []
+    for side, phase in ((-0.1, 0.0), (0.1, np.pi)):
+        flex = 0.3 + 0.25 * np.sin(2 * np.pi * t + phase)
+        hip = np.column_stack([0 * t, 0.9 + 0 * t, side + 0 * t])
+        knee = hip + np.column_stack([0.42 * np.sin(flex), -0.42 * np.cos(flex), 0 * t])
+        ankle = knee + np.column_stack([-0.42 * np.sin(flex), -0.42 * np.cos(flex), 0 * t])
+        joints += [hip, knee, ankle]
+    pelvis = np.column_stack([0 * t, 1.0 + 0 * t, 0 * t])
+    dummy = np.column_stack([0.05 * np.sin(t), 0 * t, 0 * t])
+    positions = np.stack([dummy, pelvis, *joints], axis=1)
+    to_hip = np.median(np.linalg.norm(positions[:, 2] - positions[:, 4], axis=1))
+    to_pelvis = np.median(np.linalg.norm(positions[:, 1] - positions[:, 4], axis=1))
+    assert leg_length(positions, 4, 1) == pytest.approx(to_pelvis, abs=1e-12)
+    assert leg_length(positions, 4, 0) == pytest.approx(to_hip, abs=1e-12)
+    assert 0.75 < to_hip < 0.84
