@@ -20,6 +20,8 @@ from .joints import (
     RULE_GATE_SIGMA,
     JointFit,
     estimate_joint,
+    joint_data,
+    joint_model,
     range_of_motion,
 )
 from .limbs import estimate_limb, standard_lengths, torso_length
@@ -78,6 +80,10 @@ LIMB_PRIOR_SIGMA_M: Final[float] = 0.02
 # a joint whose own fit locates it to this (``quality["fit_sd_m"]``, metres) keeps it: the
 # shared slip model and the priors can only add their own misfit there (issue 20 §2)
 GOOD_DATA_SD_M: Final[float] = 0.002
+# a torso joint's own data-only fit joins the shared model's centre (by their precisions)
+# where it locates the joint to this (``quality["fit_sd_m"]``, metres): a poorer one's sd is
+# itself unreliable (short takes: centres 40-100 mm off at a stated 20-40 mm; issue 20 §2)
+OWN_DATA_SD_M: Final[float] = 0.005
 # a joint is labelled "data" only where the recording alone locates it to this (metres,
 # ``quality["data_sd_m"]``; issue 20 §4)
 DATA_LABEL_SD_M: Final[float] = 0.01
@@ -276,14 +282,16 @@ class PairPoses(NamedTuple):
 
 class SharedPriors(NamedTuple):
     """What ``shared_fit`` combines with the shared model's centre: a symmetry plane and a
-    Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, and a hinge
+    Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, a hinge
     axis (3,) in frame a along which the prior's sd is ``joints.HINGE_RULE_SD_M`` (a limb
-    joint's own fit there is its hinge rule's point)."""
+    joint's own fit there is its hinge rule's point), and the joint's own data-only centre
+    (6,) with its precision (6, 6), m⁻² (``JointFit.data_centre``, ``data_information``)."""
 
     symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     prior: tuple[NDArray[np.float64], float] | None = None
     anchor: Anchor | None = None
     hinge_axis: NDArray[np.float64] | None = None
+    own: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
 
 def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors: SharedPriors
@@ -295,10 +303,14 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     estimated slip (``poses``). Along ``hinge_axis`` (in frame a) the prior is the hinge
     rule's, as wide as knees and elbows sit off their neighbours' line: the model (whose
     joints here move well above the orientation noise, ``shared_role``) outweighs it where
-    it locates the centre along the axis better. Also returns the posterior covariance of
+    it locates the centre along the axis better. With the joint's ``own`` data-only centre
+    (the plain joint equation on the raw positions, slip counted as correlated noise), the
+    model's precision is first made honest (``_calibrated_precision``) and the two readings
+    of the recording are combined by their precisions: where the joint's own data locate it
+    well they are not overridden (issue 20 §2). Also returns the posterior covariance of
     the centre in frame a (3, 3)."""
     pa_true, ra_rot, pb_true, rb_rot, ok_a, ok_b = poses
-    symmetry, prior, anchor, hinge_axis = priors
+    symmetry, prior, anchor, hinge_axis, own = priors
     mean = shared.centres[j].reshape(6)
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
@@ -308,8 +320,13 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
              if prior is not None or hinge_axis is not None else np.eye(3))
     precision = _hinge_precision(shared, j, n_bar, hinge_axis, prior)
-    normal = precision.copy()
+    if own is not None:
+        precision = _calibrated_precision(precision, poses, mean)
     rhs = precision @ mean
+    if own is not None:
+        precision = precision + own[1]
+        rhs += own[1] @ own[0]
+    normal = precision.copy()
     prior_precision = np.zeros((6, 6))
     if prior is not None:
         offset_b = rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
@@ -370,6 +387,32 @@ def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
         return precision
     keep = np.eye(6) - np.outer(g, g)
     return np.asarray(keep @ precision @ keep, dtype=np.float64)
+
+
+def _calibrated_precision(precision: NDArray[np.float64], poses: PairPoses,
+                          centre: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The shared model's precision (6, 6) of a centre (6,) made honest: its covariance
+    taken ``SHARED_SD_FACTOR``² larger, plus the covariance its own residual leaves,
+    ``σ²/N_eff · N⁻¹`` of the plain joint equation on the positions without slip
+    (``poses``) at ``centre`` (``joints.fit_information``). The model's posterior counts
+    every frame as independent; slip its basis does not reach (16 cosines: up to
+    ``8 / duration`` Hz in takes over 16 s) stays in the residual, slow and correlated."""
+    data = joint_data(poses.pa_true, poses.ra_rot, poses.pb_true, poses.rb_rot,
+                      np.column_stack([poses.ok_a, poses.ok_b]))
+    model = joint_model(data, method="llsf")
+    system = model.normal_equations(data.w0, first=True)
+    v = model.variance_per_information(centre, data.w0, system.back)
+    cov = SHARED_SD_FACTOR**2 * _inverse(precision) + v * _inverse(system.normal)
+    return _inverse(cov)
+
+
+def _inverse(m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The inverse of a symmetric positive semi-definite (6, 6) matrix, its eigenvalues
+    floored at 1e-12 of the largest (an undetermined direction gets a huge but finite
+    variance)."""
+    lam, vec = np.linalg.eigh(m)
+    lam = np.maximum(lam, 1e-12 * max(float(lam[-1]), 1e-300))
+    return np.asarray((vec / lam) @ vec.T, dtype=np.float64)
 
 
 def _data_precision(cov: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -989,7 +1032,11 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
         axis = own.quality.get("axis") if own.quality.get("hinge") else None
         poses = PairPoses(without[a], sensors.rotations[a], without[b], sensors.rotations[b],
                           sensors.ok[a], sensors.ok[b])
-        priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor) if role == "torso"
+        data = (None if own.data_centre is None or own.data_information is None
+                or own.quality.get("fit_sd_m", math.inf) > OWN_DATA_SD_M
+                else (own.data_centre, own.data_information))
+        priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor, own=data)
+                  if role == "torso"
                   else SharedPriors(prior=(own.local_a, LIMB_PRIOR_SIGMA_M),
                                     hinge_axis=None if axis is None
                                     else np.asarray(axis, dtype=float)))
