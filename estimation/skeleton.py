@@ -320,12 +320,10 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
              if prior is not None or hinge_axis is not None else np.eye(3))
     precision = _hinge_precision(shared, j, n_bar, hinge_axis, prior)
-    if own is not None:
-        precision = _calibrated_precision(precision, poses, mean)
     rhs = precision @ mean
+    own_share = 0.0
     if own is not None:
-        precision = precision + own[1]
-        rhs += own[1] @ own[0]
+        precision, rhs, own_share = _with_own_reading(precision, poses, mean, own)
     normal = precision.copy()
     prior_precision = np.zeros((6, 6))
     if prior is not None:
@@ -352,9 +350,11 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     if prior is not None:
         quality.update(_prior_quality(precision, prior_precision, prior, anchor,
                                       float(np.linalg.norm(c[:3] - mean[:3]))))
-    fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
-                     positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
-                     quality=JointQuality.of(quality))
+    path = rec_a - share_b[:, None] * gap
+    if own_share > 0.0:  # the own reading's path: its fit on the raw positions
+        path = (1.0 - own_share) * path + own_share * fit.positions
+    fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(), positions=path,
+                     residuals=rows.norms(gap), quality=JointQuality.of(quality))
     return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
 
 
@@ -387,6 +387,22 @@ def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
         return precision
     keep = np.eye(6) - np.outer(g, g)
     return np.asarray(keep @ precision @ keep, dtype=np.float64)
+
+
+def _with_own_reading(precision: NDArray[np.float64], poses: PairPoses,
+                      mean: NDArray[np.float64],
+                      own: tuple[NDArray[np.float64], NDArray[np.float64]]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The shared model's reading of a centre (``precision`` (6, 6), ``mean`` (6,))
+    combined with the joint's ``own`` data-only one (centre (6,), precision (6, 6)): the
+    combined precision, its right-hand side, and the own reading's share of it (frame a:
+    1 − tr C / tr C_model, 0 where it adds nothing, 1 where it alone decides). The model's
+    precision is made honest first (``_calibrated_precision``)."""
+    model = _calibrated_precision(precision, poses, mean)
+    combined = model + own[1]
+    share = 1.0 - float(np.trace(_inverse(combined)[:3, :3])) \
+        / float(np.trace(_inverse(model)[:3, :3]))
+    return combined, model @ mean + own[1] @ own[0], min(max(share, 0.0), 1.0)
 
 
 def _calibrated_precision(precision: NDArray[np.float64], poses: PairPoses,
