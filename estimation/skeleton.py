@@ -347,6 +347,8 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     quality["rotation_noise_corrected"] = shared.corrected[j]
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
     quality["signal_share"] = shared.signal_share[j]
+    if own is not None:
+        quality["own_data_share"] = own_share
     if prior is not None:
         quality.update(_prior_quality(precision, prior_precision, prior, anchor,
                                       float(np.linalg.norm(c[:3] - mean[:3]))))
