@@ -91,8 +91,9 @@ DATA_LABEL_SD_M: Final[float] = 0.01
 hinge rule) puts on its centre from the shared slip model."""
 SHARED_SD_FACTOR: Final[float] = 2.0
 """How much larger (in sd) a centre is taken to be uncertain than the shared slip model's
-posterior says: along a hinge's axis, where the model meets the straight-limb rule, and in
-a torso joint's ``data_sd_m``. The model's posterior is optimistic (the example motion's
+posterior says: along a hinge's axis, where the model meets the straight-limb rule, in a
+torso joint's ``data_sd_m``, and where a torso joint's own data-only fit joins the model's
+centre (``OWN_DATA_SD_M``). The model's posterior is optimistic (the example motion's
 torso joints, 4 motions x 5 sensor seeds: centre error / posterior sd 1.6-2.3 RMS;
 benchmark hinges along their axes, 20 pairs of seed 1: 1.5, with tails to 5)."""
 SYMMETRY_SIGMA_M: Final[float] = 0.03
@@ -700,7 +701,9 @@ class AutoOptions(VarianceCostOptions):
     Every sensor's soft-tissue slip from all the joint equations at once
     (``slip.estimate_slip``, corrected for the attenuation bias of orientation noise where
     the motion is well above it), the torso joints (waist, neck, shoulders, hips) from that
-    shared model with their anatomical priors (below), robust LLSF (Huber IRLS) for the limb
+    shared model with their anatomical priors (below) and, where it locates them to
+    ``OWN_DATA_SD_M``, their own data-only fit (both readings by their precisions, the
+    model's made honest; paths mixed alike), robust LLSF (Huber IRLS) for the limb
     joints, hinge knees and elbows resolved by the straight-limb rule, wrists fitted on the
     positions without slip and, when they twist, placed by the bone-length rule
     (``joints.estimate_joint``); limb joints whose motion is well above the orientation noise
