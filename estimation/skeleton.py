@@ -19,9 +19,8 @@ from .joints import (
     HINGE_RULE_SD_M,
     RULE_GATE_SIGMA,
     JointFit,
+    effective_samples,
     estimate_joint,
-    joint_data,
-    joint_model,
     range_of_motion,
 )
 from .limbs import estimate_limb, standard_lengths, torso_length
@@ -306,7 +305,7 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     joints here move well above the orientation noise, ``shared_role``) outweighs it where
     it locates the centre along the axis better. With the joint's ``own`` data-only centre
     (the plain joint equation on the raw positions, slip counted as correlated noise), the
-    model's precision is first made honest (``_calibrated_precision``) and the two readings
+    model's precision is first made honest (``_with_own_reading``) and the two readings
     of the recording are combined by their precisions: where the joint's own data locate it
     well they are not overridden (issue 20 §2). Also returns the posterior covariance of
     the centre in frame a (3, 3)."""
@@ -319,12 +318,14 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     # frame a to frame b over the frames: c_b = N̄ c_a + o, N̄ = mean R_bᵀR_a (frame a's
     # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
-             if prior is not None or hinge_axis is not None else np.eye(3))
+             if prior is not None or hinge_axis is not None or own is not None
+             else np.eye(3))
     precision = _hinge_precision(shared, j, n_bar, hinge_axis, prior)
     rhs = precision @ mean
     own_share = 0.0
     if own is not None:
-        precision, rhs, own_share = _with_own_reading(precision, poses, mean, own)
+        precision, rhs, own_share = _with_own_reading(
+            precision, mean, own, _residual_information(ra, rb, poses, n_bar, mean))
     normal = precision.copy()
     prior_precision = np.zeros((6, 6))
     if prior is not None:
@@ -392,37 +393,44 @@ def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
     return np.asarray(keep @ precision @ keep, dtype=np.float64)
 
 
-def _with_own_reading(precision: NDArray[np.float64], poses: PairPoses,
-                      mean: NDArray[np.float64],
-                      own: tuple[NDArray[np.float64], NDArray[np.float64]]
+def _with_own_reading(precision: NDArray[np.float64], mean: NDArray[np.float64],
+                      own: tuple[NDArray[np.float64], NDArray[np.float64]],
+                      calibration: tuple[NDArray[np.float64], float]
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """The shared model's reading of a centre (``precision`` (6, 6), ``mean`` (6,))
     combined with the joint's ``own`` data-only one (centre (6,), precision (6, 6)): the
     combined precision, its right-hand side, and the own reading's share of it (frame a:
     1 − tr C / tr C_model, 0 where it adds nothing, 1 where it alone decides). The model's
-    precision is made honest first (``_calibrated_precision``)."""
-    model = _calibrated_precision(precision, poses, mean)
+    precision is made honest first: its covariance taken ``SHARED_SD_FACTOR``² larger,
+    plus the covariance its own residual leaves, ``σ²/N_eff · N⁻¹`` of the plain joint
+    equation on the positions without slip at ``mean`` (``calibration``: ``N`` (6, 6) and
+    ``σ²/N_eff``, ``_residual_information``). The model's posterior counts every frame as
+    independent; slip its basis does not reach (16 cosines: up to ``8 / duration`` Hz in
+    takes over 16 s) stays in the residual, slow and correlated."""
+    normal, v = calibration
+    model = _inverse(SHARED_SD_FACTOR**2 * _inverse(precision) + v * _inverse(normal))
     combined = model + own[1]
     share = 1.0 - float(np.trace(_inverse(combined)[:3, :3])) \
         / float(np.trace(_inverse(model)[:3, :3]))
     return combined, model @ mean + own[1] @ own[0], min(max(share, 0.0), 1.0)
 
 
-def _calibrated_precision(precision: NDArray[np.float64], poses: PairPoses,
-                          centre: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The shared model's precision (6, 6) of a centre (6,) made honest: its covariance
-    taken ``SHARED_SD_FACTOR``² larger, plus the covariance its own residual leaves,
-    ``σ²/N_eff · N⁻¹`` of the plain joint equation on the positions without slip
-    (``poses``) at ``centre`` (``joints.fit_information``). The model's posterior counts
-    every frame as independent; slip its basis does not reach (16 cosines: up to
-    ``8 / duration`` Hz in takes over 16 s) stays in the residual, slow and correlated."""
-    data = joint_data(poses.pa_true, poses.ra_rot, poses.pb_true, poses.rb_rot,
-                      np.column_stack([poses.ok_a, poses.ok_b]))
-    model = joint_model(data, method="llsf")
-    system = model.normal_equations(data.w0, first=True)
-    v = model.variance_per_information(centre, data.w0, system.back)
-    cov = SHARED_SD_FACTOR**2 * _inverse(precision) + v * _inverse(system.normal)
-    return _inverse(cov)
+def _residual_information(ra: NDArray[np.float64], rb: NDArray[np.float64],
+                          poses: PairPoses, n_bar: NDArray[np.float64],
+                          centre: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """The plain joint equation's normalised normal matrix (6, 6) on the frames where both
+    sensors were measured, ``[[I, −N̄ᵀ], [−N̄, I]]`` (``n_bar`` = N̄, the mean ``R_bᵀR_a``),
+    and its residual's variance per unit of information ``σ²/N_eff`` (as
+    ``joints.JointModel.variance_per_information``) at ``centre`` (6,) on ``poses``
+    (matrices ``ra``, ``rb`` (F, 3, 3))."""
+    w = (poses.ok_a & poses.ok_b).astype(float)
+    res = (rows.apply(ra, centre[:3]) + poses.pa_true
+           - rows.apply(rb, centre[3:]) - poses.pb_true) * w[:, None]
+    sigma2 = float(np.einsum("ti,ti->", res, res)) / (3.0 * max(float(w.sum()), 1.0))
+    normal = np.eye(6)
+    normal[:3, 3:] = -n_bar.T
+    normal[3:, :3] = -n_bar
+    return normal, sigma2 / effective_samples(res, w)
 
 
 def _inverse(m: NDArray[np.float64]) -> NDArray[np.float64]:
