@@ -48,6 +48,12 @@ class JointFit:
         ``fit_sd_m``.
     warnings : tuple of str
         Human-readable warnings (small range of motion, ill-conditioned system).
+    data_centre : ndarray, shape (6,), optional
+        The centre from the data alone, before any prior or hinge rule: ``[c_a; c_b]``,
+        metres (``estimate_joint``'s robust fit at its final frame weights).
+    data_information : ndarray, shape (6, 6), optional
+        Its precision (inverse covariance), m⁻²: ``N / (σ²/N_eff)`` (:func:`fit_information`);
+        ``fit_sd_m`` is the square root of the trace of the frame-a block of its inverse.
     """
 
     local_a: NDArray[np.float64]
@@ -56,6 +62,8 @@ class JointFit:
     residuals: NDArray[np.float64]
     quality: JointQuality
     warnings: tuple[str, ...] = ()
+    data_centre: NDArray[np.float64] | None = None
+    data_information: NDArray[np.float64] | None = None
 
 
 def _fill_nan_positions(p: NDArray[np.float64]) -> tuple[NDArray[np.float64],
@@ -738,19 +746,25 @@ def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "
     return RobustFit(c, c_data, w, sv, weak, prior_weight, system.back, system.normal)
 
 
-def fit_sd(model: JointModel, fit: RobustFit) -> float:
-    """How well the joint's own data locate its centre: the standard deviation (metres, the
-    square root of the trace of the covariance in frame a) of the data-only centre
-    ``fit.c_data``, ``σ²/N_eff · N⁻¹`` with ``N`` the normalised normal matrix, ``σ²`` the
-    residual variance per axis and ``N_eff`` its effective sample count (slow slip counts as
-    few samples, so slip makes it large)."""
+def fit_information(model: JointModel, fit: RobustFit) -> NDArray[np.float64]:
+    """How well the joint's own data locate its centre: the precision (6, 6), m⁻², of the
+    data-only centre ``fit.c_data``, ``N / (σ²/N_eff)`` with ``N`` the normalised normal
+    matrix, ``σ²`` the residual variance per axis and ``N_eff`` its effective sample count
+    (slow slip counts as few samples, so slip makes it small). Directions the motion leaves
+    undetermined have about zero precision."""
     normal = fit.normal if fit.normal is not None else model.normal_equations(fit.w).normal
-    lam, vec = np.linalg.eigh(normal)
+    v = model.variance_per_information(fit.c_data, fit.w, fit.back)
+    return np.asarray(normal / max(v, 1e-300), dtype=np.float64)
+
+
+def fit_sd(information: NDArray[np.float64]) -> float:
+    """The standard deviation (metres, the square root of the trace of the covariance in
+    frame a) of a centre of precision ``information`` (6, 6; :func:`fit_information`)."""
+    lam, vec = np.linalg.eigh(information)
     # a singular system (no motion) gets a huge but finite sd (it goes into JSON)
     lam = np.maximum(lam, 1e-12 * max(float(lam[-1]), 1e-300))
     cov_a = (vec[:3] / lam) @ vec[:3].T
-    return math.sqrt(model.variance_per_information(fit.c_data, fit.w, fit.back)
-                     * float(np.trace(cov_a)))
+    return math.sqrt(float(np.trace(cov_a)))
 
 
 def hinge_value(sv: NDArray[np.float64]) -> float:
@@ -1243,7 +1257,8 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
     fit = robust_fit(model, priors, loss=options.loss, huber_k=options.huber_k,
                      n_iterations=options.n_iterations,
                      report=lambda fraction: robust(fraction, "joints"))
-    sd = fit_sd(model, fit)
+    information = fit_information(model, fit)
+    sd = fit_sd(information)
     progress(0.8, "joints")
     neighbours = hints.neighbours
     if sd <= options.trust_data_sd_m and options.estimator == "llsf":
@@ -1268,5 +1283,4 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
     quality.update(_prior_quality(fit, priors, c))
     quality.update(_hinge_quality(fit, decision))  # its data_weight replaces the prior's
     return JointFit(c[:3].copy(), c[3:].copy(), rec.positions, rec.residuals,
-                    JointQuality.of(quality),
-                    tuple(warnings))
+                    JointQuality.of(quality), tuple(warnings), fit.c_data.copy(), information)

@@ -19,6 +19,7 @@ from .joints import (
     HINGE_RULE_SD_M,
     RULE_GATE_SIGMA,
     JointFit,
+    effective_samples,
     estimate_joint,
     range_of_motion,
 )
@@ -78,6 +79,10 @@ LIMB_PRIOR_SIGMA_M: Final[float] = 0.02
 # a joint whose own fit locates it to this (``quality["fit_sd_m"]``, metres) keeps it: the
 # shared slip model and the priors can only add their own misfit there (issue 20 §2)
 GOOD_DATA_SD_M: Final[float] = 0.002
+# a torso joint's own data-only fit joins the shared model's centre (by their precisions)
+# where it locates the joint to this (``quality["fit_sd_m"]``, metres): a poorer one's sd is
+# itself unreliable (short takes: centres 40-100 mm off at a stated 20-40 mm; issue 20 §2)
+OWN_DATA_SD_M: Final[float] = 0.005
 # a joint is labelled "data" only where the recording alone locates it to this (metres,
 # ``quality["data_sd_m"]``; issue 20 §4)
 DATA_LABEL_SD_M: Final[float] = 0.01
@@ -85,8 +90,9 @@ DATA_LABEL_SD_M: Final[float] = 0.01
 hinge rule) puts on its centre from the shared slip model."""
 SHARED_SD_FACTOR: Final[float] = 2.0
 """How much larger (in sd) a centre is taken to be uncertain than the shared slip model's
-posterior says: along a hinge's axis, where the model meets the straight-limb rule, and in
-a torso joint's ``data_sd_m``. The model's posterior is optimistic (the example motion's
+posterior says: along a hinge's axis, where the model meets the straight-limb rule, in a
+torso joint's ``data_sd_m``, and where a torso joint's own data-only fit joins the model's
+centre (``OWN_DATA_SD_M``). The model's posterior is optimistic (the example motion's
 torso joints, 4 motions x 5 sensor seeds: centre error / posterior sd 1.6-2.3 RMS;
 benchmark hinges along their axes, 20 pairs of seed 1: 1.5, with tails to 5)."""
 SYMMETRY_SIGMA_M: Final[float] = 0.03
@@ -276,14 +282,16 @@ class PairPoses(NamedTuple):
 
 class SharedPriors(NamedTuple):
     """What ``shared_fit`` combines with the shared model's centre: a symmetry plane and a
-    Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, and a hinge
+    Gaussian prior (as in ``joints.estimate_joint``), the ``Anchor`` of both, a hinge
     axis (3,) in frame a along which the prior's sd is ``joints.HINGE_RULE_SD_M`` (a limb
-    joint's own fit there is its hinge rule's point)."""
+    joint's own fit there is its hinge rule's point), and the joint's own data-only centre
+    (6,) with its precision (6, 6), m⁻² (``JointFit.data_centre``, ``data_information``)."""
 
     symmetry: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     prior: tuple[NDArray[np.float64], float] | None = None
     anchor: Anchor | None = None
     hinge_axis: NDArray[np.float64] | None = None
+    own: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
 
 def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors: SharedPriors
@@ -295,10 +303,14 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     estimated slip (``poses``). Along ``hinge_axis`` (in frame a) the prior is the hinge
     rule's, as wide as knees and elbows sit off their neighbours' line: the model (whose
     joints here move well above the orientation noise, ``shared_role``) outweighs it where
-    it locates the centre along the axis better. Also returns the posterior covariance of
+    it locates the centre along the axis better. With the joint's ``own`` data-only centre
+    (the plain joint equation on the raw positions, slip counted as correlated noise), the
+    model's precision is first made honest (``_with_own_reading``) and the two readings
+    of the recording are combined by their precisions: where the joint's own data locate it
+    well they are not overridden (issue 20 §2). Also returns the posterior covariance of
     the centre in frame a (3, 3)."""
     pa_true, ra_rot, pb_true, rb_rot, ok_a, ok_b = poses
-    symmetry, prior, anchor, hinge_axis = priors
+    symmetry, prior, anchor, hinge_axis, own = priors
     mean = shared.centres[j].reshape(6)
     ra, rb = ra_rot.as_matrix(), rb_rot.as_matrix()
     both = ok_a & ok_b
@@ -306,10 +318,15 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     # frame a to frame b over the frames: c_b = N̄ c_a + o, N̄ = mean R_bᵀR_a (frame a's
     # directions in frame b), o = mean R_bᵀ(p_a − p_b); needed only for a prior or an axis
     n_bar = (np.einsum("tji,tjk->ik", rb[both], ra[both]) / count
-             if prior is not None or hinge_axis is not None else np.eye(3))
+             if prior is not None or hinge_axis is not None or own is not None
+             else np.eye(3))
     precision = _hinge_precision(shared, j, n_bar, hinge_axis, prior)
-    normal = precision.copy()
     rhs = precision @ mean
+    own_share = 0.0
+    if own is not None:
+        precision, rhs, own_share = _with_own_reading(
+            precision, mean, own, _residual_information(ra, rb, poses, n_bar, mean))
+    normal = precision.copy()
     prior_precision = np.zeros((6, 6))
     if prior is not None:
         offset_b = rows.sum_transposed(rb[both], pa_true[both] - pb_true[both]) / count
@@ -332,12 +349,16 @@ def shared_fit(fit: JointFit, shared: SlipFit, j: int, poses: PairPoses, priors:
     quality["rotation_noise_corrected"] = shared.corrected[j]
     quality["rms_residual_m"] = float(np.sqrt(np.mean(rows.norms(gap)[both] ** 2)))
     quality["signal_share"] = shared.signal_share[j]
+    if own is not None:
+        quality["own_data_share"] = own_share
     if prior is not None:
         quality.update(_prior_quality(precision, prior_precision, prior, anchor,
                                       float(np.linalg.norm(c[:3] - mean[:3]))))
-    fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(),
-                     positions=rec_a - share_b[:, None] * gap, residuals=rows.norms(gap),
-                     quality=JointQuality.of(quality))
+    path = rec_a - share_b[:, None] * gap
+    if own_share > 0.0:  # the own reading's path: its fit on the raw positions
+        path = (1.0 - own_share) * path + own_share * fit.positions
+    fitted = replace(fit, local_a=c[:3].copy(), local_b=c[3:].copy(), positions=path,
+                     residuals=rows.norms(gap), quality=JointQuality.of(quality))
     return fitted, np.asarray(np.linalg.inv(normal)[:3, :3], dtype=np.float64)
 
 
@@ -370,6 +391,55 @@ def _hinge_precision(shared: SlipFit, j: int, n_bar: NDArray[np.float64],
         return precision
     keep = np.eye(6) - np.outer(g, g)
     return np.asarray(keep @ precision @ keep, dtype=np.float64)
+
+
+def _with_own_reading(precision: NDArray[np.float64], mean: NDArray[np.float64],
+                      own: tuple[NDArray[np.float64], NDArray[np.float64]],
+                      calibration: tuple[NDArray[np.float64], float]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The shared model's reading of a centre (``precision`` (6, 6), ``mean`` (6,))
+    combined with the joint's ``own`` data-only one (centre (6,), precision (6, 6)): the
+    combined precision, its right-hand side, and the own reading's share of it (frame a:
+    1 − tr C / tr C_model, 0 where it adds nothing, 1 where it alone decides). The model's
+    precision is made honest first: its covariance taken ``SHARED_SD_FACTOR``² larger,
+    plus the covariance its own residual leaves, ``σ²/N_eff · N⁻¹`` of the plain joint
+    equation on the positions without slip at ``mean`` (``calibration``: ``N`` (6, 6) and
+    ``σ²/N_eff``, ``_residual_information``). The model's posterior counts every frame as
+    independent; slip its basis does not reach (16 cosines: up to ``8 / duration`` Hz in
+    takes over 16 s) stays in the residual, slow and correlated."""
+    normal, v = calibration
+    model = _inverse(SHARED_SD_FACTOR**2 * _inverse(precision) + v * _inverse(normal))
+    combined = model + own[1]
+    share = 1.0 - float(np.trace(_inverse(combined)[:3, :3])) \
+        / float(np.trace(_inverse(model)[:3, :3]))
+    return combined, model @ mean + own[1] @ own[0], min(max(share, 0.0), 1.0)
+
+
+def _residual_information(ra: NDArray[np.float64], rb: NDArray[np.float64],
+                          poses: PairPoses, n_bar: NDArray[np.float64],
+                          centre: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """The plain joint equation's normalised normal matrix (6, 6) on the frames where both
+    sensors were measured, ``[[I, −N̄ᵀ], [−N̄, I]]`` (``n_bar`` = N̄, the mean ``R_bᵀR_a``),
+    and its residual's variance per unit of information ``σ²/N_eff`` (as
+    ``joints.JointModel.variance_per_information``) at ``centre`` (6,) on ``poses``
+    (matrices ``ra``, ``rb`` (F, 3, 3))."""
+    w = (poses.ok_a & poses.ok_b).astype(float)
+    res = (rows.apply(ra, centre[:3]) + poses.pa_true
+           - rows.apply(rb, centre[3:]) - poses.pb_true) * w[:, None]
+    sigma2 = float(np.einsum("ti,ti->", res, res)) / (3.0 * max(float(w.sum()), 1.0))
+    normal = np.eye(6)
+    normal[:3, 3:] = -n_bar.T
+    normal[3:, :3] = -n_bar
+    return normal, sigma2 / effective_samples(res, w)
+
+
+def _inverse(m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The inverse of a symmetric positive semi-definite (6, 6) matrix, its eigenvalues
+    floored at 1e-12 of the largest (an undetermined direction gets a huge but finite
+    variance)."""
+    lam, vec = np.linalg.eigh(m)
+    lam = np.maximum(lam, 1e-12 * max(float(lam[-1]), 1e-300))
+    return np.asarray((vec / lam) @ vec.T, dtype=np.float64)
 
 
 def _data_precision(cov: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -639,7 +709,9 @@ class AutoOptions(VarianceCostOptions):
     Every sensor's soft-tissue slip from all the joint equations at once
     (``slip.estimate_slip``, corrected for the attenuation bias of orientation noise where
     the motion is well above it), the torso joints (waist, neck, shoulders, hips) from that
-    shared model with their anatomical priors (below), robust LLSF (Huber IRLS) for the limb
+    shared model with their anatomical priors (below) and, where it locates them to
+    ``OWN_DATA_SD_M``, their own data-only fit (both readings by their precisions, the
+    model's made honest; paths mixed alike), robust LLSF (Huber IRLS) for the limb
     joints, hinge knees and elbows resolved by the straight-limb rule, wrists fitted on the
     positions without slip and, when they twist, placed by the bone-length rule
     (``joints.estimate_joint``); limb joints whose motion is well above the orientation noise
@@ -989,7 +1061,11 @@ def locate_joint(ctx: SkeletonContext, plan: JointPlan, own: JointFit | None = N
         axis = own.quality.get("axis") if own.quality.get("hinge") else None
         poses = PairPoses(without[a], sensors.rotations[a], without[b], sensors.rotations[b],
                           sensors.ok[a], sensors.ok[b])
-        priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor) if role == "torso"
+        data = (None if own.data_centre is None or own.data_information is None
+                or own.quality.get("fit_sd_m", math.inf) > OWN_DATA_SD_M
+                else (own.data_centre, own.data_information))
+        priors = (SharedPriors(plan.symmetry, plan.prior, plan.anchor, own=data)
+                  if role == "torso"
                   else SharedPriors(prior=(own.local_a, LIMB_PRIOR_SIGMA_M),
                                     hinge_axis=None if axis is None
                                     else np.asarray(axis, dtype=float)))
