@@ -36,6 +36,7 @@ from .params import (
 from .progress import Progress, no_progress, scaled
 from .recording import SensorRecording
 from .results import JointOffset, JointQuality, SkeletonResult
+from .rigid import rigid_paths
 from .savgol import savgol_filter
 from .slip import EIV_SIGNAL_SHARE, SlipFit, estimate_slip, rotation_noise_variance
 from .threads import Report, batches, ignore, run_each, staged, unstaged
@@ -1351,6 +1352,10 @@ def skeleton_result(recording: SensorRecording, options: SkeletonOptions,
     (``_smoothed``, ``_completed``: bone lengths, orientations; ``report(fraction,
     "orientations")``), ``started`` the ``time.perf_counter()`` of the call."""
     completed = _smoothed(located.joints, recording.fps, smooth=options.smooth, report=report)
+    if options.method == "auto":
+        completed = rigid_paths(completed, {name: float(q["data_sd_m"])
+                                            for name, q in located.quality.items()
+                                            if q.get("data_sd_m") is not None})
     bone_lengths, orientations = _completed(completed, sensors.rotations,
                                             up=np.asarray(options.up),
                                             i0=options.i0, warnings=located.warnings,

@@ -49,6 +49,7 @@ from ..numtext import (
 )
 from ..progress import Progress, no_progress
 from ..results import JointOffset, SkeletonResult, timings_document
+from ..rigid import clavicle_heights, clavicle_points
 from .outputs import SkeletonOutputs
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
@@ -484,18 +485,73 @@ class _Nodes:
     bones: dict[str, NDArray[np.float64]]
 
 
-def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
-    """Nodes in ``BVH_NODES`` order, end sites ``<node>_end`` after their parents."""
-    rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}
-    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
-    children: dict[str, list[str]] = {node: [] for node, _, _ in BVH_NODES}
+CLAVICLES: Final[dict[str, str]] = {"l_shoulder": "l_clavicle", "r_shoulder": "r_clavicle"}
+"""The node inserted between ``chest`` and each shoulder: at the shoulder's clavicle point on
+the chest–neck line (``rigid.clavicle_heights``), so the shoulder moves on the chest."""
+
+
+def skeleton_tree() -> tuple[tuple[str, str | None], ...]:
+    """The skeleton BVH's (node, parent) pairs, parents first: ``BVH_NODES`` with a
+    clavicle node (``CLAVICLES``) above each shoulder."""
+    out: list[tuple[str, str | None]] = []
     for node, parent, _ in BVH_NODES:
+        if node in CLAVICLES:
+            out.append((CLAVICLES[node], parent))
+            parent = CLAVICLES[node]
+        out.append((node, parent))
+    return tuple(out)
+
+
+def _swung(base: NDArray[np.float64], target: NDArray[np.float64]
+           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``base`` (scalar-last quaternions, F × 4) turned, in its own frame, by the smallest
+    rotation that takes the mean direction ``m`` of ``target`` (F × 3, world) in it onto
+    the target's direction in every frame, and ``m`` (3,): so the turned frame holds the
+    target along ``m`` exactly, its twist about ``m`` kept."""
+    local = Rotation.from_quat(base).inv().apply(target)
+    local /= np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-300)
+    mean = local.mean(axis=0)
+    mean /= max(float(np.linalg.norm(mean)), 1e-300)
+    swing = np.empty((len(local), 4))
+    swing[:, :3] = np.cross(mean, local)
+    swing[:, 3] = 1.0 + local @ mean
+    flip = swing[:, 3] <= 1e-12  # opposite directions: a half turn about any axis ⟂ m
+    swing[flip] = [*np.cross(mean, np.eye(3)[int(np.argmin(np.abs(mean)))]), 0.0]
+    swing /= np.linalg.norm(swing, axis=1, keepdims=True)
+    return compose_quaternions(base, swing), mean
+
+
+def _node_positions(result: SkeletonResult) -> dict[str, NDArray[np.float64]]:
+    """Every node's path (F × 3, metres): the joints and the clavicle points."""
+    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
+    points = clavicle_points(positions["chest"], positions["neck"], clavicle_heights(
+        positions["chest"], positions["neck"], positions["l_shoulder"],
+        positions["r_shoulder"]))
+    positions.update(zip(CLAVICLES.values(), points, strict=True))
+    return positions
+
+
+def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
+    """Nodes in ``skeleton_tree`` order, end sites ``<node>_end`` after their parents.
+
+    A node's frame is its segment's (a clavicle's: its parent's) turned by ``_swung``
+    toward its first child, which it then holds exactly along its OFFSET's direction."""
+    tree = skeleton_tree()
+    driver = {node: seg for node, _, seg in BVH_NODES}
+    positions = _node_positions(result)
+    children: dict[str, list[str]] = {node: [] for node, _ in tree}
+    for node, parent in tree:
         if parent is not None:
             children[parent].append(node)
+    quats: dict[str, NDArray[np.float64]] = {}
+    for node, parent in tree:
+        base = (_rotation(result, driver[node]).as_quat() if node in driver
+                else quats[str(parent)])
+        quats[node] = (_swung(base, positions[children[node][0]] - positions[node])[0]
+                       if children[node] else base)
     names: list[str] = []
     parents: list[int] = []
     offsets: list[NDArray[np.float64]] = []
-    quats = {node: rotation.as_quat() for node, rotation in rotations.items()}
     local: dict[str, NDArray[np.float64]] = {"root": quats["root"]}
     bones: dict[str, NDArray[np.float64]] = {}
     stack: list[tuple[str, str | None]] = [("root", None)]
@@ -511,7 +567,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            bones[node] = rotations[parent].inv().apply(positions[node] - positions[parent])
+            bones[node] = Rotation.from_quat(quats[parent]).inv().apply(
+                positions[node] - positions[parent])
             offsets.append(bones[node].mean(axis=0))
             local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
                                               quats[node])
