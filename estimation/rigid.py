@@ -24,7 +24,7 @@ each group of joints, vectorised over frames).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Final
+from typing import Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,7 +45,8 @@ MIN_SD_M: Final[float] = 0.0005
 TOLERANCE_M: Final[float] = 1e-9
 """Largest distance error left by :func:`hold_distances` (metres)."""
 
-MAX_ITERATIONS: Final[int] = 12
+MAX_ITERATIONS: Final[int] = 30
+"""Most Gauss–Newton steps of :func:`hold_distances`."""
 
 PELVIS: Final[tuple[str, str, str]] = ("waist", "l_hip", "r_hip")
 LIMB_CHAINS: Final[dict[str, tuple[str, ...]]] = {
@@ -68,7 +69,8 @@ def hold_distances(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
         P points per frame, metres.
     sd : ndarray, shape (P,)
         How far each may move, metres: the correction minimises ``Σ_p |δ_p|² / sd_p²``
-        (Gauss–Newton, linearised each iteration). Zero: the point stays (an anchor).
+        (Gauss–Newton, linearised each iteration, a step halved until it lowers the
+        sum of squared distance errors). Zero: the point stays (an anchor).
     pairs : sequence of (int, int)
         M pairs of point indices.
     lengths : ndarray, shape (M,)
@@ -78,28 +80,60 @@ def hold_distances(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
     -------
     ndarray, shape (F, P, 3)
         The moved points; every pair at its length within ``TOLERANCE_M`` where the
-        constraints are consistent (a chain, a triangle of possible side lengths).
+        constraints can be met (a chain, a triangle of possible side lengths) and
+        ``MAX_ITERATIONS`` suffice (bones off by centimetres take 3 or 4).
     """
     out = np.array(points, dtype=float)
     var = np.asarray(sd, dtype=float) ** 2
-    first = np.array([i for i, _ in pairs])
-    second = np.array([j for _, j in pairs])
     sign = np.zeros((len(pairs), out.shape[1]))
-    sign[np.arange(len(pairs)), first] -= 1.0
-    sign[np.arange(len(pairs)), second] += 1.0
-    shared = (sign * var) @ sign.T  # (M, M): Σ_p S_mp S_np sd_p²
-    weights = sign * var  # (M, P)
+    for m, (i, j) in enumerate(pairs):
+        sign[m, i] -= 1.0
+        sign[m, j] += 1.0
+    system = _Constraints(sign, (sign * var) @ sign.T, sign * var, np.asarray(lengths))
+    todo = np.arange(len(out))
     for _ in range(MAX_ITERATIONS):
-        d = out[:, second] - out[:, first]  # (F, M, 3)
-        r = rows.norms(d)
-        u = d / np.where(r > 0, r, 1.0)[..., None]
-        g = r - lengths
-        if float(np.abs(g).max(initial=0.0)) <= TOLERANCE_M:
+        g, u = system.residual(out[todo])
+        keep = np.abs(g).max(axis=1, initial=0.0) > TOLERANCE_M
+        todo, g, u = todo[keep], g[keep], u[keep]
+        if not len(todo):
             break
-        a = np.einsum("fmk,fnk->fmn", u, u) * shared
-        lam = np.linalg.solve(a, g[..., None])[..., 0]  # (F, M)
-        out -= np.einsum("mp,fm,fmk->fpk", weights, lam, u)
+        out[todo] = system.step(out[todo], g, u)
     return out
+
+
+class _Constraints(NamedTuple):
+    """The distance constraints of :func:`hold_distances`: ``sign`` (M, P) ±1 at each
+    pair's points, ``shared`` (M, M) ``Σ_p S_mp S_np sd_p²``, ``weights`` (M, P)
+    ``S_mp sd_p²`` and ``lengths`` (M,)."""
+
+    sign: Float
+    shared: Float
+    weights: Float
+    lengths: Float
+
+    def residual(self, points: Float) -> tuple[Float, Float]:
+        """Distance errors (F, M) and unit pair directions (F, M, 3) of ``points``."""
+        d = np.einsum("mp,fpk->fmk", self.sign, points)
+        r = rows.norms(d)
+        return r - self.lengths, d / np.where(r > 0, r, 1.0)[..., None]
+
+    def step(self, points: Float, g: Float, u: Float) -> Float:
+        """``points`` after one Gauss–Newton step, halved (up to 10 times) in the frames
+        where the whole step does not lower the sum of squared errors (a frame none lowers
+        stays)."""
+        a = np.einsum("fmk,fnk->fmn", u, u) * self.shared
+        lam = np.linalg.solve(a, g[..., None])[..., 0]
+        move = np.einsum("mp,fm,fmk->fpk", self.weights, lam, u)
+        before = rows.dots(g, g)
+        scale = np.ones(len(points))
+        for _ in range(10):
+            trial = self.residual(points - scale[:, None, None] * move)[0]
+            worse = rows.dots(trial, trial) >= before
+            if not worse.any():
+                break
+            scale[worse] *= 0.5
+        scale[worse] = 0.0
+        return points - scale[:, None, None] * move
 
 
 def clavicle_heights(chest: Float, neck: Float, l_shoulder: Float, r_shoulder: Float
