@@ -133,7 +133,7 @@ class _Constraints(NamedTuple):
                 break
             scale[worse] *= 0.5
         scale[worse] = 0.0
-        return points - scale[:, None, None] * move
+        return np.asarray(points - scale[:, None, None] * move)
 
 
 def clavicle_heights(chest: Float, neck: Float, l_shoulder: Float, r_shoulder: Float

@@ -22,7 +22,6 @@ from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion,
 from bonefit.estimation.skeleton import estimate_skeleton
 from tests.estimation.test_io_skeleton import rigid_result
 
-
 LIMB_BONES = {seg: BONES[seg] for limb in LIMBS.values() for seg in limb.segments[:2]}
 
 
@@ -109,7 +108,7 @@ def test_the_rigid_step_brings_a_noisy_rigid_take_closer_to_its_truth(seed: int)
         assert np.ptp(np.linalg.norm(held[f"{side}_shoulder"] - point, axis=-1)) < 1e-8
 
 
-@pytest.mark.parametrize("n_sensors, seed", [(15, 11), (11, 11), (15, 4)])
+@pytest.mark.parametrize(("n_sensors", "seed"), [(15, 11), (11, 11), (15, 4)])
 def test_the_rigid_step_does_not_worsen_an_estimate(
         n_sensors: int, seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
     rec, truth = simulate_sensors(example_motion(300, fps=60.0, seed=seed % 7),
