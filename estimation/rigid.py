@@ -5,8 +5,8 @@ and the pelvis' three joints change shape, though the body's bones do not. This 
 the estimate moves every joint the least, weighted by how poorly the data locate it, so that
 
 - the pelvis (waist and hips) keeps one shape (its three distances constant), the root
-  staying their centroid and the chest moving with the waist (``|chest − waist|`` is
-  constant by eq. 1);
+  staying their centroid and the chest moving with the waist at a constant distance
+  (eq. 1's α);
 - the neck keeps its distance from the chest;
 - each shoulder keeps its distance from its clavicle point ``chest + h·û`` on the chest–neck
   line (``û``), with ``h`` fitted per side (:func:`clavicle_heights`): a real shoulder
@@ -215,7 +215,9 @@ def rigid_paths(joints: Mapping[str, Float], sd: Mapping[str, float]) -> dict[st
     shift = pelvis[0] - out["waist"]
     out.update(zip(PELVIS, pelvis, strict=True))
     out["root"] = (pelvis[0] + pelvis[1] + pelvis[2]) / 3.0
-    out["chest"] = out["chest"] + shift  # |chest − waist| stays eq. 1's α
+    # the chest moves with the waist, at eq. 1's constant distance α from it (which the
+    # smoothing of the paths may have let vary by a fraction of a millimetre)
+    out["chest"] = _held([out["waist"], out["chest"] + shift], [0.0, MIN_SD_M], ((0, 1),))[1]
     out["neck"] = _held([out["chest"], out["neck"]], [0.0, _sd_of(sd, "neck")], ((0, 1),))[1]
     heights = clavicle_heights(out["chest"], out["neck"], out["l_shoulder"], out["r_shoulder"])
     anchors = dict(zip(("l_shoulder", "r_shoulder"),
