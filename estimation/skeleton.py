@@ -1326,7 +1326,9 @@ def estimate_skeleton(
     -----
     The steps: ``skeleton_options`` and ``check_recording``, ``locate_joints`` (``sensors_used``,
     ``skeleton_context``, ``locate_torso``, ``mirror_torso``, ``derived_torso``,
-    ``locate_limbs``) and ``skeleton_result`` (smoothing, bone lengths, orientations).
+    ``locate_limbs``) and ``skeleton_result`` (smoothing; with ``auto``, the paths held on a
+    rigid tree of bones, ``rigid.rigid_paths``, so that the BVH says what the joints say;
+    bone lengths, orientations).
 
     Miura, Kaiga, Tajima, Shibata & Tamamoto, "Sensor Number Reduction in Skeleton
     Estimation from Magnetic Motion Capture Data", J. Inf. Process. 23(5):704–707 (2015);
@@ -1349,7 +1351,8 @@ def skeleton_result(recording: SensorRecording, options: SkeletonOptions,
                     sensors: SensorPoses, located: LocatedJoints, *, report: Progress,
                     started: float) -> SkeletonResult:
     """``estimate_skeleton``'s result from the located joints: the paths completed
-    (``_smoothed``, ``_completed``: bone lengths, orientations; ``report(fraction,
+    (``_smoothed``; with ``auto``, ``rigid.rigid_paths`` weighted by each joint's
+    ``data_sd_m``; ``_completed``: bone lengths, orientations; ``report(fraction,
     "orientations")``), ``started`` the ``time.perf_counter()`` of the call."""
     completed = _smoothed(located.joints, recording.fps, smooth=options.smooth, report=report)
     if options.method == "auto":

@@ -3,7 +3,8 @@ readers, numpy only, are in ``io.result_json`` and importable from here).
 
 The JSON layout is a contract for scripted clients and is documented in
 ``docs/skeleton-io.md``; the BVH hierarchy is rooted at the ``root`` joint with one node per
-joint, driven by the orientation of the segment that joint moves.
+joint, driven by the orientation of the segment that joint moves, and a clavicle node above
+each shoulder.
 """
 
 from __future__ import annotations
@@ -474,9 +475,9 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
 @dataclass(frozen=True, eq=False)
 class _Nodes:
     """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
-    segment frame (metres) and, per node that turns, its rotation relative to its parent's
-    segment (scalar-last quaternions, F × 4) and, below the root, its joint as seen from the
-    parent's segment frame in every frame (F × 3, metres; the OFFSET is its mean)."""
+    node frame (metres) and, per node that turns, its rotation relative to its parent's
+    node frame (scalar-last quaternions, F × 4) and, below the root, its path as seen from
+    the parent's node frame in every frame (F × 3, metres; the OFFSET is its mean)."""
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
@@ -589,22 +590,30 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
-    shoulder → elbow → wrist (hand end site) per side; ``root`` → hip → knee → ankle (toe end
-    site) per side. Each node turns with the segment it drives (root: pelvis, waist: spine,
-    chest: chest, neck: head, shoulder: upper arm, elbow: forearm, wrist: hand, hip: thigh,
-    knee: shank, ankle: foot). A node's frame is its segment's frame turned by a constant rest
-    rotation ``C`` (``bonefit.estimation.bvh.rest_euler_channels``): identity (the segment frame,
-    upright, arms down, at rest) or the one that makes the take's mean pose of the node,
-    relative to its parent, the rest pose, whichever plays back better between frames.
-    A node's OFFSET is ``C_parentᵀ`` times the frame mean of ``R_seg(t)ᵀ (child(t) −
-    joint(t))``. Rotation channels hold ``C_parentᵀ R_parent(t)⁻¹ R_seg(t) C`` as intrinsic
-    Euler angles in degrees, in an order per node that keeps its channels off gimbal lock,
-    unwrapped over time; the root's position channels hold the ``root`` joint and its OFFSET
-    is zero, so readers that add position channels to the OFFSET (three.js) and readers that
-    replace it (Blender) agree.
+    clavicle → shoulder → elbow → wrist (hand end site) per side; ``root`` → hip → knee →
+    ankle (toe end site) per side (``skeleton_tree``). Each joint's node turns with the
+    segment it drives (root: pelvis, waist: spine, chest: chest, neck: head, shoulder: upper
+    arm, elbow: forearm, wrist: hand, hip: thigh, knee: shank, ankle: foot) turned by the
+    smallest swing (no twist about the OFFSET) that puts its first child on the child's
+    path: ``Q(t) = R_seg(t) S(t)``. A clavicle node (``CLAVICLES``) sits at its shoulder's
+    clavicle point on the chest–neck line (``rigid.clavicle_heights``) and turns with the
+    chest's node swung onto the shoulder. A node's frame in the file is ``Q`` turned by a
+    constant rest rotation ``C`` (``bonefit.estimation.bvh.rest_euler_channels``): identity
+    or the one that makes the take's mean pose of the node, relative to its parent, the
+    rest pose, whichever plays back better between frames. A node's OFFSET is ``C_parentᵀ``
+    times the frame mean of ``Q_parent(t)ᵀ (node(t) − parent(t))``. Rotation channels hold
+    ``C_parentᵀ Q_parent(t)⁻¹ Q(t) C`` as intrinsic Euler angles in degrees, in an order
+    per node that keeps its channels off gimbal lock, unwrapped over time; the root's
+    position channels hold the ``root`` joint and its OFFSET is zero, so readers that add
+    position channels to the OFFSET (three.js) and readers that replace it (Blender) agree.
+
+    Every joint is where the result has it when the result's paths lie on a rigid tree of
+    bones, as ``auto`` estimates' do (``rigid.rigid_paths``): constant limb bone lengths,
+    neck–chest and chest–waist distances, shoulder–clavicle-point distances and pelvis
+    shape. Otherwise the joints are off by the variation of those distances.
 
     With ``slip_chains``, a joint ever over ``SLIP_TOL_M`` off where that rigid skeleton puts
-    it (an estimate's bone lengths vary by millimetres) hangs from a slip chain
+    it (the papers' methods' bone lengths vary by millimetres) hangs from a slip chain
     (``bvh.slip_chain``): three rotation-only nodes that carry it to its position and turn
     back exactly, at the frames and between them, so every reader places it as the result.
 
@@ -623,14 +632,14 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
     slip_chains : bool
-        Add slip chains. Off by default: 3 extra nodes above most joints (a 3.5x bigger file);
-        animation tools expect the rigid skeleton of mean OFFSETs.
+        Add slip chains where a joint strays (none on a rigid result). Off by default: 3
+        extra nodes above a joint; animation tools expect the rigid skeleton.
 
     Returns
     -------
     BvhMotion
-        Nodes in ``BVH_NODES`` order with end sites ``<node>_end`` after their parents and
-        a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``), if
+        Nodes in ``skeleton_tree`` order with end sites ``<node>_end`` after their parents
+        and a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``), if
         any, just before it.
 
     Raises
@@ -764,9 +773,9 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
         Rest pose: per node the better playing of segment frame and mean pose, or every
         node in its segment frame.
     slip_chains : bool
-        Put every joint exactly where the JSON has it, through slip chains (see
-        :func:`skeleton_to_bvh`); by default the rigid skeleton, off the JSON's joints by
-        their residuals.
+        Put every joint exactly where the JSON has it, through slip chains where the result
+        is not rigid (see :func:`skeleton_to_bvh`); by default the rigid skeleton, exact
+        for ``auto`` estimates, off other results' joints by their bone-length variation.
     """
     write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest,
                               slip_chains=slip_chains), path, precision=precision)
