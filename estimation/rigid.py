@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from . import _rows as rows
 
 __all__ = ["DEFAULT_SD_M", "MIN_SD_M", "clavicle_heights", "clavicle_points",
-           "hold_distances", "rigid_paths"]
+           "hold_distances", "hold_distances_rows", "rigid_paths"]
 
 Float = NDArray[np.float64]
 
@@ -42,8 +42,10 @@ DEFAULT_SD_M: Final[float] = 0.01
 MIN_SD_M: Final[float] = 0.0005
 """The least sd a joint is given (metres), so that none is taken as exact."""
 
-TOLERANCE_M: Final[float] = 1e-9
-"""Largest distance error left by :func:`hold_distances` (metres)."""
+TOLERANCE_M: Final[float] = 1e-6
+"""Largest distance error left by :func:`hold_distances` (metres): the JSON's resolution (its
+positions have 6 decimals of a metre), reached in two Gauss–Newton steps when the bones are
+off by millimetres."""
 
 MAX_ITERATIONS: Final[int] = 30
 """Most Gauss–Newton steps of :func:`hold_distances`."""
@@ -72,7 +74,7 @@ def hold_distances(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
         (Gauss–Newton, linearised each iteration, a step halved until it lowers the
         sum of squared distance errors). Zero: the point stays (an anchor).
     pairs : sequence of (int, int)
-        M pairs of point indices.
+        M ≤ 3 pairs of point indices.
     lengths : ndarray, shape (M,)
         The distance each pair keeps, metres.
 
@@ -83,57 +85,126 @@ def hold_distances(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
         constraints can be met (a chain, a triangle of possible side lengths) and
         ``MAX_ITERATIONS`` suffice (bones off by centimetres take 3 or 4).
     """
-    out = np.array(points, dtype=float)
+    held = hold_distances_rows(np.ascontiguousarray(np.transpose(points, (2, 1, 0)),
+                                                    dtype=float), sd, pairs, lengths)
+    return np.ascontiguousarray(np.transpose(held, (2, 1, 0)))
+
+
+def hold_distances_rows(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
+                        lengths: Float) -> Float:
+    """:func:`hold_distances` of points given component-major, (3, P, F): every operation
+    runs over the frames in contiguous rows. ``points`` is changed in place and returned."""
     var = np.asarray(sd, dtype=float) ** 2
-    sign = np.zeros((len(pairs), out.shape[1]))
-    for m, (i, j) in enumerate(pairs):
-        sign[m, i] -= 1.0
-        sign[m, j] += 1.0
-    system = _Constraints(sign, (sign * var) @ sign.T, sign * var, np.asarray(lengths))
-    todo = np.arange(len(out))
+    system = _Constraints(tuple(pairs), tuple(float(v) for v in var),
+                          np.asarray(lengths, dtype=float))
+    out = points
+    g, u = system.residual(out)
+    todo: NDArray[np.intp] | None = None  # None: every frame
     for _ in range(MAX_ITERATIONS):
-        g, u = system.residual(out[todo])
-        keep = np.abs(g).max(axis=1, initial=0.0) > TOLERANCE_M
-        todo, g, u = todo[keep], g[keep], u[keep]
-        if not len(todo):
+        keep = np.abs(g).max(axis=0, initial=0.0) > TOLERANCE_M
+        if not keep.any():
             break
-        out[todo] = system.step(out[todo], g, u)
+        if todo is None and keep.mean() > 0.25:
+            # most frames still off: step them all (a step moves a converged frame by
+            # less than the tolerance) rather than gather and scatter them
+            out, g, u = system.step(out, g, u)
+            continue
+        todo = np.flatnonzero(keep) if todo is None else todo[keep]
+        moved, g, u = system.step(out[:, :, todo], g[:, keep], u[:, :, keep])
+        out[:, :, todo] = moved
     return out
 
 
 class _Constraints(NamedTuple):
-    """The distance constraints of :func:`hold_distances`: ``sign`` (M, P) ±1 at each
-    pair's points, ``shared`` (M, M) ``Σ_p S_mp S_np sd_p²``, ``weights`` (M, P)
-    ``S_mp sd_p²`` and ``lengths`` (M,)."""
+    """The distance constraints of :func:`hold_distances`: the pairs, each point's variance
+    and the lengths. Arrays are component-major: points (3, P, F), errors (M, F), unit
+    pair directions (3, M, F)."""
 
-    sign: Float
-    shared: Float
-    weights: Float
+    pairs: tuple[tuple[int, int], ...]
+    var: tuple[float, ...]
     lengths: Float
 
     def residual(self, points: Float) -> tuple[Float, Float]:
-        """Distance errors (F, M) and unit pair directions (F, M, 3) of ``points``."""
-        d = np.einsum("mp,fpk->fmk", self.sign, points)
-        r = rows.norms(d)
-        return r - self.lengths, d / np.where(r > 0, r, 1.0)[..., None]
+        """Distance errors (M, F) and unit pair directions (3, M, F) of ``points``."""
+        d = np.empty((3, len(self.pairs), points.shape[2]))
+        for m, (i, j) in enumerate(self.pairs):
+            np.subtract(points[:, j], points[:, i], out=d[:, m])
+        r = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        d /= np.where(r > 0, r, 1.0)
+        r -= self.lengths[:, None]
+        return r, d
 
-    def step(self, points: Float, g: Float, u: Float) -> Float:
+    def step(self, points: Float, g: Float, u: Float) -> tuple[Float, Float, Float]:
         """``points`` after one Gauss–Newton step, halved (up to 10 times) in the frames
-        where the whole step does not lower the sum of squared errors (a frame none lowers
-        stays)."""
-        a = np.einsum("fmk,fnk->fmn", u, u) * self.shared
-        lam = np.linalg.solve(a, g[..., None])[..., 0]
-        move = np.einsum("mp,fm,fmk->fpk", self.weights, lam, u)
-        before = rows.dots(g, g)
-        scale = np.ones(len(points))
+        where the whole step does not lower the sum of squared errors (a frame none
+        lowers stays), and their errors and directions."""
+        lam = _solve_small(self.normal_matrix(u), g)
+        trial = points.copy()
+        push = np.empty(u.shape[::2])
+        for m, (i, j) in enumerate(self.pairs):
+            for p, sign in ((j, -1.0), (i, 1.0)):
+                if self.var[p]:
+                    np.multiply(u[:, m], (sign * self.var[p]) * lam[m], out=push)
+                    trial[:, p] += push
+        g_new, u_new = self.residual(trial)
+        worse = np.flatnonzero(np.einsum("mf,mf->f", g_new, g_new)
+                               >= np.einsum("mf,mf->f", g, g))
+        if len(worse):  # rare: a step too long for the curvature
+            before, move = g[:, worse], trial[:, :, worse] - points[:, :, worse]
+            trial[:, :, worse], g_new[:, worse], u_new[:, :, worse] = self.halved(
+                points[:, :, worse], move, before)
+        return trial, g_new, u_new
+
+    def halved(self, points: Float, move: Float, before: Float
+               ) -> tuple[Float, Float, Float]:
+        """``points + s·move`` with ``s`` halved from 1/2 until the squared errors fall
+        below ``before``'s (0 where ten halvings do not), and its errors and directions."""
+        scale = np.full(points.shape[2], 0.5)
+        target = np.einsum("mf,mf->f", before, before)
         for _ in range(10):
-            trial = self.residual(points - scale[:, None, None] * move)[0]
-            worse = rows.dots(trial, trial) >= before
+            g = self.residual(points + scale * move)[0]
+            worse = np.einsum("mf,mf->f", g, g) >= target
             if not worse.any():
                 break
             scale[worse] *= 0.5
         scale[worse] = 0.0
-        return np.asarray(points - scale[:, None, None] * move)
+        trial = points + scale * move
+        return (trial, *self.residual(trial))
+
+    def normal_matrix(self, u: Float) -> Float:
+        """``J W Jᵀ`` (M, M, F): ``(u_m · u_n) Σ_p S_mp S_np sd_p²``, S the ±1 of each
+        pair's points."""
+        size = len(self.pairs)
+        a = np.empty((size, size, u.shape[2]))
+        for m, pm in enumerate(self.pairs):
+            for n in range(m, size):
+                pn = self.pairs[n]
+                shared = sum((1.0 if (pm.index(p) == pn.index(p)) else -1.0) * self.var[p]
+                             for p in set(pm) & set(pn))
+                a[m, n] = a[n, m] = shared * np.einsum("kf,kf->f", u[:, m], u[:, n])
+        return a
+
+
+def _solve_small(a: Float, b: Float) -> Float:
+    """``x`` with ``a[:, :, f] x[:, f] = b[:, f]`` for every frame f, ``a`` symmetric, M ≤ 3
+    (Cramer's rule; a singular frame gets x = 0)."""
+    size = a.shape[0]
+    if size == 1:
+        return np.asarray(b / np.where(a[0, 0] != 0, a[0, 0], np.inf))
+    if size == 2:
+        det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+        inv = 1.0 / np.where(det != 0, det, np.inf)
+        return np.stack([(a[1, 1] * b[0] - a[0, 1] * b[1]) * inv,
+                         (a[0, 0] * b[1] - a[1, 0] * b[0]) * inv])
+    # a is symmetric: x = adj(a) b / det(a), the adjugate from its six distinct entries
+    p, q, r, s, t, w = a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2]
+    c00, c01, c02 = s * w - t * t, r * t - q * w, q * t - r * s
+    c11, c12, c22 = p * w - r * r, q * r - p * t, p * s - q * q
+    det = p * c00 + q * c01 + r * c02
+    inv = 1.0 / np.where(det != 0, det, np.inf)
+    return np.stack([(c00 * b[0] + c01 * b[1] + c02 * b[2]) * inv,
+                     (c01 * b[0] + c11 * b[1] + c12 * b[2]) * inv,
+                     (c02 * b[0] + c12 * b[1] + c22 * b[2]) * inv])
 
 
 def clavicle_heights(chest: Float, neck: Float, l_shoulder: Float, r_shoulder: Float
@@ -184,11 +255,22 @@ def _sd_of(sd: Mapping[str, float], name: str) -> float:
 
 def _held(points: Sequence[Float], sd: Sequence[float], pairs: Sequence[tuple[int, int]]
           ) -> list[Float]:
-    """:func:`hold_distances` of these paths at their mean pair distances."""
-    stacked = np.stack(points, axis=1)
-    lengths = np.array([rows.norms(stacked[:, j] - stacked[:, i]).mean() for i, j in pairs])
-    held = hold_distances(stacked, np.asarray(sd), pairs, lengths)
-    return [held[:, k] for k in range(len(points))]
+    """:func:`hold_distances` of these paths (F, 3) at their mean pair distances."""
+    stacked = np.stack([p.T for p in points], axis=1)  # (3, P, F)
+    lengths = np.array([np.sqrt(((stacked[:, j] - stacked[:, i]) ** 2).sum(axis=0)).mean()
+                        for i, j in pairs])
+    held = hold_distances_rows(stacked, np.asarray(sd), pairs, lengths)
+    return [np.ascontiguousarray(held[:, k].T) for k in range(len(points))]
+
+
+def _radial(anchor: Float, point: Float) -> Float:
+    """``point`` (F, 3) moved along its direction from ``anchor`` to their mean distance:
+    :func:`hold_distances` of one pair with the anchor fixed, in closed form."""
+    d = point - anchor
+    r = rows.norms(d)
+    d *= (r.mean() / np.where(r > 0, r, 1.0))[:, None]
+    d += anchor
+    return d
 
 
 def rigid_paths(joints: Mapping[str, Float], sd: Mapping[str, float]) -> dict[str, Float]:
@@ -217,8 +299,8 @@ def rigid_paths(joints: Mapping[str, Float], sd: Mapping[str, float]) -> dict[st
     out["root"] = (pelvis[0] + pelvis[1] + pelvis[2]) / 3.0
     # the chest moves with the waist, at eq. 1's constant distance α from it (which the
     # smoothing of the paths may have let vary by a fraction of a millimetre)
-    out["chest"] = _held([out["waist"], out["chest"] + shift], [0.0, MIN_SD_M], ((0, 1),))[1]
-    out["neck"] = _held([out["chest"], out["neck"]], [0.0, _sd_of(sd, "neck")], ((0, 1),))[1]
+    out["chest"] = _radial(out["waist"], out["chest"] + shift)
+    out["neck"] = _radial(out["chest"], out["neck"])
     heights = clavicle_heights(out["chest"], out["neck"], out["l_shoulder"], out["r_shoulder"])
     anchors = dict(zip(("l_shoulder", "r_shoulder"),
                        clavicle_points(out["chest"], out["neck"], heights), strict=True))

@@ -42,7 +42,7 @@ def test_held_distances_are_met_and_anchors_stay() -> None:
     lengths = np.array([0.3, 0.28, 0.25])
     held = hold_distances(chain, np.array([0.0, 0.002, 0.05, 0.003]), pairs, lengths)
     np.testing.assert_allclose(distances(held, pairs), np.broadcast_to(lengths, (500, 3)),
-                               atol=1e-9)
+                               atol=2e-6)
     np.testing.assert_array_equal(held[:, 0], chain[:, 0])
     # the poorly located joint takes most of the correction
     moved = np.linalg.norm(held - chain, axis=-1).mean(axis=0)
@@ -59,7 +59,7 @@ def test_a_triangle_keeps_its_shape() -> None:
     true = distances(points, pairs)[0]
     held = hold_distances(noisy, np.full(3, 0.003), pairs, true)
     np.testing.assert_allclose(distances(held, pairs), np.broadcast_to(true, (300, 3)),
-                               atol=1e-9)
+                               atol=2e-6)
     # the least movement onto the true shape: closer to the truth than the noisy points
     assert (np.linalg.norm(held - points, axis=-1).mean()
             < np.linalg.norm(noisy - points, axis=-1).mean())
@@ -99,13 +99,13 @@ def test_the_rigid_step_brings_a_noisy_rigid_take_closer_to_its_truth(seed: int)
     # every bone of the tree keeps its length, the pelvis its shape
     for seg, (a, b) in LIMB_BONES.items():
         length = np.linalg.norm(held[b] - held[a], axis=-1)
-        assert np.ptp(length) < 1e-8, seg
+        assert np.ptp(length) < 2e-6, seg
     np.testing.assert_allclose(held["root"], sum(held[j] for j in PELVIS) / 3.0, atol=1e-12)
     heights = clavicle_heights(held["chest"], held["neck"], held["l_shoulder"],
                                held["r_shoulder"])
     for point, side in zip(clavicle_points(held["chest"], held["neck"], heights), "lr",
                            strict=True):
-        assert np.ptp(np.linalg.norm(held[f"{side}_shoulder"] - point, axis=-1)) < 1e-8
+        assert np.ptp(np.linalg.norm(held[f"{side}_shoulder"] - point, axis=-1)) < 2e-6
 
 
 @pytest.mark.parametrize(("n_sensors", "seed"), [(15, 11), (11, 11), (15, 4)])
@@ -126,7 +126,7 @@ def test_the_rigid_step_does_not_worsen_an_estimate(
     assert after <= before + 1e-4, (after, before)
     for seg, (a, b) in LIMB_BONES.items():
         length = np.linalg.norm(rigid.joints[b] - rigid.joints[a], axis=-1)
-        assert np.ptp(length) < 1e-8, seg
+        assert np.ptp(length) < 2e-6, seg
         assert rigid.bone_lengths[seg] == pytest.approx(float(length.mean()), abs=1e-12)
 
 
