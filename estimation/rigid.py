@@ -91,16 +91,17 @@ def hold_distances(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
 
 
 def hold_distances_rows(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
-                        lengths: Float) -> Float:
+                        lengths: Float, *, steps: int = MAX_ITERATIONS) -> Float:
     """:func:`hold_distances` of points given component-major, (3, P, F): every operation
-    runs over the frames in contiguous rows. ``points`` is changed in place and returned."""
+    runs over the frames in contiguous rows, at most ``steps`` Gauss–Newton steps.
+    ``points`` is changed in place and returned."""
     var = np.asarray(sd, dtype=float) ** 2
     system = _Constraints(tuple(pairs), tuple(float(v) for v in var),
                           np.asarray(lengths, dtype=float))
     out = points
     g, u = system.residual(out)
     todo: NDArray[np.intp] | None = None  # None: every frame
-    for _ in range(MAX_ITERATIONS):
+    for _ in range(steps):
         keep = np.abs(g).max(axis=0, initial=0.0) > TOLERANCE_M
         if not keep.any():
             break
@@ -306,8 +307,24 @@ def rigid_paths(joints: Mapping[str, Float], sd: Mapping[str, float]) -> dict[st
                        clavicle_points(out["chest"], out["neck"], heights), strict=True))
     anchors.update({"l_hip": out["l_hip"], "r_hip": out["r_hip"]})
     for anchor, chain in LIMB_CHAINS.items():
-        held = _held([anchors[anchor], *(out[j] for j in chain)],
-                     [0.0, *(_sd_of(sd, j) for j in chain)],
-                     tuple((k, k + 1) for k in range(len(chain))))
-        out.update(zip(chain, held[1:], strict=True))
+        out.update(zip(chain, _limb(anchors[anchor], [out[j] for j in chain],
+                                    [_sd_of(sd, j) for j in chain]), strict=True))
     return out
+
+
+def _limb(anchor: Float, joints: Sequence[Float], sd: Sequence[float]) -> list[Float]:
+    """A limb's joints (F, 3) held at their mean bone lengths from a fixed ``anchor``: one
+    weighted Gauss–Newton step (bones off by millimetres come within micrometres), then
+    each joint put at its bone's length from the one above it along their direction."""
+    stacked = np.stack([anchor.T, *(p.T for p in joints)], axis=1)  # (3, P, F)
+    pairs = tuple((k, k + 1) for k in range(len(joints)))
+    lengths = np.array([np.sqrt(((stacked[:, j] - stacked[:, i]) ** 2).sum(axis=0)).mean()
+                        for i, j in pairs])
+    held = hold_distances_rows(stacked, np.array([0.0, *sd]), pairs, lengths, steps=1)
+    out = [anchor]
+    for k, length in enumerate(lengths):
+        bone = np.ascontiguousarray(held[:, k + 1].T) - out[-1]
+        bone *= (length / np.maximum(rows.norms(bone), 1e-300))[:, None]
+        bone += out[-1]
+        out.append(bone)
+    return out[1:]

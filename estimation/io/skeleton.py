@@ -503,23 +503,38 @@ def skeleton_tree() -> tuple[tuple[str, str | None], ...]:
     return tuple(out)
 
 
-def _swung(base: NDArray[np.float64], target: NDArray[np.float64]
-           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _in_frame(quats: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``R(t)ᵀ v(t)``: vectors ``v`` (F × 3) in the frames of the rotations ``quats``
+    (scalar-last, F × 4), without building a ``Rotation`` (``v + w·t + u × t``,
+    ``t = 2 u × v``, ``u`` the negated vector part)."""
+    u = -quats[:, :3]
+    t = np.cross(u, v)
+    t *= 2.0
+    out = np.cross(u, t)
+    out += v
+    out += quats[:, 3:] * t
+    return out
+
+
+def _swung(base: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
     """``base`` (scalar-last quaternions, F × 4) turned, in its own frame, by the smallest
     rotation that takes the mean direction ``m`` of ``target`` (F × 3, world) in it onto
-    the target's direction in every frame, and ``m`` (3,): so the turned frame holds the
-    target along ``m`` exactly, its twist about ``m`` kept."""
-    local = Rotation.from_quat(base).inv().apply(target)
+    the target's direction in every frame: the turned frame holds the target along ``m``
+    exactly, its twist about ``m`` kept. ``base`` itself where it already does (a limb
+    segment's y axis runs along its bone)."""
+    local = _in_frame(base, target)
     local /= np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-300)
     mean = local.mean(axis=0)
     mean /= max(float(np.linalg.norm(mean)), 1e-300)
+    if float(np.abs(local - mean).max(initial=0.0)) <= 1e-12:
+        return base
     swing = np.empty((len(local), 4))
     swing[:, :3] = np.cross(mean, local)
     swing[:, 3] = 1.0 + local @ mean
     flip = swing[:, 3] <= 1e-12  # opposite directions: a half turn about any axis ⟂ m
     swing[flip] = [*np.cross(mean, np.eye(3)[int(np.argmin(np.abs(mean)))]), 0.0]
     swing /= np.linalg.norm(swing, axis=1, keepdims=True)
-    return compose_quaternions(base, swing), mean
+    return compose_quaternions(base, swing)
 
 
 def _node_positions(result: SkeletonResult) -> dict[str, NDArray[np.float64]]:
@@ -548,7 +563,7 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     for node, parent in tree:
         base = (_rotation(result, driver[node]).as_quat() if node in driver
                 else quats[str(parent)])
-        quats[node] = (_swung(base, positions[children[node][0]] - positions[node])[0]
+        quats[node] = (_swung(base, positions[children[node][0]] - positions[node])
                        if children[node] else base)
     names: list[str] = []
     parents: list[int] = []
@@ -568,8 +583,7 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            bones[node] = Rotation.from_quat(quats[parent]).inv().apply(
-                positions[node] - positions[parent])
+            bones[node] = _in_frame(quats[parent], positions[node] - positions[parent])
             offsets.append(bones[node].mean(axis=0))
             local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
                                               quats[node])
