@@ -18,7 +18,11 @@ Then a BVH whose nodes turn by the segment orientations (corrected by the smalle
 puts every joint exactly where the paths have it (``io.skeleton.skeleton_to_bvh``: a
 clavicle node per side). The lengths held are the frame means of the paths' own; the
 corrections are the weighted least-norm ones (Gauss–Newton on the distance constraints of
-each group of joints, vectorised over frames).
+each group of joints, vectorised over frames: the pelvis to within ``TOLERANCE_M``; a limb,
+hanging from a fixed anchor, one step and then each joint put at its bone's length along
+its direction, which finishes it exactly). The chest and the neck move along their
+directions from the waist and the chest. Only ``auto`` takes this step: the papers' methods
+stay as published.
 """
 
 from __future__ import annotations
