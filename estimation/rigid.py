@@ -2,7 +2,8 @@
 
 The located joints move frame to frame by millimetres against each other: bone lengths vary,
 and the pelvis' three joints change shape, though the body's bones do not. This last step of
-the estimate moves every joint the least, weighted by how poorly the data locate it, so that
+the estimate moves every joint the least, weighted by how far it strays from frame to frame,
+so that
 
 - the pelvis (waist and hips) keeps one shape (its three distances constant), the root
   staying their centroid and the chest moving with the waist at a constant distance
@@ -41,7 +42,8 @@ __all__ = ["DEFAULT_SD_M", "MIN_SD_M", "clavicle_heights", "clavicle_points",
 Float = NDArray[np.float64]
 
 DEFAULT_SD_M: Final[float] = 0.01
-"""Weight of a joint without ``data_sd_m`` (metres): as poorly located as a prior."""
+"""Weight of a joint without a reported sd (metres): as much as the most disagreeing joints'
+``rms_residual_m`` (5–10 mm on the benchmark)."""
 
 MIN_SD_M: Final[float] = 0.0005
 """The least sd a joint is given (metres), so that none is taken as exact."""
@@ -287,8 +289,9 @@ def rigid_paths(joints: Mapping[str, Float], sd: Mapping[str, float]) -> dict[st
     joints : mapping of str to ndarray, shape (F, 3)
         The 16 joints of ``model.JOINTS``, metres, ``root`` the centroid of waist and hips.
     sd : mapping of str to float
-        Per joint, how poorly the data locate it (``data_sd_m``, metres); a joint missing
-        gets ``DEFAULT_SD_M``, every one at least ``MIN_SD_M``.
+        Per joint, how far it strays from frame to frame (``estimate_skeleton`` gives the
+        ``rms_residual_m`` of its two reconstructions), metres; a joint missing gets
+        ``DEFAULT_SD_M``, every one at least ``MIN_SD_M``.
 
     Returns
     -------
