@@ -97,15 +97,20 @@ def hold_distances(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
 
 
 def hold_distances_rows(points: Float, sd: Float, pairs: Sequence[tuple[int, int]],
-                        lengths: Float, *, steps: int = MAX_ITERATIONS) -> Float:
+                        lengths: Float | None, *, steps: int = MAX_ITERATIONS) -> Float:
     """:func:`hold_distances` of points given component-major, (3, P, F): every operation
-    runs over the frames in contiguous rows, at most ``steps`` Gauss–Newton steps.
-    ``points`` is changed in place and returned."""
+    runs over the frames in contiguous rows, at most ``steps`` Gauss–Newton steps; None
+    ``lengths``: each pair's mean distance. ``points`` is changed in place and returned."""
     var = np.asarray(sd, dtype=float) ** 2
     system = _Constraints(tuple(pairs), tuple(float(v) for v in var),
-                          np.asarray(lengths, dtype=float))
+                          np.zeros(len(pairs)) if lengths is None
+                          else np.asarray(lengths, dtype=float))
     out = points
     g, u = system.residual(out)
+    if lengths is None:  # the distances' frame means: g holds the distances themselves
+        mean = g.mean(axis=1)
+        system = system._replace(lengths=mean)
+        g -= mean[:, None]
     todo: NDArray[np.intp] | None = None  # None: every frame
     for _ in range(steps):
         keep = np.abs(g).max(axis=0, initial=0.0) > TOLERANCE_M
@@ -136,8 +141,12 @@ class _Constraints(NamedTuple):
         d = np.empty((3, len(self.pairs), points.shape[2]))
         for m, (i, j) in enumerate(self.pairs):
             np.subtract(points[:, j], points[:, i], out=d[:, m])
-        r = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        d /= np.where(r > 0, r, 1.0)
+        r = d[0] * d[0]
+        r += d[1] * d[1]
+        r += d[2] * d[2]
+        np.sqrt(r, out=r)
+        inv = np.divide(1.0, r, out=np.zeros_like(r), where=r > 0)
+        d *= inv
         r -= self.lengths[:, None]
         return r, d
 
@@ -264,9 +273,7 @@ def _held(points: Sequence[Float], sd: Sequence[float], pairs: Sequence[tuple[in
           ) -> list[Float]:
     """:func:`hold_distances` of these paths (F, 3) at their mean pair distances."""
     stacked = np.stack([p.T for p in points], axis=1)  # (3, P, F)
-    lengths = np.array([np.sqrt(((stacked[:, j] - stacked[:, i]) ** 2).sum(axis=0)).mean()
-                        for i, j in pairs])
-    held = hold_distances_rows(stacked, np.asarray(sd), pairs, lengths)
+    held = hold_distances_rows(stacked, np.asarray(sd), pairs, None)
     return [np.ascontiguousarray(held[:, k].T) for k in range(len(points))]
 
 
@@ -325,9 +332,10 @@ def _limb(anchor: Float, joints: Sequence[Float], sd: Sequence[float]) -> list[F
     each joint put at its bone's length from the one above it along their direction."""
     stacked = np.stack([anchor.T, *(p.T for p in joints)], axis=1)  # (3, P, F)
     pairs = tuple((k, k + 1) for k in range(len(joints)))
-    lengths = np.array([np.sqrt(((stacked[:, j] - stacked[:, i]) ** 2).sum(axis=0)).mean()
-                        for i, j in pairs])
-    held = hold_distances_rows(stacked, np.array([0.0, *sd]), pairs, lengths, steps=1)
+    lengths = [float(rows.norms(b - a).mean()) for a, b in zip([anchor, *joints], joints,
+                                                                   strict=False)]
+    held = hold_distances_rows(stacked, np.array([0.0, *sd]), pairs, np.array(lengths),
+                               steps=1)
     out = [anchor]
     for k, length in enumerate(lengths):
         bone = np.ascontiguousarray(held[:, k + 1].T) - out[-1]
