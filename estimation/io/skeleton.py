@@ -609,27 +609,21 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     segment it drives (root: pelvis, waist: spine, chest: chest, neck: head, shoulder: upper
     arm, elbow: forearm, wrist: hand, hip: thigh, knee: shank, ankle: foot) turned by the
     smallest swing (no twist about the OFFSET) that puts its first child on the child's
-    path: ``Q(t) = R_seg(t) S(t)``. A clavicle node (``CLAVICLES``) sits at its shoulder's
-    clavicle point on the chest–neck line (``rigid.clavicle_heights``) and turns with the
-    chest's node swung onto the shoulder. A node's frame in the file is ``Q`` turned by a
-    constant rest rotation ``C`` (``bonefit.estimation.bvh.rest_euler_channels``): identity
-    or the one that makes the take's mean pose of the node, relative to its parent, the
-    rest pose, whichever plays back better between frames. A node's OFFSET is ``C_parentᵀ``
+    path: ``Q(t) = R_seg(t) S(t)``; a clavicle node (``CLAVICLES``), at its shoulder's
+    clavicle point (``rigid.clavicle_heights``), turns with the chest's swung onto the
+    shoulder. A node's frame in the file is ``Q`` turned by a constant rest rotation ``C``
+    (``bvh.rest_euler_channels``): identity or the take's mean pose of the node relative to
+    its parent, whichever plays back better between frames. A node's OFFSET is ``C_parentᵀ``
     times the frame mean of ``Q_parent(t)ᵀ (node(t) − parent(t))``. Rotation channels hold
     ``C_parentᵀ Q_parent(t)⁻¹ Q(t) C`` as intrinsic Euler angles in degrees, in an order
     per node that keeps its channels off gimbal lock, unwrapped over time; the root's
-    position channels hold the ``root`` joint and its OFFSET is zero, so readers that add
-    position channels to the OFFSET (three.js) and readers that replace it (Blender) agree.
+    position channels hold the ``root`` joint at OFFSET zero (three.js and Blender agree).
 
-    Every joint is where the result has it when the result's paths lie on a rigid tree of
-    bones, as ``auto`` estimates' do (``rigid.rigid_paths``): constant limb bone lengths,
-    neck–chest and chest–waist distances, shoulder–clavicle-point distances and pelvis
-    shape. Otherwise the joints are off by the variation of those distances.
-
-    With ``slip_chains``, a joint ever over ``SLIP_TOL_M`` off where that rigid skeleton puts
-    it (the papers' methods' bone lengths vary by millimetres) hangs from a slip chain
+    Every joint is where the result has it if its paths lie on a rigid tree of bones, as
+    ``auto``'s do (``rigid.rigid_paths``); else off by its bone-length variation. With
+    ``slip_chains``, a joint ever over ``SLIP_TOL_M`` off hangs from a slip chain
     (``bvh.slip_chain``): three rotation-only nodes that carry it to its position and turn
-    back exactly, at the frames and between them, so every reader places it as the result.
+    back exactly, at the frames and between them.
 
     Parameters
     ----------
@@ -639,9 +633,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
     euler_order : str, optional
-        One intrinsic rotation order for every skeleton node (``"ZXY"`` was the only one
-        before per-node orders) for tools that need a single order; by default per node.
-        Slip chains keep their own orders.
+        One intrinsic rotation order for every skeleton node, for tools that need a single
+        order; by default per node. Slip chains keep their own orders.
     rest : {"auto", "segment"}
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
