@@ -113,9 +113,10 @@ def register(sub: Any, summary: str) -> None:
                         help="write the result as JSON")
     parser.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write a BVH file (cm)")
     parser.add_argument("--bvh-slip-chains", action="store_true",
-                        help="in the BVH, put every joint exactly where the JSON has it: three "
-                             "rotation-only slip nodes above each joint whose bone length "
-                             "varies (off: the rigid skeleton of mean bone lengths)")
+                        help="in the BVH, put every joint exactly where the JSON has it even "
+                             "when its bone length varies (the papers' methods, --offsets): "
+                             "three rotation-only slip nodes above it (the default method's "
+                             "joints lie on a rigid skeleton: its BVH is exact without them)")
     parser.add_argument("--csv", default=None, metavar="OUT.csv",
                         help="write joint trajectories as CSV (metres)")
     parser.add_argument("--npz", default=None, metavar="OUT.npz",

@@ -3,7 +3,8 @@ readers, numpy only, are in ``io.result_json`` and importable from here).
 
 The JSON layout is a contract for scripted clients and is documented in
 ``docs/skeleton-io.md``; the BVH hierarchy is rooted at the ``root`` joint with one node per
-joint, driven by the orientation of the segment that joint moves.
+joint, driven by the orientation of the segment that joint moves, and a clavicle node above
+each shoulder.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ from ..numtext import (
 )
 from ..progress import Progress, no_progress
 from ..results import JointOffset, SkeletonResult, timings_document
+from ..rigid import clavicle_heights, clavicle_points
 from .outputs import SkeletonOutputs
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
@@ -473,9 +475,9 @@ def _joint(result: SkeletonResult, name: str) -> NDArray[np.float64]:
 @dataclass(frozen=True, eq=False)
 class _Nodes:
     """The skeleton BVH's nodes before channels: names, parents, OFFSETs in the parent's
-    segment frame (metres) and, per node that turns, its rotation relative to its parent's
-    segment (scalar-last quaternions, F × 4) and, below the root, its joint as seen from the
-    parent's segment frame in every frame (F × 3, metres; the OFFSET is its mean)."""
+    node frame (metres) and, per node that turns, its rotation relative to its parent's
+    node frame (scalar-last quaternions, F × 4) and, below the root, its path as seen from
+    the parent's node frame in every frame (F × 3, metres; the OFFSET is its mean)."""
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
@@ -484,18 +486,88 @@ class _Nodes:
     bones: dict[str, NDArray[np.float64]]
 
 
-def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
-    """Nodes in ``BVH_NODES`` order, end sites ``<node>_end`` after their parents."""
-    rotations = {node: _rotation(result, seg) for node, _, seg in BVH_NODES}
-    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
-    children: dict[str, list[str]] = {node: [] for node, _, _ in BVH_NODES}
+CLAVICLES: Final[dict[str, str]] = {"l_shoulder": "l_clavicle", "r_shoulder": "r_clavicle"}
+"""The node inserted between ``chest`` and each shoulder: at the shoulder's clavicle point on
+the chest–neck line (``rigid.clavicle_heights``), so the shoulder moves on the chest."""
+
+
+def skeleton_tree() -> tuple[tuple[str, str | None], ...]:
+    """The skeleton BVH's (node, parent) pairs, parents first: ``BVH_NODES`` with a
+    clavicle node (``CLAVICLES``) above each shoulder."""
+    out: list[tuple[str, str | None]] = []
     for node, parent, _ in BVH_NODES:
+        if node in CLAVICLES:
+            out.append((CLAVICLES[node], parent))
+            parent = CLAVICLES[node]
+        out.append((node, parent))
+    return tuple(out)
+
+
+def _in_frame(quats: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``R(t)ᵀ v(t)``: vectors ``v`` (F × 3) in the frames of the rotations ``quats``
+    (scalar-last, F × 4), without building a ``Rotation`` (``v + w·t + u × t``,
+    ``t = 2 u × v``, ``u`` the negated vector part)."""
+    u = -quats[:, :3]
+    t = np.cross(u, v)
+    t *= 2.0
+    out = np.cross(u, t)
+    out += v
+    out += quats[:, 3:] * t
+    return out
+
+
+def _swung(base: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``base`` (scalar-last quaternions, F × 4) turned, in its own frame, by the smallest
+    rotation that takes the mean direction ``m`` of ``target`` (F × 3, world) in it onto
+    the target's direction in every frame: the turned frame holds the target along ``m``
+    exactly, its twist about ``m`` kept. ``base`` itself where it already does (a limb
+    segment's y axis runs along its bone)."""
+    local = _in_frame(base, target)
+    local /= np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-300)
+    mean = local.mean(axis=0)
+    mean /= max(float(np.linalg.norm(mean)), 1e-300)
+    if float(np.abs(local - mean).max(initial=0.0)) <= 1e-12:
+        return base
+    swing = np.empty((len(local), 4))
+    swing[:, :3] = np.cross(mean, local)
+    swing[:, 3] = 1.0 + local @ mean
+    flip = swing[:, 3] <= 1e-12  # opposite directions: a half turn about any axis ⟂ m
+    swing[flip] = [*np.cross(mean, np.eye(3)[int(np.argmin(np.abs(mean)))]), 0.0]
+    swing /= np.linalg.norm(swing, axis=1, keepdims=True)
+    return compose_quaternions(base, swing)
+
+
+def _node_positions(result: SkeletonResult) -> dict[str, NDArray[np.float64]]:
+    """Every node's path (F × 3, metres): the joints and the clavicle points."""
+    positions = {node: _joint(result, node) for node, _, _ in BVH_NODES}
+    points = clavicle_points(positions["chest"], positions["neck"], clavicle_heights(
+        positions["chest"], positions["neck"], positions["l_shoulder"],
+        positions["r_shoulder"]))
+    positions.update(zip(CLAVICLES.values(), points, strict=True))
+    return positions
+
+
+def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
+    """Nodes in ``skeleton_tree`` order, end sites ``<node>_end`` after their parents.
+
+    A node's frame is its segment's (a clavicle's: its parent's) turned by ``_swung``
+    toward its first child, which it then holds exactly along its OFFSET's direction."""
+    tree = skeleton_tree()
+    driver = {node: seg for node, _, seg in BVH_NODES}
+    positions = _node_positions(result)
+    children: dict[str, list[str]] = {node: [] for node, _ in tree}
+    for node, parent in tree:
         if parent is not None:
             children[parent].append(node)
+    quats: dict[str, NDArray[np.float64]] = {}
+    for node, parent in tree:
+        base = (_rotation(result, driver[node]).as_quat() if node in driver
+                else quats[str(parent)])
+        quats[node] = (_swung(base, positions[children[node][0]] - positions[node])
+                       if children[node] else base)
     names: list[str] = []
     parents: list[int] = []
     offsets: list[NDArray[np.float64]] = []
-    quats = {node: rotation.as_quat() for node, rotation in rotations.items()}
     local: dict[str, NDArray[np.float64]] = {"root": quats["root"]}
     bones: dict[str, NDArray[np.float64]] = {}
     stack: list[tuple[str, str | None]] = [("root", None)]
@@ -511,7 +583,7 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            bones[node] = rotations[parent].inv().apply(positions[node] - positions[parent])
+            bones[node] = _in_frame(quats[parent], positions[node] - positions[parent])
             offsets.append(bones[node].mean(axis=0))
             local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
                                               quats[node])
@@ -532,24 +604,26 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
-    shoulder → elbow → wrist (hand end site) per side; ``root`` → hip → knee → ankle (toe end
-    site) per side. Each node turns with the segment it drives (root: pelvis, waist: spine,
-    chest: chest, neck: head, shoulder: upper arm, elbow: forearm, wrist: hand, hip: thigh,
-    knee: shank, ankle: foot). A node's frame is its segment's frame turned by a constant rest
-    rotation ``C`` (``bonefit.estimation.bvh.rest_euler_channels``): identity (the segment frame,
-    upright, arms down, at rest) or the one that makes the take's mean pose of the node,
-    relative to its parent, the rest pose, whichever plays back better between frames.
-    A node's OFFSET is ``C_parentᵀ`` times the frame mean of ``R_seg(t)ᵀ (child(t) −
-    joint(t))``. Rotation channels hold ``C_parentᵀ R_parent(t)⁻¹ R_seg(t) C`` as intrinsic
-    Euler angles in degrees, in an order per node that keeps its channels off gimbal lock,
-    unwrapped over time; the root's position channels hold the ``root`` joint and its OFFSET
-    is zero, so readers that add position channels to the OFFSET (three.js) and readers that
-    replace it (Blender) agree.
+    clavicle → shoulder → elbow → wrist (hand end site) per side; ``root`` → hip → knee →
+    ankle (toe end site) per side (``skeleton_tree``). Each joint's node turns with the
+    segment it drives (root: pelvis, waist: spine, chest: chest, neck: head, shoulder: upper
+    arm, elbow: forearm, wrist: hand, hip: thigh, knee: shank, ankle: foot) turned by the
+    smallest swing (no twist about the OFFSET) that puts its first child on the child's
+    path: ``Q(t) = R_seg(t) S(t)``; a clavicle node (``CLAVICLES``), at its shoulder's
+    clavicle point (``rigid.clavicle_heights``), turns with the chest's swung onto the
+    shoulder. A node's frame in the file is ``Q`` turned by a constant rest rotation ``C``
+    (``bvh.rest_euler_channels``): identity or the take's mean pose of the node relative to
+    its parent, whichever plays back better between frames. A node's OFFSET is ``C_parentᵀ``
+    times the frame mean of ``Q_parent(t)ᵀ (node(t) − parent(t))``. Rotation channels hold
+    ``C_parentᵀ Q_parent(t)⁻¹ Q(t) C`` as intrinsic Euler angles in degrees, in an order
+    per node that keeps its channels off gimbal lock, unwrapped over time; the root's
+    position channels hold the ``root`` joint at OFFSET zero (three.js and Blender agree).
 
-    With ``slip_chains``, a joint ever over ``SLIP_TOL_M`` off where that rigid skeleton puts
-    it (an estimate's bone lengths vary by millimetres) hangs from a slip chain
+    Every joint is where the result has it if its paths lie on a rigid tree of bones, as
+    ``auto``'s do (``rigid.rigid_paths``); else off by its bone-length variation. With
+    ``slip_chains``, a joint ever over ``SLIP_TOL_M`` off hangs from a slip chain
     (``bvh.slip_chain``): three rotation-only nodes that carry it to its position and turn
-    back exactly, at the frames and between them, so every reader places it as the result.
+    back exactly, at the frames and between them.
 
     Parameters
     ----------
@@ -559,21 +633,20 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     units : {"cm", "m", "mm", "in"}
         Length unit of offsets and root positions.
     euler_order : str, optional
-        One intrinsic rotation order for every skeleton node (``"ZXY"`` was the only one
-        before per-node orders) for tools that need a single order; by default per node.
-        Slip chains keep their own orders.
+        One intrinsic rotation order for every skeleton node, for tools that need a single
+        order; by default per node. Slip chains keep their own orders.
     rest : {"auto", "segment"}
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
     slip_chains : bool
-        Add slip chains. Off by default: 3 extra nodes above most joints (a 3.5x bigger file);
-        animation tools expect the rigid skeleton of mean OFFSETs.
+        Add slip chains where a joint strays (none on a rigid result). Off by default: 3
+        extra nodes above a joint; animation tools expect the rigid skeleton.
 
     Returns
     -------
     BvhMotion
-        Nodes in ``BVH_NODES`` order with end sites ``<node>_end`` after their parents and
-        a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``), if
+        Nodes in ``skeleton_tree`` order with end sites ``<node>_end`` after their parents
+        and a joint's slip chain (``<joint>_slip_base``, ``_slip_bend``, ``_slip_tip``), if
         any, just before it.
 
     Raises
@@ -707,9 +780,9 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
         Rest pose: per node the better playing of segment frame and mean pose, or every
         node in its segment frame.
     slip_chains : bool
-        Put every joint exactly where the JSON has it, through slip chains (see
-        :func:`skeleton_to_bvh`); by default the rigid skeleton, off the JSON's joints by
-        their residuals.
+        Put every joint exactly where the JSON has it, through slip chains where the result
+        is not rigid (see :func:`skeleton_to_bvh`); by default the rigid skeleton, exact
+        for ``auto`` estimates, off other results' joints by their bone-length variation.
     """
     write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest,
                               slip_chains=slip_chains), path, precision=precision)

@@ -47,7 +47,7 @@ from bonefit.estimation.model import JOINTS, SEGMENTS
 from bonefit.estimation.recording import SensorRecording
 from bonefit.estimation.results import SkeletonResult
 from bonefit.estimation.simulate.inertial import simulate_walker
-from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion
+from bonefit.estimation.simulate.sensors import SimulationTruth, example_motion, simulate_sensors
 from bonefit.estimation.skeleton import estimate_skeleton
 from bonefit.estimation.translation import estimate_translation
 from tests.estimation.bvh_readers import bvhio_positions, install_three, threejs_positions
@@ -155,6 +155,33 @@ def test_a_non_rigid_result_read_by_independent_readers_matches_the_json_exactly
     write_skeleton_bvh(result, path, slip_chains=True)
     got = joints_m(read_with(reader, path, script_for), JOINTS, 100.0)
     assert np.linalg.norm(got - want, axis=-1).max() < 1e-5  # the file's rounding only
+
+
+@pytest.fixture(scope="module")
+def estimated_others(sim11: tuple[SensorRecording, SimulationTruth]
+                     ) -> dict[str, SkeletonResult]:
+    """More estimates with the protocol's noise and slip: the 11-sensor suit, and another
+    motion and sensor placement with 15."""
+    other, _ = simulate_sensors(example_motion(300, fps=60.0, seed=5), units_m=0.01,
+                                n_sensors=15, seed=4)
+    return {"11 sensors": estimate_skeleton(sim11[0], method="auto"),
+            "other clip": estimate_skeleton(other, method="auto")}
+
+
+@pytest.mark.parametrize("source", ["estimated", "11 sensors", "other clip"])
+def test_the_default_bvh_of_an_estimate_read_by_independent_readers_matches_the_json(
+        source: str, reader: str, script_for: Path | None, tmp_path: Path,
+        request: pytest.FixtureRequest) -> None:
+    # no slip chains: the estimate's joints lie on a rigid tree of bones (rigid.rigid_paths)
+    result: SkeletonResult = (request.getfixturevalue("estimated") if source == "estimated"
+                              else request.getfixturevalue("estimated_others")[source])
+    want = np.stack([result.joints[j] for j in JOINTS], axis=1)
+    path = tmp_path / "s.bvh"
+    write_skeleton_bvh(result, path)
+    got = joints_m(read_with(reader, path, script_for), JOINTS, 100.0)
+    assert np.linalg.norm(got - want, axis=-1).max() < 1e-3
+    motion = read_bvh(path)
+    assert len(motion.names) == len(JOINTS) + 2 + 5  # the clavicles and the end sites
 
 
 def test_slip_chains_use_rotation_channels_only_and_turn_back_exactly_between_frames(

@@ -26,6 +26,7 @@ from bonefit.estimation.io.skeleton import (
     read_skeleton_npz,
     skeleton_to_bvh,
     skeleton_to_dict,
+    skeleton_tree,
     write_skeleton_bvh,
     write_skeleton_csv,
     write_skeleton_files,
@@ -45,7 +46,7 @@ REST = {
     "l_knee": (0.0, -0.42, 0.0), "r_knee": (0.0, -0.42, 0.0),
     "l_ankle": (0.0, -0.41, -0.01), "r_ankle": (0.0, -0.41, -0.01),
 }
-PARENT = {node: parent for node, parent, _ in BVH_NODES}
+PARENT = dict(skeleton_tree())
 DRIVER = {node: segment for node, _, segment in BVH_NODES}
 
 
@@ -117,35 +118,46 @@ def read_bvh_text(result: SkeletonResult, **options: str | bool) -> BvhMotion:
     return read_bvh(io.StringIO(buf.getvalue()))
 
 
-def test_bvh_round_trip_equals_fk_from_mean_offsets(tmp_path: Path) -> None:
+def test_bvh_nodes_turn_with_their_segments_swung_onto_their_first_child(
+        tmp_path: Path) -> None:
     result = rigid_result(jitter=0.005, seed=3)
     write_skeleton_bvh(result, tmp_path / "s.bvh")
     motion = read_bvh(tmp_path / "s.bvh")
     positions, rotations = forward_kinematics(motion)
     rot = {n: Rotation.from_quat(result.orientations[DRIVER[n]], scalar_first=True)
            for n in DRIVER}
-    # direct FK from the result: chain the frame-mean offsets through the orientations
-    expect = {"root": result.joints["root"]}
-    for node, parent, _ in BVH_NODES[1:]:
-        assert parent is not None
-        local = rot[parent].inv().apply(result.joints[node] - result.joints[parent]).mean(0)
-        expect[node] = expect[parent] + rot[parent].apply(local)
     segment = read_bvh_text(result, rest="segment")
-    _, segment_frames = forward_kinematics(segment)
+    seg_positions, segment_frames = forward_kinematics(segment)
     slipped = read_bvh_text(result, slip_chains=True)
     exact, exact_rotations = forward_kinematics(slipped)
+    first = {"root": "waist", "waist": "chest", "chest": "neck", "l_shoulder": "l_elbow",
+             "r_shoulder": "r_elbow", "l_elbow": "l_wrist", "r_elbow": "r_wrist",
+             "l_hip": "l_knee", "r_hip": "r_knee", "l_knee": "l_ankle", "r_knee": "r_ankle"}
     for node in DRIVER:
-        j = motion.index(node)
-        np.testing.assert_allclose(positions[:, j] / 100, expect[node], atol=1e-5)
-        # every node turns with the segment it drives: by a constant rest rotation, none
-        # with rest="segment"; slip chains leave that alone
-        rest = rot[node].inv() * rotations[j]
+        j, s = motion.index(node), segment.index(node)
+        # rest="segment": the segment's frame turned by the smallest swing (no twist about
+        # the first child's OFFSET) that puts that child on the JSON's direction
+        swing = (rot[node].inv() * segment_frames[s]).as_rotvec()
+        if node in first:
+            child = segment.index(first[node])
+            axis = segment.offsets[child] / np.linalg.norm(segment.offsets[child])
+            assert np.abs(swing @ axis).max() < 1e-7, node  # the file's 6 decimals
+            want = result.joints[first[node]] - result.joints[node]
+            got = seg_positions[:, child] / 100 - seg_positions[:, s] / 100
+            cos = np.einsum("ij,ij->i", want, got) / (np.linalg.norm(want, axis=1)
+                                                      * np.linalg.norm(got, axis=1))
+            assert np.arccos(np.clip(cos, -1, 1)).max() < 1e-6, node
+        else:  # no child joint: the segment as it is
+            assert np.abs(swing).max() < 1e-7, node
+        # the default rest turns every node by a constant rotation; slip chains leave the
+        # nodes' rotations alone and put every joint exactly where the JSON has it
+        rest = segment_frames[s].inv() * rotations[j]
         assert (rest[0].inv() * rest).magnitude().max() < 1e-5
-        assert (segment_frames[segment.index(node)].inv() * rot[node]).magnitude().max() < 1e-5
         k = slipped.index(node)
         assert (exact_rotations[k].inv() * rotations[j]).magnitude().max() < 1e-5
         np.testing.assert_allclose(exact[:, k] / 100, result.joints[node], atol=1e-7)
-    # jitter makes the mean-offset skeleton differ from the raw joints, but by millimetres
+    # jitter makes the bone lengths vary: the rigid skeleton is off the raw joints, but by
+    # millimetres
     err = np.linalg.norm(positions[:, motion.index("l_ankle")] / 100
                          - result.joints["l_ankle"], axis=-1)
     assert 1e-3 < err.max() < 0.05
@@ -169,7 +181,7 @@ def test_independent_bvh_parser_reads_the_same_joint_positions(tmp_path: Path) -
     write_skeleton_bvh(result, tmp_path / "s.bvh")
     mocap = pybvh.Bvh((tmp_path / "s.bvh").read_text())
     names = mocap.get_joints_names()
-    assert names == [node for node, _, _ in BVH_NODES]
+    assert names == [node for node, _ in skeleton_tree()]
     assert mocap.nframes == 12
     assert mocap.frame_time == pytest.approx(1 / 30)
     for frame in range(mocap.nframes):
@@ -188,7 +200,7 @@ def test_independent_bvh_parser_reads_the_same_joint_positions(tmp_path: Path) -
                 p_pos, p_rot = world[names[parent_index]]
                 world[name] = (p_pos + p_rot @ np.array(mocap.joint_offset(name)),
                                p_rot @ r_local)
-        for name in names:
+        for name in JOINTS:
             err = np.linalg.norm(world[name][0] / 100 - result.joints[name][frame])
             assert err <= 1e-3, (frame, name)
 
