@@ -1126,18 +1126,23 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     report(0.0, "limbs")
     world = _world(proximal, upper_positions, upper_rotations, distal_positions,
                    distal_rotations)
+    # the two paths of the result before the fit's temporaries: those then come and go as
+    # one block of memory, which the next limb reuses instead of growing the heap
+    paths = np.empty((2, world.hip.shape[0], 3))
     limb = _in_upper_frame(world)
     objective = paper_normal(limb, lengths, opt.w_s, opt.w_l)
     theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective, opt,
                                            lengths=lengths, report=report)
-    fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality)
+    fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality,
+                    out=paths)
     report(1.0, "limbs")
     return fit
 
 
 def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval: int, ok: bool,
-              quality: dict[str, Any]) -> LimbFit:
-    """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
+              quality: dict[str, Any], out: Float) -> LimbFit:
+    """The joints of ``theta`` placed in every frame (into ``out`` (2, F, 3): middle, then
+    distal), E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
     cost = objective.cost(theta)
     ll, lu = objective.lengths(theta)
@@ -1149,8 +1154,8 @@ def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval:
         "converged": ok,
         "n_evaluations": n_eval,
     })
-    middle = rows.transform(world.ru, k, world.pu)
-    distal = rows.transform(world.rd, a, world.pd)
+    middle = rows.transform(world.ru, k, world.pu, out=out[0])
+    distal = rows.transform(world.rd, a, world.pd, out=out[1])
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
                    cost=cost, n_evaluations=n_eval, quality=LimbQuality.of(quality))
 
