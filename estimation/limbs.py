@@ -528,11 +528,11 @@ class _PaperTerms:
         inv_lu = 1.0 / geo.lu
         if self._z is None:
             self._z = np.empty((23, m))
+            self._z[9] = 1.0  # the ones, set once
         z = self._z
         np.multiply(geo.d, inv_l, out=z[:3])
         np.einsum("im,ijm->jm", z[:3], q.reshape(3, 3, m), out=z[3:6])  # uᵀQ
         np.multiply(geo.e, inv_lu, out=z[6:9])
-        z[9] = 1.0
         c, cu, cl, cul = z[10], z[11], z[12], z[13]
         np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
         c -= (geo.ll_mean + w_l * l_low) / m
