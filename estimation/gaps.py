@@ -294,8 +294,15 @@ def _fill_quaternions(quaternions: NDArray[np.float64], norms2: NDArray[np.float
 
 def _norms2(w: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64],
             z: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``x² + y² + z² + w²`` of quaternions given by their components, in that order."""
-    return np.asarray(x * x + y * y + z * z + w * w)
+    """``x² + y² + z² + w²`` of quaternions given by their components, in that order (the
+    same sums as the expression, in two arrays instead of seven: on 11 sensors × 6,283
+    frames each new one is 550 kB of fresh memory)."""
+    out = np.multiply(x, x)
+    square = np.multiply(y, y)
+    out += square
+    out += np.multiply(z, z, out=square)
+    out += np.multiply(w, w, out=square)
+    return out
 
 
 def _lagrange(knots_t: NDArray[np.float64], knots_p: NDArray[np.float64],

@@ -306,9 +306,9 @@ def _in_upper_frame(world: _World) -> LimbInUpperFrame:
     n = world.hip.shape[0]
     u = _by_component(world.ru.reshape(n, 9)).reshape(3, 3, n)
     q = np.einsum("kim,kjm->ijm", u, _by_component(world.rd.reshape(n, 9)).reshape(3, 3, n))
-    # Rᵤᵀ v per frame: b_i = Σ_k u_ki v_k
-    b = np.einsum("kim,km->im", u, _by_component(world.pd - world.pu))
-    h = np.einsum("kim,km->im", u, _by_component(world.hip - world.pu))
+    # Rᵤᵀ v per frame: b_i = Σ_k u_ki v_k, the differences v formed component-major
+    b = np.einsum("kim,km->im", u, np.subtract(world.pd.T, world.pu.T, out=np.empty((3, n))))
+    h = np.einsum("kim,km->im", u, np.subtract(world.hip.T, world.pu.T, out=np.empty((3, n))))
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
     q = q.reshape(9, n)
@@ -457,14 +457,18 @@ class _PaperTerms:
     def __init__(self, limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: float, w_l: float,
                  exact: bool) -> None:
         self.limb, self.lengths, self.w_s, self.w_l, self.exact = limb, lengths, w_s, w_l, exact
-        self._last: tuple[Float, _Geometry] | None = None
+        # the last point as a list of floats, and its geometry: comparing lists takes a
+        # tenth of np.array_equal's 5-10 µs (30-50 calls per limb, a coarse pass over 400
+        # frames takes about 60)
+        self._last: tuple[list[float], _Geometry] | None = None
         self.b, self.q, self.h = (np.ascontiguousarray(r) for r in limb.component_major())
         self._z: Float | None = None  # the rows of ``_rows``, allocated once
 
     def geometry(self, theta: Float) -> _Geometry:
         """The geometry at ``theta`` (cached: ``normal`` is asked for at the point ``cost``
         has just accepted)."""
-        if self._last is not None and np.array_equal(self._last[0], theta):
+        point = theta.tolist()
+        if self._last is not None and self._last[0] == point:
             return self._last[1]
         m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
         k, a = theta[:3], theta[3:]
@@ -483,7 +487,7 @@ class _PaperTerms:
                                 + np.einsum("f,f->", off_low, off_low))) / m
                       + self.w_s * np.einsum("i,i->", theta, theta))
         geometry = _Geometry(d, ll, e, lu, value, float(ll_mean))
-        self._last = (theta.copy(), geometry)
+        self._last = (point, geometry)
         return geometry
 
     def cost(self, theta: Float) -> float:
@@ -524,11 +528,11 @@ class _PaperTerms:
         inv_lu = 1.0 / geo.lu
         if self._z is None:
             self._z = np.empty((23, m))
+            self._z[9] = 1.0  # the ones, set once
         z = self._z
         np.multiply(geo.d, inv_l, out=z[:3])
         np.einsum("im,ijm->jm", z[:3], q.reshape(3, 3, m), out=z[3:6])  # uᵀQ
         np.multiply(geo.e, inv_lu, out=z[6:9])
-        z[9] = 1.0
         c, cu, cl, cul = z[10], z[11], z[12], z[13]
         np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
         c -= (geo.ll_mean + w_l * l_low) / m
@@ -1126,18 +1130,23 @@ def estimate_limb(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotatio
     report(0.0, "limbs")
     world = _world(proximal, upper_positions, upper_rotations, distal_positions,
                    distal_rotations)
+    # the two paths of the result before the fit's temporaries: those then come and go as
+    # one block of memory, which the next limb reuses instead of growing the heap
+    paths = np.empty((2, world.hip.shape[0], 3))
     limb = _in_upper_frame(world)
     objective = paper_normal(limb, lengths, opt.w_s, opt.w_l)
     theta, n_eval, ok, quality = _fit_limb(limb, _measured(limb, valid), objective, opt,
                                            lengths=lengths, report=report)
-    fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality)
+    fit = _limb_fit(world, objective, theta, n_eval=n_eval, ok=ok, quality=quality,
+                    out=paths)
     report(1.0, "limbs")
     return fit
 
 
 def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval: int, ok: bool,
-              quality: dict[str, Any]) -> LimbFit:
-    """The joints of ``theta`` placed in every frame, E and the segment lengths there."""
+              quality: dict[str, Any], out: Float) -> LimbFit:
+    """The joints of ``theta`` placed in every frame (into ``out`` (2, F, 3): middle, then
+    distal), E and the segment lengths there."""
     # after least squares on E, its last point: cached, no extra pass over the frames
     cost = objective.cost(theta)
     ll, lu = objective.lengths(theta)
@@ -1149,8 +1158,8 @@ def _limb_fit(world: _World, objective: PaperObjective, theta: Float, *, n_eval:
         "converged": ok,
         "n_evaluations": n_eval,
     })
-    middle = rows.transform(world.ru, k, world.pu)
-    distal = rows.transform(world.rd, a, world.pd)
+    middle = rows.transform(world.ru, k, world.pu, out=out[0])
+    distal = rows.transform(world.rd, a, world.pd, out=out[1])
     return LimbFit(middle_local=k.copy(), distal_local=a.copy(), middle=middle, distal=distal,
                    cost=cost, n_evaluations=n_eval, quality=LimbQuality.of(quality))
 

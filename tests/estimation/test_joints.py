@@ -17,6 +17,7 @@ from bonefit.estimation.gaps import (
     sensor_major,
 )
 from bonefit.estimation.joints import (
+    SHORT_LAGS,
     effective_samples,
     estimate_joint,
     percentile,
@@ -467,6 +468,24 @@ def test_effective_samples_matches_the_direct_sum(n: int) -> None:
                  + 0.3 * rng.normal(size=(n, 3)))
     weights = rng.random(n)
     weights[rng.random(n) < 0.1] = 0.0
+    assert effective_samples(residuals, weights) == pytest.approx(
+        direct_effective_samples(residuals, weights), rel=1e-9)
+
+
+@pytest.mark.parametrize("period_s", [2.0, 60.0])
+def test_effective_samples_past_the_short_transform(period_s: float) -> None:
+    # 6,000 frames: the first transform covers SHORT_LAGS lags; a slow residual stays
+    # positively correlated beyond them (the full transform then decides)
+    n = 6000
+    rng = np.random.default_rng(7)
+    t = np.arange(n) / 60.0
+    residuals = (np.column_stack([np.sin(2 * np.pi * t / period_s + k) for k in range(3)])
+                 + 0.05 * rng.normal(size=(n, 3)))
+    weights = np.ones(n)
+    first_nonpositive = next(k for k in range(1, n) if np.sum(
+        (residuals[k:] - residuals.mean(axis=0)) * (residuals[:-k] - residuals.mean(axis=0)))
+        <= 0.0)
+    assert (first_nonpositive > SHORT_LAGS) == (period_s > 30.0)
     assert effective_samples(residuals, weights) == pytest.approx(
         direct_effective_samples(residuals, weights), rel=1e-9)
 
