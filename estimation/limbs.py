@@ -901,11 +901,7 @@ _W_HINGE = 0.01     # hinge rule, fully on for planar distal paths. 0.03 until i
 # that weight the rule overrode what the data locate of a knee (elbow) off its neighbours'
 # line or not a pure hinge (on the realistic rigs its rows cost 3-10x the data's gain at the
 # true joints); 0.01 lowers the 11-sensor limb median on both rigs and every seed
-_W_LINE = 2e-4      # middle joint on the proximal–distal line at the standard length ratio.
-# 3e-4 until the flexion axis took the thigh's direction (_hinge_axis): knees and elbows sit
-# up to 15 mm off that line, and with the axis right the data locate more of that offset;
-# 2e-4 lowers the 11-sensor limb median and mean on both rigs, seeds 1-3 (1e-4: the median
-# further, the mean up 0.6-1.1 mm)
+_W_LINE = 3e-4      # middle joint on the proximal–distal line at the standard length ratio
 _W_LENGTH = 1e-4    # standard lengths (anthropometric tables are ±20 % off real subjects)
 _W_DISTAL = 3e-4    # distal joint near its sensor (as the paper's w_S, weaker, distal only)
 _W_PLANE = 0.2      # distal joint's path in the flexion plane, per frame (see improved_problem)
