@@ -112,11 +112,14 @@ def register(sub: Any, summary: str) -> None:
     parser.add_argument("-o", "--output", default=None, metavar="OUT.json",
                         help="write the result as JSON")
     parser.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write a BVH file (cm)")
-    parser.add_argument("--bvh-slip-chains", action="store_true",
+    parser.add_argument("--bvh-slip-chains", action=argparse.BooleanOptionalAction,
+                        default=True,
                         help="in the BVH, put every joint exactly where the JSON has it even "
-                             "when its bone length varies (the papers' methods, --offsets): "
-                             "three rotation-only slip nodes above it (the default method's "
-                             "joints lie on a rigid skeleton: its BVH is exact without them)")
+                             "where its bone length varies (the papers' methods, --offsets): "
+                             "three rotation-only slip nodes above such a joint (default; the "
+                             "default method's joints lie on a rigid skeleton, so its BVH has "
+                             "none); --no-bvh-slip-chains writes the rigid skeleton of mean "
+                             "OFFSETs only")
     parser.add_argument("--csv", default=None, metavar="OUT.csv",
                         help="write joint trajectories as CSV (metres)")
     parser.add_argument("--npz", default=None, metavar="OUT.npz",

@@ -18,5 +18,6 @@ class SkeletonOutputs:
     bvh: PathLike | None = None
     csv: PathLike | None = None
     npz: PathLike | None = None
-    bvh_slip_chains: bool = False
-    """The BVH's joints exactly where the JSON has them (``skeleton_to_bvh``'s slip chains)."""
+    bvh_slip_chains: bool = True
+    """The BVH's joints exactly where the JSON has them (``skeleton_to_bvh``'s slip chains,
+    only where a joint strays from the rigid skeleton: none for ``auto``)."""

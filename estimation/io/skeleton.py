@@ -600,7 +600,7 @@ take's mean pose (``auto``), or every node in its segment frame (``segment``).""
 
 def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
                     euler_order: str | None = None, rest: str = "auto",
-                    slip_chains: bool = False) -> BvhMotion:
+                    slip_chains: bool = True) -> BvhMotion:
     """The BVH hierarchy and motion of a skeleton result.
 
     The hierarchy is ``root`` → ``waist`` → ``chest`` → ``neck`` (head end site); ``chest`` →
@@ -639,8 +639,10 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
     slip_chains : bool
-        Add slip chains where a joint strays (none on a rigid result). Off by default: 3
-        extra nodes above a joint; animation tools expect the rigid skeleton.
+        Add slip chains where a joint strays (none on a rigid result such as ``auto``'s), so
+        that every reader places every joint where the result has it. ``False``: the rigid
+        skeleton of mean OFFSETs only (what retargeting tools expect of the papers'
+        methods' results, off their joints by the bone-length variation).
 
     Returns
     -------
@@ -763,7 +765,7 @@ class _Hierarchy:
 def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *,
                        units: str = "cm", precision: int = 6,
                        euler_order: str | None = None, rest: str = "auto",
-                       slip_chains: bool = False) -> None:
+                       slip_chains: bool = True) -> None:
     """Write ``result`` as a BVH file (see :func:`skeleton_to_bvh`).
 
     Parameters
@@ -781,8 +783,8 @@ def write_skeleton_bvh(result: SkeletonResult, path: PathLike | io.TextIOBase, *
         node in its segment frame.
     slip_chains : bool
         Put every joint exactly where the JSON has it, through slip chains where the result
-        is not rigid (see :func:`skeleton_to_bvh`); by default the rigid skeleton, exact
-        for ``auto`` estimates, off other results' joints by their bone-length variation.
+        is not rigid (see :func:`skeleton_to_bvh`; ``auto`` estimates need none); ``False``:
+        the rigid skeleton only, off other results' joints by their bone-length variation.
     """
     write_bvh(skeleton_to_bvh(result, units=units, euler_order=euler_order, rest=rest,
                               slip_chains=slip_chains), path, precision=precision)
