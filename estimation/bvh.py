@@ -12,6 +12,7 @@ import io
 import itertools
 import os
 import warnings
+from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -22,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InputError
-from .numtext import fixed_blocks, write_text_blocks
+from .numtext import BLOCK_VALUES, fixed_blocks, fixed_text, write_text_blocks
 from .threads import MIN_FRAMES, workers
 
 if TYPE_CHECKING:  # scipy is imported where it is used: the readers serve processes without it
@@ -489,8 +490,30 @@ def write_bvh(motion: BvhMotion, target: str | os.PathLike[str] | io.TextIOBase,
     out.write("HIERARCHY\n")
     node(motion.parents.index(-1), 0)
     out.write(f"MOTION\nFrames: {motion.n_frames}\nFrame Time: {motion.frame_time:.8f}\n")
-    rows = fixed_blocks(motion.values.reshape(motion.n_frames, -1), precision, sep=" ")
+    rows = _motion_rows(motion.values.reshape(motion.n_frames, -1), precision)
     write_text_blocks(itertools.chain([out.getvalue()], rows), target)
+
+
+def _motion_rows(table: NDArray[np.float64], precision: int) -> Iterator[str]:
+    """The text of the MOTION rows ``table`` (F, C), block by block (``fixed_blocks``).
+
+    From ``threads.MIN_FRAMES`` frames the blocks are formatted on ``threads.workers()``
+    threads (numpy's formatting releases the interpreter lock) and yielded in order, at most
+    two per thread held: a skeleton BVH's text ends its writing, when the JSON written
+    alongside it (``io.skeleton.write_skeleton_files``) is done and a core is free."""
+    if len(table) < MIN_FRAMES or workers() == 1:
+        yield from fixed_blocks(table, precision, sep=" ")
+        return
+    step = max(1, BLOCK_VALUES // max(table.shape[1], 1))  # fixed_blocks' blocks
+    with ThreadPoolExecutor(workers(), thread_name_prefix="bonefit-bvh-text") as pool:
+        pending: deque[Future[str]] = deque()
+        for start in range(0, len(table), step):
+            pending.append(pool.submit(fixed_text, table[start:start + step], precision,
+                                       sep=" "))
+            if len(pending) > 2 * workers():
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 # --------------------------------------------------------------------------- writer helpers

@@ -28,13 +28,16 @@ stay as published.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from typing import Final, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from . import _rows as rows
+from .progress import no_progress
+from .threads import run_each
 
 __all__ = ["DEFAULT_SD_M", "MIN_SD_M", "clavicle_heights", "clavicle_points",
            "hold_distances", "hold_distances_rows", "rigid_paths"]
@@ -320,16 +323,23 @@ def rigid_paths(joints: Mapping[str, Float], sd: Mapping[str, float]) -> dict[st
     anchors = dict(zip(("l_shoulder", "r_shoulder"),
                        clavicle_points(out["chest"], out["neck"], heights), strict=True))
     anchors.update({"l_hip": out["l_hip"], "r_hip": out["r_hip"]})
-    for anchor, chain in LIMB_CHAINS.items():
-        out.update(zip(chain, _limb(anchors[anchor], [out[j] for j in chain],
-                                    [_sd_of(sd, j) for j in chain]), strict=True))
+    # the four limbs are independent: on a long take two threads hold them (threads.run_each)
+    limbs = run_each([partial(_limb, anchors[anchor], [out[j] for j in chain],
+                              [_sd_of(sd, j) for j in chain])
+                      for anchor, chain in LIMB_CHAINS.items()],
+                     no_progress, "rigid", frames=len(out["waist"]),
+                     weights=[len(chain) for chain in LIMB_CHAINS.values()])
+    for chain, held in zip(LIMB_CHAINS.values(), limbs, strict=True):
+        out.update(zip(chain, held, strict=True))
     return out
 
 
-def _limb(anchor: Float, joints: Sequence[Float], sd: Sequence[float]) -> list[Float]:
+def _limb(anchor: Float, joints: Sequence[Float], sd: Sequence[float],
+          report: Callable[[float], None] | None = None) -> list[Float]:
     """A limb's joints (F, 3) held at their mean bone lengths from a fixed ``anchor``: one
     weighted Gauss–Newton step (bones off by millimetres come within micrometres), then
-    each joint put at its bone's length from the one above it along their direction."""
+    each joint put at its bone's length from the one above it along their direction
+    (``report``: a ``threads.run_each`` piece's, unused: the piece is short)."""
     stacked = np.stack([anchor.T, *(p.T for p in joints)], axis=1)  # (3, P, F)
     pairs = tuple((k, k + 1) for k in range(len(joints)))
     lengths = [float(rows.norms(b - a).mean()) for a, b in zip([anchor, *joints], joints,

@@ -506,24 +506,40 @@ def skeleton_tree() -> tuple[tuple[str, str | None], ...]:
 def _in_frame(quats: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
     """``R(t)ᵀ v(t)``: vectors ``v`` (F × 3) in the frames of the rotations ``quats``
     (scalar-last, F × 4), without building a ``Rotation`` (``v + w·t + u × t``,
-    ``t = 2 u × v``, ``u`` the negated vector part)."""
-    u = -quats[:, :3]
-    t = np.cross(u, v)
-    t *= 2.0
-    out = np.cross(u, t)
-    out += v
-    out += quats[:, 3:] * t
+    ``t = 2 u × v``, ``u`` the negated vector part). Component by component: the same
+    operations in the same order as with ``np.cross``, so the same bits, without its
+    temporaries (on a long take most of the BVH hierarchy's CPU time went to them)."""
+    u = [-quats[:, k] for k in range(3)]
+    t = [_cross_row(u, [v[:, k] for k in range(3)], k) for k in range(3)]
+    for row in t:
+        row *= 2.0
+    out = np.empty((len(v), 3))
+    w = quats[:, 3]
+    for k in range(3):
+        row = _cross_row(u, t, k)
+        row += v[:, k]
+        row += w * t[k]
+        out[:, k] = row
     return out
 
 
-def _swung(base: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+def _cross_row(a: list[NDArray[np.float64]], b: list[NDArray[np.float64]], k: int
+               ) -> NDArray[np.float64]:
+    """Component ``k`` of the cross products of rows ``a`` and ``b`` (each three arrays of
+    components), as ``np.cross`` computes it: ``a[i] b[j] − a[j] b[i]``."""
+    i, j = (k + 1) % 3, (k + 2) % 3
+    out = a[i] * b[j]
+    out -= a[j] * b[i]
+    return out
+
+
+def _swung(base: NDArray[np.float64], seen: NDArray[np.float64]) -> NDArray[np.float64]:
     """``base`` (scalar-last quaternions, F × 4) turned, in its own frame, by the smallest
-    rotation that takes the mean direction ``m`` of ``target`` (F × 3, world) in it onto
-    the target's direction in every frame: the turned frame holds the target along ``m``
-    exactly, its twist about ``m`` kept. ``base`` itself where it already does (a limb
-    segment's y axis runs along its bone)."""
-    local = _in_frame(base, target)
-    local /= np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-300)
+    rotation that takes the mean direction ``m`` of a target seen in it (``seen``, F × 3,
+    ``_in_frame`` of the target) onto the target's direction in every frame: the turned
+    frame holds the target along ``m`` exactly, its twist about ``m`` kept. ``base``
+    itself where it already does (a limb segment's y axis runs along its bone)."""
+    local = seen / np.maximum(np.linalg.norm(seen, axis=1, keepdims=True), 1e-300)
     mean = local.mean(axis=0)
     mean /= max(float(np.linalg.norm(mean)), 1e-300)
     if float(np.abs(local - mean).max(initial=0.0)) <= 1e-12:
@@ -547,24 +563,40 @@ def _node_positions(result: SkeletonResult) -> dict[str, NDArray[np.float64]]:
     return positions
 
 
+def _node_frames(result: SkeletonResult, positions: Mapping[str, NDArray[np.float64]],
+                 children: Mapping[str, list[str]]
+                 ) -> tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.float64]]]:
+    """Per node of ``skeleton_tree``, its frame (scalar-last quaternions, F × 4): its
+    segment's (a clavicle's: its parent's) turned by ``_swung`` toward its first child;
+    and per first child whose parent's frame was not turned (most limb nodes), its path
+    from the parent in that frame (F × 3), which the child's OFFSET reuses."""
+    driver = {node: seg for node, _, seg in BVH_NODES}
+    quats: dict[str, NDArray[np.float64]] = {}
+    seen: dict[str, NDArray[np.float64]] = {}
+    for node, parent in skeleton_tree():
+        base = (_rotation(result, driver[node]).as_quat() if node in driver
+                else quats[str(parent)])
+        quats[node] = base
+        if children[node]:
+            child = children[node][0]
+            local = _in_frame(base, positions[child] - positions[node])
+            quats[node] = _swung(base, local)
+            if quats[node] is base:
+                seen[child] = local
+    return quats, seen
+
+
 def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     """Nodes in ``skeleton_tree`` order, end sites ``<node>_end`` after their parents.
 
     A node's frame is its segment's (a clavicle's: its parent's) turned by ``_swung``
     toward its first child, which it then holds exactly along its OFFSET's direction."""
-    tree = skeleton_tree()
-    driver = {node: seg for node, _, seg in BVH_NODES}
     positions = _node_positions(result)
-    children: dict[str, list[str]] = {node: [] for node, _ in tree}
-    for node, parent in tree:
+    children: dict[str, list[str]] = {node: [] for node, _ in skeleton_tree()}
+    for node, parent in skeleton_tree():
         if parent is not None:
             children[parent].append(node)
-    quats: dict[str, NDArray[np.float64]] = {}
-    for node, parent in tree:
-        base = (_rotation(result, driver[node]).as_quat() if node in driver
-                else quats[str(parent)])
-        quats[node] = (_swung(base, positions[children[node][0]] - positions[node])
-                       if children[node] else base)
+    quats, seen = _node_frames(result, positions, children)
     names: list[str] = []
     parents: list[int] = []
     offsets: list[NDArray[np.float64]] = []
@@ -583,7 +615,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            bones[node] = _in_frame(quats[parent], positions[node] - positions[parent])
+            bones[node] = seen[node] if node in seen else _in_frame(
+                quats[parent], positions[node] - positions[parent])
             offsets.append(bones[node].mean(axis=0))
             local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
                                               quats[node])

@@ -11,9 +11,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bonefit.estimation.bvh import MAX_NODES, read_bvh
+from bonefit.estimation import bvh
+from bonefit.estimation.bvh import MAX_NODES, BvhMotion, read_bvh, write_bvh
 from bonefit.estimation.errors import BonefitError, InputError
 from bonefit.estimation.io.body import find_bvh_feet
+from bonefit.estimation.numtext import BLOCK_VALUES
 from tests.estimation.bvh_corpus import CONVENTIONS, body_motion, bvh_text
 
 SMALL = """HIERARCHY
@@ -168,3 +170,28 @@ def test_fuzzed_files_raise_only_bonefit_errors(text: str) -> None:
 def test_arbitrary_text_raises_only_bonefit_errors(text: str) -> None:
     with contextlib.suppress(BonefitError):
         read_bvh(io.StringIO("HIERARCHY\n" + text))
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_long_motion_rows_formatted_on_threads_are_the_text_of_one_thread(
+        threaded: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long take's MOTION rows formatted block by block on two threads (from
+    ``threads.MIN_FRAMES`` frames): the same file, rows in order, as in one thread, and
+    read back to the values written."""
+    n_frames = 3 * BLOCK_VALUES // 6 + 7  # four blocks of six channels, the last short
+    rng = np.random.default_rng(19)
+    values = rng.uniform(-400.0, 400.0, size=(n_frames, 6))
+    motion = BvhMotion(("root", "root_end"), (-1, 0), np.array([[0.0, 0, 0], [0, 10, 0]]),
+                       (("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation",
+                         "Yrotation"), ()), 1 / 240, values)
+    monkeypatch.setattr(bvh, "MIN_FRAMES", n_frames + 1)  # one thread
+    one = io.StringIO()
+    write_bvh(motion, one, precision=6)
+    if threaded:
+        monkeypatch.setattr(bvh, "MIN_FRAMES", n_frames)
+        monkeypatch.setattr(bvh, "workers", lambda: 2)
+    out = io.StringIO()
+    write_bvh(motion, out, precision=6)
+    assert out.getvalue() == one.getvalue()
+    back = read_bvh(io.StringIO(out.getvalue()))
+    assert np.abs(back.values - values).max() <= 5e-7
