@@ -672,10 +672,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
         ``"segment"`` keeps every node in its segment frame (the rest pose upright, arms
         down, as before rest rotations), for tools that retarget from that pose.
     slip_chains : bool
-        Add slip chains where a joint strays (none on a rigid result such as ``auto``'s), so
-        that every reader places every joint where the result has it. ``False``: the rigid
-        skeleton of mean OFFSETs only (what retargeting tools expect of the papers'
-        methods' results, off their joints by the bone-length variation).
+        Slip chains where a joint strays (none for ``auto``): every joint where the result
+        has it. ``False``: the rigid skeleton of mean OFFSETs only.
 
     Returns
     -------
