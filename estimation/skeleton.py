@@ -21,6 +21,7 @@ from .joints import (
     JointFit,
     effective_samples,
     estimate_joint,
+    fit_sd,
     range_of_motion,
 )
 from .limbs import estimate_limb, standard_lengths, torso_length
@@ -411,8 +412,7 @@ def _with_own_reading(precision: NDArray[np.float64], mean: NDArray[np.float64],
     normal, v = calibration
     model = _inverse(SHARED_SD_FACTOR**2 * _inverse(precision) + v * _inverse(normal))
     combined = model + own[1]
-    share = 1.0 - float(np.trace(_inverse(combined)[:3, :3])) \
-        / float(np.trace(_inverse(model)[:3, :3]))
+    share = 1.0 - (fit_sd(combined) / fit_sd(model)) ** 2
     return combined, model @ mean + own[1] @ own[0], min(max(share, 0.0), 1.0)
 
 

@@ -1125,13 +1125,16 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
     lf, rf = names
     feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
-    extended = _extended_feet(recording, names, root) if opt.use_toes else None
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
-        feet = extended if extended is not None and opt.extrapolate_toes else feet
+        # the file's contacts need no choice: toe points only where asked for outright
+        extended = (_extended_feet(recording, names, root)
+                    if opt.use_toes and opt.extrapolate_toes else None)
+        feet = extended if extended is not None else feet
         states = _file_states(recording, names)
         extra["contacts_source"] = "file"
     else:
+        extended = _extended_feet(recording, names, root) if opt.use_toes else None
         feet, states, info = _chosen_feet(recording, feet, extended, names=names, root=root,
                                           opt=opt)
         extra.update(info)
