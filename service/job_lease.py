@@ -150,6 +150,13 @@ class JobLease:
         if timeout and limit > 0 and now - self.started >= limit:
             raise TimedOut
 
+    def check_finished(self) -> None:
+        """Raise if the finished job must not keep its results: a cancel asked for up to now
+        wins (the heartbeat looks for one only every :data:`WATCH_SECONDS`), the time limit
+        does not."""
+        self._note(self.worker.runtime.store.get_job(self.job.id))
+        self.check(timeout=False)
+
     def progress(self, fraction: float, stage: str) -> None:
         """The estimation callback: store progress at most every interval; stop if asked."""
         self.check()

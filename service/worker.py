@@ -233,7 +233,7 @@ class Worker:
                                        field=name) from None
                 inputs[name] = Input(path, rec.format)
             outputs = self._run(kind, inputs, params, lease, Path(tmp))
-            lease.check(timeout=False)  # finished: over the limit or not, keep the results
+            lease.check_finished()
             results = {}
             for fmt, path in outputs.items():
                 key = f"{tenant_prefix(job.tenant)}/jobs/{job.id}/result.{fmt}"

@@ -275,16 +275,18 @@ def sensor_csv_bytes() -> bytes:
 
 @pytest.fixture(scope="session")
 def long_sensor_csv_bytes() -> bytes:
-    """A recording whose skeleton job runs for seconds: 2,400 frames repeated 8 times."""
+    """A recording whose skeleton job runs for seconds (about 6 s on an idle 2-core machine, so
+    that a test can act on it while it runs): 2,400 frames repeated 16 times."""
     lines = _sensor_csv(2400, seed=2).decode().splitlines()
     header_end = next(i for i, line in enumerate(lines) if line.startswith("time"))
     head, rows = lines[:header_end + 1], lines[header_end + 1:]
     period = 2400 / 60.0
     out = list(head)
-    for k in range(8):
-        for row in rows:
-            t, rest = row.split(",", 1)
-            out.append(f"{float(t) + k * period:.6f},{rest}")
+    times = [float(row.split(",", 1)[0]) for row in rows]
+    rests = [",".join(v and f"{float(v):.4f}" for v in row.split(",")[1:])  # 0.1 mm: < 32 MiB
+             for row in rows]
+    for k in range(16):
+        out.extend(f"{t + k * period:.6f},{rest}" for t, rest in zip(times, rests, strict=True))
     return ("\n".join(out) + "\n").encode()
 
 

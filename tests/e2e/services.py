@@ -237,7 +237,8 @@ def create_bucket(server: S3Server, timeout: float) -> None:
             client.create_bucket(Bucket=server.bucket)  # type: ignore[attr-defined]
             return
         except (BotoCoreError, ClientError) as exc:
-            code = getattr(exc, "response", {}).get("Error", {}).get("Code", "")
+            # a connection reset while the gateway starts has a response of None
+            code = (getattr(exc, "response", None) or {}).get("Error", {}).get("Code", "")
             if code in ("BucketAlreadyOwnedByYou", "BucketAlreadyExists"):
                 return
             if time.monotonic() > deadline:

@@ -172,8 +172,8 @@ def test_jobs_cancel_retry_and_filter(start_server: Callable[..., ServerProcess]
     page.click("#submit-jobs")
     cancel = page.get_by_role("button", name="Cancel job of long.csv")
     cancel.focus()
-    page.wait_for_selector("#jobs tbody tr[data-status=running]")  # progress events arrive...
-    page.wait_for_timeout(1500)
+    page.wait_for_selector("#jobs tbody tr[data-status=running]")
+    expect(page.locator("#jobs tbody tr .pct")).not_to_have_text(" 0 %")  # progress events...
     assert page.evaluate("document.activeElement.getAttribute('aria-label')") == \
         "Cancel job of long.csv"  # ...and the focus stays on the button
     page.keyboard.press("Enter")  # the controls work from the keyboard

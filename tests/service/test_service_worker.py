@@ -117,6 +117,22 @@ def test_a_cancel_is_noticed_between_lease_renewals(client: TestClient,
     assert reports  # it ran on after the cancel until the watch saw it, then stopped
 
 
+def test_a_cancel_after_the_last_report_still_wins(client: TestClient,
+                                                  runtime: Runtime) -> None:
+    # the client asked before the results were kept: the job ends cancelled, without them
+    runtime.settings.lease_seconds, runtime.settings.progress_interval_seconds = 600, 60
+    job = submit(client, upload(client)["id"])
+
+    def body(progress: Progress) -> None:
+        progress(0.9, "writing")
+        assert client.post(f"/v1/jobs/{job['id']}/cancel").status_code == 202
+
+    drain(runtime, Worker(runtime, kind_with(body)))
+    done = client.get(f"/v1/jobs/{job['id']}").json()
+    assert done["status"] == "cancelled"
+    assert done["results"] == {}
+
+
 def test_held_back_progress_reaches_the_store(client: TestClient, runtime: Runtime) -> None:
     # a report inside the throttle's interval is written once the interval is over, by the
     # heartbeat thread, although the job reports nothing more
