@@ -22,6 +22,7 @@ yardstick then parses a copy with ``nan`` in the empty cells).
 
     python benchmarks/long_take.py [--frames 6000,36000] [--sensors 15,11] [--repeats 3]
                                    [--no-service] [--no-cli] [--cache DIR]
+                                   [--baseline-cli /path/to/base/.venv/bin/bonefit]
 
 Times are medians of ``--repeats`` runs; RSS the largest of them. Every run happens on the
 loaded 2-core machine of its day: the ratios, measured in the same run, are what compares.
@@ -201,9 +202,10 @@ class CliRun:
     timings: dict[str, float]
 
 
-def cli_run(take: Path, out: Path) -> CliRun:
-    """One ``bonefit skeleton`` run as a subprocess."""
-    args = [*bonefit_command(), "skeleton", str(take), "-o", str(out / "take.json"),
+def cli_run(take: Path, out: Path, command: Sequence[str] = ()) -> CliRun:
+    """One ``bonefit skeleton`` run as a subprocess (``command``: this checkout's
+    ``bonefit`` by default)."""
+    args = [*(command or bonefit_command()), "skeleton", str(take), "-o", str(out / "take.json"),
             "--bvh", str(out / "take.bvh"), "--quiet"]
     start = time.perf_counter()
     proc = subprocess.Popen(args, env=clean_env(), stdout=subprocess.DEVNULL,
@@ -288,16 +290,10 @@ def measure(take: Path, frames: int, sensors: int, args: argparse.Namespace,
     row: list[object] = [f"{frames:,}", sensors, f"{take.stat().st_size / MB:.0f} MB",
                          f"{yard:.2f} s"]
     if args.cli:
-        runs = [cli_run(take, work) for _ in range(args.repeats)]
-        wall = median([r.wall for r in runs])
-        stage = {k: median([r.timings.get(k, float("nan")) for r in runs])
-                 for k in ("read_s", "estimate_s", "write_s")}
-        row += [f"{wall:.2f} s", f"{wall / yard:.1f}×",
-                " / ".join(f"{stage[k]:.2f}" for k in stage),
-                f"{stage['estimate_s'] / frames * 1e6:.0f} / {wall / frames * 1e6:.0f}",
-                f"{max(r.peak_mib for r in runs):,.0f} MiB"]
-        (work / "take.json").unlink(missing_ok=True)
-        (work / "take.bvh").unlink(missing_ok=True)
+        runs, baseline = cli_runs(take, work, args)
+        row += cli_columns(runs, yard, frames)
+        if baseline:
+            row += cli_columns(baseline, yard, frames)[:2]
     if args.service:
         svc = service_runs(take, work, args.repeats)
         row += [f"{svc.one:.2f} s", f"{svc.one / yard:.1f}×", f"{svc.two:.2f} s",
@@ -305,11 +301,41 @@ def measure(take: Path, frames: int, sensors: int, args: argparse.Namespace,
     return row
 
 
+def cli_runs(take: Path, work: Path, args: argparse.Namespace
+             ) -> tuple[list[CliRun], list[CliRun]]:
+    """``--repeats`` CLI runs of this checkout and, with ``--baseline-cli``, as many of the
+    baseline's, interleaved (the order alternating from run to run)."""
+    runs: list[CliRun] = []
+    baseline: list[CliRun] = []
+    commands: list[tuple[list[CliRun], tuple[str, ...]]] = [(runs, ())]
+    if args.baseline_cli:
+        commands.append((baseline, tuple(args.baseline_cli)))
+    for k in range(args.repeats):
+        for into, command in (commands if k % 2 == 0 else commands[::-1]):
+            into.append(cli_run(take, work, command))
+    (work / "take.json").unlink(missing_ok=True)
+    (work / "take.bvh").unlink(missing_ok=True)
+    return runs, baseline
+
+
+def cli_columns(runs: list[CliRun], yard: float, frames: int) -> list[object]:
+    """The CLI's columns of a table row: medians of ``runs``, the largest peak RSS."""
+    wall = median([r.wall for r in runs])
+    stage = {k: median([r.timings.get(k, float("nan")) for r in runs])
+             for k in ("read_s", "estimate_s", "write_s")}
+    return [f"{wall:.2f} s", f"{wall / yard:.1f}×",
+            " / ".join(f"{stage[k]:.2f}" for k in stage),
+            f"{stage['estimate_s'] / frames * 1e6:.0f} / {wall / frames * 1e6:.0f}",
+            f"{max(r.peak_mib for r in runs):,.0f} MiB"]
+
+
 def header(args: argparse.Namespace) -> list[str]:
     cols = ["frames", "sensors", "CSV", "loadtxt"]
     if args.cli:
         cols += ["CLI wall", "CLI / loadtxt", "read / estimate / write s",
                  "µs/frame (estimate / wall)", "CLI peak RSS"]
+        if args.baseline_cli:
+            cols += ["baseline CLI wall", "baseline / loadtxt"]
     if args.service:
         cols += ["job wall", "job / loadtxt", "2 jobs wall", "2 jobs peak RSS (tree)"]
     return cols
@@ -337,6 +363,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--no-cli", dest="cli", action="store_false")
     parser.add_argument("--no-service", dest="service", action="store_false")
     parser.add_argument("--cache", help="folder of the generated takes")
+    parser.add_argument("--baseline-cli", nargs="+", metavar="COMMAND",
+                        help="the bonefit command of another checkout (e.g. "
+                             "/path/to/base/.venv/bin/bonefit): its CLI runs interleaved "
+                             "with this one's, their median wall and ratio in two more "
+                             "columns")
     args = parser.parse_args(argv)
     print(machine(), flush=True)
     rows = []

@@ -31,7 +31,8 @@ class Command:
     extra: str
     summary: str
     one_blas_thread: bool = False
-    """Run with one BLAS thread (``estimation.threads``): the estimating commands."""
+    """Run with one BLAS thread (``estimation.threads``) and freed memory kept for reuse
+    (``estimation.memory``): the estimating commands."""
 
 
 COMMANDS = {
@@ -138,9 +139,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     chosen = chosen_command(arguments)
     try:
         if chosen is not None and COMMANDS[chosen].one_blas_thread:
+            from .estimation.memory import retain_freed_memory
             from .estimation.threads import limit_blas_threads
 
             limit_blas_threads()  # before the command's module imports numpy
+            retain_freed_memory()
         parser = build_parser(arguments)
     except ModuleNotFoundError as exc:  # the chosen command's extra is not installed
         extra = missing_extra(exc)

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 from numpy.typing import NDArray
 
+from . import _rows as rows
 from .errors import InputError
 from .numtext import BLOCK_VALUES, fixed_blocks, fixed_text, write_text_blocks
 from .threads import MIN_FRAMES, workers
@@ -692,7 +693,7 @@ def _conjugate(q: NDArray[np.float64]) -> NDArray[np.float64]:
 def _quat_angle(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Degrees (S,) of the rotation from unit quaternions p to q (S, 4), scalar last."""
     rel = _quat_multiply(_conjugate(p), q)
-    return np.asarray(np.degrees(2.0 * np.arctan2(np.linalg.norm(rel[:, :3], axis=1),
+    return np.asarray(np.degrees(2.0 * np.arctan2(rows.norms(rel[:, :3]),
                                                   np.abs(rel[:, 3]))))
 
 
@@ -700,7 +701,7 @@ def _halfway(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float
     """Quaternions (S, 4) halfway along the shortest path from p to q (S, 4)."""
     sign = np.where(np.einsum("ij,ij->i", p, q) < 0, -1.0, 1.0)
     mid = p + sign[:, None] * q
-    out: NDArray[np.float64] = mid / np.maximum(np.linalg.norm(mid, axis=1), 1e-12)[:, None]
+    out: NDArray[np.float64] = mid / np.maximum(rows.norms(mid), 1e-12)[:, None]
     return out
 
 
@@ -1202,7 +1203,7 @@ def compose_quaternions(p: NDArray[np.float64], q: NDArray[np.float64]
     qx, qy, qz, qw = q.T
     out = _vector_parts(p, q)
     out[:, 3] = pw * qw - px * qx - py * qy - pz * qz
-    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    out /= rows.norms(out)[:, None]
     return out
 
 

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..io.sensor_common import UNITS, example_path
-from ..io.sniff import FORMATS, detect_format
+from ..io.sniff import FORMATS, resolve_sensor_format
 from ..io.tracker import (
     TrackerLayout,
     detect_tracker_layout,
@@ -192,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
     source = _source_path(args)
     _check_output_dirs(args)
 
+    fmt = resolve_sensor_format(source, fmt)  # detected once, here: the reader is told
     layout = _tracker_layout(source, fmt, args.tracker_layout)
 
     bar = None if args.quiet else ProgressBar()
@@ -263,10 +264,11 @@ def _write_error(exc: OSError, outputs: SkeletonOutputs) -> Exception:
 
 
 def _tracker_layout(source: Path, fmt: str, spec: str | None) -> TrackerLayout | None:
-    """The layout of a tracker input: ``spec``, or detected (printed once the file is read)."""
+    """The layout of a tracker input (``fmt``, not ``auto``): ``spec``, or detected (printed
+    once the file is read)."""
     if spec is not None:
         return parse_tracker_layout(spec)
-    if (detect_format(source) if fmt == "auto" else fmt) != "tracker":
+    if fmt != "tracker":
         return None
     return detect_tracker_layout(source)
 

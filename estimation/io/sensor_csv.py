@@ -8,14 +8,18 @@ import io
 import itertools
 import math
 import os
+import threading
 import warnings
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import IO, TYPE_CHECKING, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import threads
 from ..errors import InputError, LimitError
 from ..model import SEGMENTS
 from ..numtext import decimal_rows, fixed_blocks, write_text_blocks
@@ -257,8 +261,8 @@ def _row_blocks(handle: io.TextIOWrapper, table: _Table, report: Progress) -> It
     n_cols = len(table.header)
     max_rows = limits.max_rows(n_cols)
     count = 0
-    for first, text in _line_blocks(handle, table.header_line + 1):
-        cells, lines = _parse_block(text, first, table.header)
+    for cells, lines in _parsed_blocks(_line_blocks(handle, table.header_line + 1),
+                                       table.header):
         if count + lines.size > max_rows:
             limits.check_rows(max_rows + 1, n_cols, line=int(lines[max_rows - count]))
         count += lines.size
@@ -267,6 +271,30 @@ def _row_blocks(handle: io.TextIOWrapper, table: _Table, report: Progress) -> It
         if size:
             # the file's position (a block's read-ahead at most ahead of the parse)
             report(min(os.lseek(handle.fileno(), 0, os.SEEK_CUR) / size, 1.0), "reading")
+
+
+def _parsed_blocks(blocks: Iterator[tuple[int, str]], header: list[str]
+                   ) -> Iterator[tuple[NDArray[np.float64], NDArray[np.int64]]]:
+    """``_parse_block`` of each of ``blocks`` (first line, text), in order, what it raises
+    raised in turn. On ``threads.workers()`` threads: numpy's parse of a block runs outside
+    the interpreter lock, so on two cores two blocks are parsed at once while this thread
+    reads the next; at most one block more than the threads is read ahead."""
+    n_threads = threads.workers()
+    if n_threads == 1:
+        yield from (_parse_block(text, first, header) for first, text in blocks)
+        return
+    ahead: deque[Future[tuple[NDArray[np.float64], NDArray[np.int64]]]] = deque()
+    with ThreadPoolExecutor(n_threads, thread_name_prefix="bonefit-read") as pool:
+        try:
+            for first, text in blocks:
+                ahead.append(pool.submit(_parse_block, text, first, header))
+                if len(ahead) > n_threads:
+                    yield ahead.popleft().result()
+            while ahead:
+                yield ahead.popleft().result()
+        finally:  # a caller that stops early (a limit, an error) leaves nothing running
+            for future in ahead:
+                future.cancel()
 
 
 def _file_size(handle: io.TextIOWrapper) -> int:
@@ -329,12 +357,16 @@ def _decimal_rows(text: str, n_cols: int) -> NDArray[np.float64] | None:
     return decimal_rows(data, n_cols)
 
 
+_WARNINGS_LOCK: Final = threading.Lock()
+
+
 def _loadtxt(text: str) -> NDArray[np.float64] | None:
     """``numpy.loadtxt`` of comma-separated numbers (n, C); None where it refuses the text
     (an empty cell among them: a block without dropped samples, the common case, is parsed
     in one pass, and only the others are rewritten with ``nan``)."""
     try:
-        with warnings.catch_warnings():
+        # the filters are global: one block's at a time (``_parsed_blocks``' threads)
+        with _WARNINGS_LOCK, warnings.catch_warnings():
             warnings.simplefilter("error")
             cells: NDArray[np.float64] = np.loadtxt(io.StringIO(text), delimiter=",",
                                                     dtype=float, ndmin=2, comments=None,

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from .. import _rows as rows
 from ..bvh import (
     SLIP_NODES,
     SLIP_TOL_M,
@@ -539,7 +540,7 @@ def _swung(base: NDArray[np.float64], seen: NDArray[np.float64]) -> NDArray[np.f
     ``_in_frame`` of the target) onto the target's direction in every frame: the turned
     frame holds the target along ``m`` exactly, its twist about ``m`` kept. ``base``
     itself where it already does (a limb segment's y axis runs along its bone)."""
-    local = seen / np.maximum(np.linalg.norm(seen, axis=1, keepdims=True), 1e-300)
+    local = seen / np.maximum(rows.norms(seen), 1e-300)[:, None]
     mean = local.mean(axis=0)
     mean /= max(float(np.linalg.norm(mean)), 1e-300)
     if float(np.abs(local - mean).max(initial=0.0)) <= 1e-12:
@@ -549,7 +550,7 @@ def _swung(base: NDArray[np.float64], seen: NDArray[np.float64]) -> NDArray[np.f
     swing[:, 3] = 1.0 + local @ mean
     flip = swing[:, 3] <= 1e-12  # opposite directions: a half turn about any axis ⟂ m
     swing[flip] = [*np.cross(mean, np.eye(3)[int(np.argmin(np.abs(mean)))]), 0.0]
-    swing /= np.linalg.norm(swing, axis=1, keepdims=True)
+    swing /= rows.norms(swing)[:, None]
     return compose_quaternions(base, swing)
 
 

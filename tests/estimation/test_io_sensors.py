@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from bonefit.estimation import threads
 from bonefit.estimation.errors import InputError
 from bonefit.estimation.io import sensor_csv
 from bonefit.estimation.io.sensors import (
@@ -182,6 +183,34 @@ def test_blocks_of_any_size_read_the_same_rows_and_name_the_same_lines(
     with pytest.raises(InputError, match=r"'x' at line 38, column 6") as err:
         read_sensor_csv(write(tmp_path / "bad.csv", "\n".join(lines) + "\n"))
     assert err.value.line == 38
+
+
+def test_blocks_parsed_on_threads_read_as_in_one_thread_and_raise_the_first_fault(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Blocks parsed two at a time give the recording of one thread bit for bit; with a
+    fault in a block and another in a later one, the earlier is raised, whichever block
+    was parsed first."""
+    monkeypatch.setattr(sensor_csv, "CHUNK_CHARS", 512)
+    rec = small_recording(n_frames=200, seed=7)
+    path = tmp_path / "r.csv"
+    write_sensor_csv(rec, path, decimals=9)
+    lines = path.read_text().splitlines()
+    read = {}
+    for n in (1, 2):
+        monkeypatch.setattr(threads, "workers", lambda n=n: n)
+        read[n] = read_sensor_csv(path)
+    for name in ("positions", "quaternions", "time"):
+        a, b = getattr(read[1], name), getattr(read[2], name)
+        assert a.shape == b.shape
+        assert (a.view(np.int64) == b.view(np.int64)).all()
+    for at in (40, 44):
+        cells = lines[at].split(",")
+        cells[3] = "1.2.3"
+        lines[at] = ",".join(cells)
+    bad = write(tmp_path / "bad.csv", "\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"'1\.2\.3' at line 41, column 4") as err:
+        read_sensor_csv(bad)
+    assert err.value.line == 41
 
 
 @pytest.mark.parametrize("layout", ["plain", "crlf-bom", "exponents"])
