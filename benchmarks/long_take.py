@@ -277,9 +277,9 @@ def job_phases(marks: dict[str, float], job: dict[str, Any]) -> dict[str, float]
     machine, one clock)."""
     started, finished = (datetime.fromisoformat(job[k]).timestamp()
                          for k in ("started_at", "finished_at"))
-    return {"upload": marks["uploaded"] - marks["start"], "queued": started - marks["uploaded"],
-            "run": finished - started, "seen": marks["seen"] - finished,
-            "json": marks["json"] - marks["seen"], "bvh": marks["bvh"] - marks["json"]}
+    ends = [marks["start"], marks["uploaded"], started, finished, marks["seen"], marks["json"],
+            marks["bvh"]]
+    return {name: b - a for name, a, b in zip(JOB_PHASES, ends[:-1], ends[1:], strict=True)}
 
 
 def wait_succeeded(client: httpx.Client, job_id: str, timeout: float = 3600.0
