@@ -8,8 +8,11 @@ For each size (default 6k, 36k, 144k and 576k frames) and suit (15 and 11 sensor
    ``numpy.loadtxt`` of the same file measured in the same run (the yardstick; target ≤ 3×).
 2. **Service job**: ``bonefit serve`` (embedded: SQLite queue and store, local artifacts, 2
    worker processes) on a free port; upload → succeeded → both downloads (JSON, BVH): wall
-   time and ratio to loadtxt (target ≤ 4×); then two such jobs at once: the wall time and the
-   peak RSS of the whole service process tree (target ≤ 3 GB), next to its idle RSS.
+   time and ratio to loadtxt (target ≤ 4×) and where it went (upload, queued, run, seen by
+   the client's poll, JSON and BVH downloads); then two such jobs at once: the wall time and
+   the peak RSS of the whole service process tree (target ≤ 3 GB), next to its idle RSS.
+   ``--job-formats json,bvh`` sends the jobs' ``formats`` parameter (the files they write;
+   default: not sent, so every format, as the service's default).
 
 The takes come from ``bonefit.estimation.simulate`` (``example_motion`` at 240 Hz,
 ``simulate_sensors``, ``write_sensor_csv``): a base of at most 36,000 frames is simulated and
@@ -23,6 +26,7 @@ yardstick then parses a copy with ``nan`` in the empty cells).
     python benchmarks/long_take.py [--frames 6000,36000] [--sensors 15,11] [--repeats 3]
                                    [--no-service] [--no-cli] [--cache DIR]
                                    [--baseline-cli /path/to/base/.venv/bin/bonefit]
+                                   [--job-formats json,bvh]
 
 Times are medians of ``--repeats`` runs; RSS the largest of them. Every run happens on the
 loaded 2-core machine of its day: the ratios, measured in the same run, are what compares.
@@ -43,7 +47,9 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -64,6 +70,8 @@ BASE_FRAMES = 36_000
 """Longest take simulated in one piece; longer ones repeat it (memory and time of the
 simulation, not of what is measured)."""
 SEED = 19
+JOB_PHASES = ("upload", "queued", "run", "seen", "json", "bvh")
+"""The phases of a job's wall time (:class:`JobRun`), medians in the table."""
 MB = 1024**2
 
 
@@ -223,36 +231,66 @@ def cli_run(take: Path, out: Path, command: Sequence[str] = ()) -> CliRun:
     return CliRun(wall, peak_kib / 1024, timings_of(out / "take.json"))
 
 
-def service_job(base_url: str, take: Path, out: Path) -> float:
-    """Upload → succeeded → JSON and BVH downloaded; wall seconds."""
+@dataclass
+class JobRun:
+    """One service job's wall time and where it went (seconds): ``upload`` (the POST of the
+    file), ``queued`` (submit to ``started_at``), ``run`` (``started_at`` to ``finished_at``:
+    read, estimate, writes, artifacts), ``seen`` (to the client's poll seeing it), the two
+    downloads."""
+
+    wall: float
+    phases: dict[str, float]
+
+
+def service_job(base_url: str, take: Path, out: Path,
+                formats: Sequence[str] | None = None) -> JobRun:
+    """Upload → succeeded → JSON and BVH downloaded (``formats``: the job's ``formats``
+    parameter; None: the kind's default, every format)."""
+    params = {} if formats is None else {"formats": list(formats)}
     start = time.perf_counter()
+    marks = {"start": time.time()}
     with httpx.Client(base_url=base_url, timeout=httpx.Timeout(600.0)) as client:
         with take.open("rb") as body:
             r = client.post("/v1/recordings", params={"filename": take.name,
                                                       "format": "sensor-csv"}, content=body)
         r.raise_for_status()
-        r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": r.json()["id"]})
+        marks["uploaded"] = time.time()
+        r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": r.json()["id"],
+                                          "params": params})
         r.raise_for_status()
         job_id = r.json()["id"]
-        wait_succeeded(client, job_id)
+        job = wait_succeeded(client, job_id)
+        marks["seen"] = time.time()
         for fmt in ("json", "bvh"):
             with client.stream("GET", f"/v1/jobs/{job_id}/result", params={"format": fmt}) \
                     as response, (out / f"{job_id}.{fmt}").open("wb") as fh:
                 response.raise_for_status()
                 for chunk in response.iter_bytes(MB):
                     fh.write(chunk)
+            marks[fmt] = time.time()
     elapsed = time.perf_counter() - start
     for fmt in ("json", "bvh"):
         (out / f"{job_id}.{fmt}").unlink()
-    return elapsed
+    return JobRun(elapsed, job_phases(marks, job))
 
 
-def wait_succeeded(client: httpx.Client, job_id: str, timeout: float = 3600.0) -> None:
+def job_phases(marks: dict[str, float], job: dict[str, Any]) -> dict[str, float]:
+    """The phases of :class:`JobRun` from the client's marks and the job's own times (one
+    machine, one clock)."""
+    started, finished = (datetime.fromisoformat(job[k]).timestamp()
+                         for k in ("started_at", "finished_at"))
+    ends = [marks["start"], marks["uploaded"], started, finished, marks["seen"], marks["json"],
+            marks["bvh"]]
+    return {name: b - a for name, a, b in zip(JOB_PHASES, ends[:-1], ends[1:], strict=True)}
+
+
+def wait_succeeded(client: httpx.Client, job_id: str, timeout: float = 3600.0
+                   ) -> dict[str, Any]:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
+        job: dict[str, Any] = client.get(f"/v1/jobs/{job_id}").json()
         if job["status"] == "succeeded":
-            return
+            return job
         if job["status"] in ("failed", "cancelled"):
             raise RuntimeError(f"job {job_id} {job['status']}: {job.get('error')}")
         time.sleep(0.05)
@@ -262,22 +300,26 @@ def wait_succeeded(client: httpx.Client, job_id: str, timeout: float = 3600.0) -
 @dataclass
 class ServiceRun:
     one: float
+    phases: dict[str, float]
     two: float
     peak_two_mib: float
     idle_mib: float
 
 
-def service_runs(take: Path, work: Path, repeats: int) -> ServiceRun:
+def service_runs(take: Path, work: Path, repeats: int,
+                 formats: Sequence[str] | None) -> ServiceRun:
     """One job at a time (median of ``repeats``), then two at once, on a fresh server."""
     with temp_dir("bonefit-bench-service-") as data, \
             running_server(data / "data", workers=2) as server:
         idle = tree_rss_kib(server.pid) / 1024
-        one = median([service_job(server.base_url, take, work) for _ in range(repeats)])
+        runs = [service_job(server.base_url, take, work, formats) for _ in range(repeats)]
         with PeakRss(server.pid) as peak, ThreadPoolExecutor(2) as pool:
             start = time.perf_counter()
-            list(pool.map(lambda _: service_job(server.base_url, take, work), range(2)))
+            list(pool.map(lambda _: service_job(server.base_url, take, work, formats),
+                          range(2)))
             two = time.perf_counter() - start
-    return ServiceRun(one, two, peak.peak_kib / 1024, idle)
+    phases = {k: median([r.phases[k] for r in runs]) for k in runs[0].phases}
+    return ServiceRun(median([r.wall for r in runs]), phases, two, peak.peak_kib / 1024, idle)
 
 
 # --- the table ---------------------------------------------------------------------------
@@ -295,8 +337,9 @@ def measure(take: Path, frames: int, sensors: int, args: argparse.Namespace,
         if baseline:
             row += cli_columns(baseline, yard, frames)[:2]
     if args.service:
-        svc = service_runs(take, work, args.repeats)
-        row += [f"{svc.one:.2f} s", f"{svc.one / yard:.1f}×", f"{svc.two:.2f} s",
+        svc = service_runs(take, work, args.repeats, args.job_formats)
+        row += [f"{svc.one:.2f} s", f"{svc.one / yard:.2f}×",
+                " / ".join(f"{v:.2f}" for v in svc.phases.values()), f"{svc.two:.2f} s",
                 f"{svc.peak_two_mib:,.0f} MiB (idle {svc.idle_mib:,.0f})"]
     return row
 
@@ -337,8 +380,13 @@ def header(args: argparse.Namespace) -> list[str]:
         if args.baseline_cli:
             cols += ["baseline CLI wall", "baseline / loadtxt"]
     if args.service:
-        cols += ["job wall", "job / loadtxt", "2 jobs wall", "2 jobs peak RSS (tree)"]
+        cols += ["job wall", "job / loadtxt", f"{' / '.join(JOB_PHASES)} s", "2 jobs wall",
+                 "2 jobs peak RSS (tree)"]
     return cols
+
+
+def formats_arg(text: str) -> list[str]:
+    return [x for x in re.split(r"[,\s]+", text.strip()) if x]
 
 
 def numbers(text: str, cast: Callable[[str], int]) -> list[int]:
@@ -368,6 +416,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                              "/path/to/base/.venv/bin/bonefit): its CLI runs interleaved "
                              "with this one's, their median wall and ratio in two more "
                              "columns")
+    parser.add_argument("--job-formats", type=formats_arg, default=None,
+                        help="the jobs' formats parameter, e.g. json,bvh (default: not sent, "
+                             "the service's default: every format)")
     args = parser.parse_args(argv)
     print(machine(), flush=True)
     rows = []

@@ -50,6 +50,9 @@ class ArtifactStore(Protocol):
     def exists(self, key: str) -> bool:
         """Whether ``key`` is stored."""
 
+    def size(self, key: str) -> int | None:
+        """The stored bytes' length; None if ``key`` is absent."""
+
     def ping(self) -> None:
         """Raise if the storage is unreachable."""
 
@@ -120,6 +123,13 @@ class LocalArtifactStore:
         """Whether the file exists."""
         return self._path(key).exists()
 
+    def size(self, key: str) -> int | None:
+        """The file's size."""
+        try:
+            return self._path(key).stat().st_size
+        except FileNotFoundError:
+            return None
+
     def ping(self) -> None:
         """Check the directory is writable."""
         self.root.mkdir(parents=True, exist_ok=True)
@@ -178,13 +188,17 @@ class S3ArtifactStore:
 
     def exists(self, key: str) -> bool:
         """Whether the object exists."""
+        return self.size(key) is not None
+
+    def size(self, key: str) -> int | None:
+        """The object's ``ContentLength``."""
         try:
-            self.client.head_object(Bucket=self.bucket, Key=self._key(key))
+            head = self.client.head_object(Bucket=self.bucket, Key=self._key(key))
         except Exception as exc:
             if _is_missing(exc):
-                return False
+                return None
             raise
-        return True
+        return int(head["ContentLength"])
 
     def ping(self) -> None:
         """Head the bucket."""

@@ -6,9 +6,10 @@ import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, cast
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -79,6 +80,25 @@ Runner = Callable[[Mapping[str, Input], Any, Progress, Path], dict[str, Path]]
 """``run(inputs, params, progress, outdir) -> {result format: file}``; inputs["recording"]."""
 
 
+def _with_json(formats: tuple[ResultFormat, ...]) -> tuple[ResultFormat, ...]:
+    if "json" not in formats:
+        raise ValueError("formats must include 'json': it is the job's result document, which "
+                         "the studio and the clients read")
+    return tuple(dict.fromkeys(formats))
+
+
+ResultFormats = Annotated[
+    tuple[ResultFormat, ...],
+    Field(min_length=1, max_length=len(RESULT_FORMATS),
+          description="Result files the job writes, 'json' among them (default all four). "
+                      "On a long take each costs time and space: ask only for those you "
+                      "will download."),
+    AfterValidator(_with_json)]
+"""The ``formats`` parameter of every kind: which results a job writes."""
+
+ALL_FORMATS = cast(tuple[ResultFormat, ...], RESULT_FORMATS)
+
+
 class JointOffsetIn(BaseModel):
     """Where a joint sits in one sensor's frame (an entry of a skeleton result's
     ``offsets``)."""
@@ -126,6 +146,7 @@ class SkeletonParams(BaseModel):
         description="A calibration: the `offsets` of an earlier skeleton result of the same "
                     "suit. Every joint is placed at its offset instead of being fitted "
                     "(method and fit options are then ignored).")
+    formats: ResultFormats = ALL_FORMATS
 
     @field_validator("anthropometry", mode="before")
     @classmethod
@@ -228,6 +249,7 @@ class TranslationParams(BaseModel):
         default_factory=ContactOptionsIn, validate_default=True,
         description="Options of `method`, validated by its model: contact: "
                     "`ContactOptionsIn`; hachaj2018: `window` (samples), `eps` (m).")
+    formats: ResultFormats = ALL_FORMATS
 
     @field_validator("options", mode="before")
     @classmethod
@@ -243,12 +265,13 @@ class TranslationParams(BaseModel):
 
 def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: Progress,
                  outdir: Path) -> dict[str, Path]:
-    """Read the sensor recording, estimate the skeleton, write JSON, BVH and CSV."""
+    """Read the sensor recording, estimate the skeleton, write the results of
+    ``params.formats``."""
     from bonefit.estimation import pipeline
     from bonefit.estimation.io.result_json import offsets_from_dict
 
     source = inputs["recording"]
-    out = {fmt: outdir / f"skeleton.{fmt}" for fmt in RESULT_FORMATS}
+    out: dict[str, Path] = {fmt: outdir / f"skeleton.{fmt}" for fmt in params.formats}
     pipeline.run_skeleton(
         pipeline.SensorSource(source.path, format=SENSOR_FORMATS.get(source.format, "auto"),
                               units=params.units, fps=params.fps, stations=params.stations,
@@ -259,20 +282,21 @@ def run_skeleton(inputs: Mapping[str, Input], params: SkeletonParams, progress: 
             w_l=params.w_l, smooth=params.smooth,
             offsets=None if params.offsets is None else offsets_from_dict(
                 {k: v.model_dump() for k, v in params.offsets.items()})),
-        pipeline.SkeletonOutputs(json=out["json"], bvh=out["bvh"], csv=out["csv"],
-                                 npz=out["npz"]),
+        pipeline.SkeletonOutputs(json=out.get("json"), bvh=out.get("bvh"),
+                                 csv=out.get("csv"), npz=out.get("npz")),
         progress=progress)
     return out
 
 
 def run_translation(inputs: Mapping[str, Input], params: TranslationParams, progress: Progress,
                     outdir: Path) -> dict[str, Path]:
-    """Read the kinematics (and accelerations), estimate the root path, write the results."""
+    """Read the kinematics (and accelerations), estimate the root path, write the results of
+    ``params.formats``."""
     from bonefit.estimation import pipeline
 
     source = inputs["recording"]
     accelerations = inputs.get("accelerations")
-    out = {fmt: outdir / f"translation.{fmt}" for fmt in RESULT_FORMATS
+    out: dict[str, Path] = {fmt: outdir / f"translation.{fmt}" for fmt in params.formats
            # a corrected CSV needs a CSV input to correct
            if fmt != "csv" or source.format == "kinematics-csv"}
     writers = {"json": "json", "bvh": "bvh", "csv": "kinematics-csv", "npz": "npz"}

@@ -26,9 +26,11 @@ async def job_result(request: Request, who: Tenant, job_id: str,
         raise Problem(409, "No result", f"the job is {job.status}; results exist once it has "
                       "succeeded", slug="job-not-finished", job_status=job.status)
     key = job.results.get(format)
-    if key is None or not await run_in_threadpool(runtime.artifacts.exists, key):
+    size = None if key is None else await run_in_threadpool(runtime.artifacts.size, key)
+    if key is None or size is None:
         raise Problem(404, "Not found", f"this job has no {format} result", slug="not-found",
                       field="format")
     name = f"{job.kind}-{job.id}.{format}"
     return StreamingResponse(runtime.artifacts.iter_bytes(key), media_type=MEDIA_TYPES[format],
-                             headers={"Content-Disposition": f'attachment; filename="{name}"'})
+                             headers={"Content-Disposition": f'attachment; filename="{name}"',
+                                      "Content-Length": str(size)})

@@ -235,8 +235,10 @@ def test_js_modules(start_server: Callable[..., ServerProcess], browser: Browser
       const camera = {yaw: 0.3, pitch: 0.2, zoom: 1, center: [1, 2, 3], radius: 1};
       return {
         kinds: kinds.map((k) => k.kind).sort(),
-        widgets: ['method', 'fps', 'up', 'stations', 'offsets', 'smooth', 'anthropometry']
-          .map((n) => field(n).widget),
+        widgets: ['method', 'fps', 'up', 'stations', 'offsets', 'smooth', 'anthropometry',
+                  'formats'].map((n) => field(n).widget),
+        formats: schema.parseField(field('formats'), 'json, bvh').value,
+        formatsBad: schema.parseField(field('formats'), 'json xml').error,
         fps0: schema.parseField(field('fps'), '0').error,
         fps: schema.parseField(field('fps'), '120').value,
         fpsEmpty: schema.parseField(field('fps'), '').value === undefined,
@@ -257,7 +259,9 @@ def test_js_modules(start_server: Callable[..., ServerProcess], browser: Browser
     }""")
     assert got["kinds"] == ["skeleton", "translation"]
     assert got["widgets"] == ["select", "number", "vector", "json", "calibration", "select",
-                              "json-or-enum"]
+                              "json-or-enum", "list"]
+    assert got["formats"] == ["json", "bvh"]
+    assert got["formatsBad"] == "xml: expected some of json, bvh, csv, npz"
     fps = next(a for a in httpx.get(f"{server.base_url}/openapi.json").json()["components"][
         "schemas"]["SkeletonParams"]["properties"]["fps"]["anyOf"] if a.get("type") == "number")
     if "exclusiveMinimum" in fps:  # the page checks what the schema says, whatever it says

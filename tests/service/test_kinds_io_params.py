@@ -96,3 +96,44 @@ def test_a_skeleton_job_reports_the_runs_stages_in_order(tmp_path: Path) -> None
     assert any(0.0 < f < 1.0 for f, s in reports if s == "reading")
     assert len({f for f, s in reports if s == "writing" and 0.0 < f < 1.0}) >= 3
     assert all(path.stat().st_size > 0 for path in out.values())
+
+
+def test_a_job_writes_only_the_formats_asked_for(tmp_path: Path) -> None:
+    """``formats`` chooses the files; those it writes are the default run's, byte for byte
+    (the JSON apart from its timings)."""
+    from bonefit.estimation.io.sensors import example_path
+
+    source = {"recording": Input(example_path(), "sensor-csv")}
+    every, some = tmp_path / "every", tmp_path / "some"
+    every.mkdir()
+    some.mkdir()
+    all_files = run_skeleton(source, SkeletonParams(), no_progress, every)
+    asked = run_skeleton(source, SkeletonParams(formats=["bvh", "json"]), no_progress, some)
+    assert set(all_files) == {"json", "bvh", "csv", "npz"}
+    assert set(asked) == {"json", "bvh"}
+    assert sorted(p.name for p in some.iterdir()) == ["skeleton.bvh", "skeleton.json"]
+    assert asked["bvh"].read_bytes() == all_files["bvh"].read_bytes()
+    docs = [json.loads(files["json"].read_text()) for files in (all_files, asked)]
+    for doc in docs:
+        del doc["timings"]
+    assert docs[0] == docs[1]
+
+
+def test_a_translation_job_writes_only_the_formats_asked_for(tmp_path: Path) -> None:
+    path = tmp_path / "duo.mvnx"
+    mvnx_two_subjects(path)
+    out = tmp_path / "out"
+    out.mkdir()
+    files = run_translation({"recording": Input(path, "mvnx")},
+                            TranslationParams(formats=["npz", "json"]), no_progress, out)
+    assert set(files) == {"json", "npz"}
+    assert sorted(p.name for p in out.iterdir()) == ["translation.json", "translation.npz"]
+
+
+@pytest.mark.parametrize("params", [SkeletonParams, TranslationParams])
+def test_formats_must_name_the_json_and_known_formats(params: type[SkeletonParams]) -> None:
+    assert params().formats == ("json", "bvh", "csv", "npz")
+    assert params(formats=["json", "bvh", "json"]).formats == ("json", "bvh")
+    for bad in (["bvh"], [], ["json", "xml"], "json", ["json"] * 5):
+        with pytest.raises(ValidationError, match="formats"):
+            params(formats=bad)

@@ -238,6 +238,7 @@ def test_job_lifecycle(client: TestClient, runtime: Runtime, worker: Worker) -> 
         assert r.headers["content-type"] == ctype
         assert r.headers["content-disposition"] == (
             f'attachment; filename="skeleton-{job["id"]}.{fmt}"')
+        assert int(r.headers["content-length"]) == len(r.content)  # clients can show progress
         assert r.text.startswith(fmt)
     assert_problem(client.get(f"/v1/jobs/{job['id']}/result", params={"format": "xml"}), 422)
 

@@ -699,12 +699,14 @@ def test_artifacts_round_trip(artifacts: ArtifactStore, tmp_path: Path) -> None:
     artifacts.ping()
     artifacts.put_file("t/recordings/a.bin", src)
     assert artifacts.exists("t/recordings/a.bin")
+    assert artifacts.size("t/recordings/a.bin") == len(data)
     assert b"".join(artifacts.iter_bytes("t/recordings/a.bin")) == data
     with artifacts.as_file("t/recordings/a.bin") as path:
         assert path.read_bytes() == data
     artifacts.delete("t/recordings/a.bin")
     artifacts.delete("t/recordings/a.bin")
     assert not artifacts.exists("t/recordings/a.bin")
+    assert artifacts.size("t/recordings/a.bin") is None
     with pytest.raises(FileNotFoundError):
         b"".join(artifacts.iter_bytes("t/recordings/a.bin"))
 

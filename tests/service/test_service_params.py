@@ -296,3 +296,28 @@ def test_service_results_carry_the_three_timings(client: TestClient, runtime: Ru
         timings = client.get(f"/v1/jobs/{job['id']}/result?format=json").json()["timings"]
         assert list(timings)[:3] == ["read_s", "estimate_s", "write_s"]
         assert all(timings[k] > 0 for k in ("read_s", "estimate_s", "write_s")), timings
+
+
+def test_a_job_has_the_results_its_formats_ask_for(client: TestClient, runtime: Runtime,
+                                                   tmp_path: Path) -> None:
+    from bonefit.estimation.io.sensors import example_path
+
+    rec = upload(client, example_path().read_bytes())
+    some = submit(client, rec["id"], params={"formats": ["json", "bvh"]})
+    every = submit(client, rec["id"])
+    assert some["params"]["formats"] == ["json", "bvh"]
+    assert every["params"]["formats"] == ["json", "bvh", "csv", "npz"]
+    r = client.post("/v1/jobs", json={"kind": "skeleton", "recording_id": rec["id"],
+                                      "params": {"formats": ["bvh"]}})
+    assert r.status_code == 422
+    assert r.json()["field"] == "params.formats"
+    drain(runtime, Worker(runtime, default_kinds()))
+    done = client.get(f"/v1/jobs/{some['id']}").json()
+    assert (done["status"], set(done["results"])) == ("succeeded", {"json", "bvh"})
+    assert set(client.get(f"/v1/jobs/{every['id']}").json()["results"]) == {
+        "json", "bvh", "csv", "npz"}
+    missing = client.get(f"/v1/jobs/{some['id']}/result", params={"format": "csv"})
+    assert (missing.status_code, missing.json()["field"]) == (404, "format")
+    bvh = client.get(f"/v1/jobs/{some['id']}/result", params={"format": "bvh"})
+    assert bvh.content == client.get(f"/v1/jobs/{every['id']}/result",
+                                     params={"format": "bvh"}).content

@@ -54,6 +54,9 @@ export function fieldOf(openapi, name, property) {
     return { ...field, widget: "number", integer: first.type === "integer",
       minimum: first.minimum, exclusiveMinimum: first.exclusiveMinimum, maximum: first.maximum };
   }
+  if (first.type === "array" && first.items?.enum) {
+    return { ...field, widget: "list", options: first.items.enum };
+  }
   if (first.type === "array" && first.prefixItems) {
     return { ...field, widget: "vector", size: first.prefixItems.length };
   }
@@ -122,6 +125,12 @@ export function parseField(field, text) {
         return { error: `expected ${field.size} numbers, e.g. 0, 1, 0` };
       }
       return { value: parts };
+    }
+    case "list": {
+      const items = raw.split(/[\s,]+/).filter(Boolean);
+      const bad = items.find((x) => !field.options.includes(x));
+      return bad === undefined ? { value: items }
+        : { error: `${bad}: expected some of ${field.options.join(", ")}` };
     }
     case "json":
       return checkObject(field, raw);
