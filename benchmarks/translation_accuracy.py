@@ -4,17 +4,21 @@ For every clip of ``../shared/data/motions`` (walks, turns, karate, dance; not t
 at 30, 60 and 100 fps, with and without 2 g accelerometer saturation, for each sensor
 placement (``instep``: the realistic protocol of issue 20, sensor 3-8 cm ahead of and 2-6 cm
 above the ankle, random mounting rotation, bias; ``instep-no-toes``: the same without toe
-joints in the kinematics; ``ankle``: the sensor at the ankle joint, the protocol before) and
-seed (offsets, rotation, noise 0.01/0.02/0.005 g): strip the root translation, simulate the
-foot accelerometers, estimate the path with both methods and print the medians of the mean
-horizontal hips error as % of the true path length per variant and seed, by rate ×
-saturation and by category, with the issue's acceptance figures (share of recordings where
-``contact`` is within 0.5 points of ``hachaj2018``; with ``--before`` the same protocol run on
-earlier code beside). Then closure, foot skate, floor penetration and vertical jumps on the
-real Heian Shodan recording (a held-out check: nothing is tuned on it).
+joints in the kinematics; ``ankle``: the sensor at the ankle joint, the protocol before;
+not run by default, ``ankle-no-toes``: the sensor at the ankle without toe joints, with the
+instep variants' noise and End Sites, which tells the instep's lever arm from the missing
+toe joints) and seed (offsets, rotation, noise 0.01/0.02/0.005 g): strip the root
+translation, simulate the foot accelerometers, estimate the path with both methods and
+print the medians of the mean horizontal hips error as % of the true path length per
+variant and seed, by rate × saturation and by category, with the issue's acceptance figures
+(share of recordings where ``contact`` is within 0.5 points of ``hachaj2018``; with
+``--before`` the same protocol run on earlier code beside; without toe joints, how often
+``choose_toes`` kept the extrapolated toe point). Then closure, foot skate, floor
+penetration and vertical jumps on the real Heian Shodan recording (a held-out check:
+nothing is tuned on it).
 
     .venv/bin/python benchmarks/translation_accuracy.py [--data DIR] [--quick] \
-        [--variants instep,ankle] [--seeds 1,2,3] [--rates 60] [--category walk] \
+        [--variants instep,ankle,ankle-no-toes] [--seeds 1,2,3] [--rates 60] [--category walk] \
         [--json rows.json] [--before rows_before.json] [--rows] [--options JSON] \
         [--no-clips | --no-heian]
 """
@@ -88,9 +92,13 @@ VARIANTS: dict[str, FootMount] = {
     "instep": INSTEP_MOUNT,
     "instep-no-toes": replace(INSTEP_MOUNT, keep_toes=False),
     "ankle": ANKLE_MOUNT,
+    "ankle-no-toes": replace(ANKLE_MOUNT, keep_toes=False),
 }
-"""Sensor placements: the realistic protocol (default) with and without toe joints in the
-kinematics, and the sensor at the ankle joint (the protocol before issue 20)."""
+"""Sensor placements: the realistic protocol with and without toe joints in the kinematics,
+the sensor at the ankle joint (the protocol before issue 20), and (not run by default) the
+sensor at the ankle without toe joints, which tells the lever arm of an instep sensor from
+the missing toe joints."""
+DEFAULT_VARIANTS = ("instep", "instep-no-toes", "ankle")
 OPT_IN: dict[str, object] = {"lever_arm_prior_m": 0.1, "extrapolate_toes": True}
 """The contact model's lever-arm fit and rolling toe estimate (off by default)."""
 NOISE_G = {1: 0.01, 2: 0.02, 3: 0.005}
@@ -127,8 +135,10 @@ def run_clips(motions: Path, quick: bool, variants: list[str], seeds: list[int],
                                       "clip_g": clip_g, "variant": variant, "seed": seed}
             for method in METHODS:
                 extra = options or {} if method == "contact" else {}
-                err = truth.horizontal_errors(estimate_translation(rec, method=method,
-                                                                   **extra).root)
+                result = estimate_translation(rec, method=method, **extra)
+                err = truth.horizontal_errors(result.root)
+                if method == "contact" and "toe_model" in result.quality:
+                    row["toe_model"] = result.quality["toe_model"]
                 row[f"{method}_mean"] = err["mean_pct"]
                 row[f"{method}_final"] = err["final_pct"]
                 row["path_m"] = err["path_m"]
@@ -198,6 +208,10 @@ def _print_variant(variant: str, seed: int, sel: list[dict[str, object]],
     print(f"contact within 0.5 points of hachaj2018 (or better) on {sum(close)}/{len(close)} "
           f"= {100 * sum(close) / len(close):.0f} % of recordings; worst "
           f"contact − hachaj {worst:+.1f} points")
+    chosen = [r["toe_model"] for r in sel if "toe_model" in r]
+    if chosen:
+        print(f"extrapolated toe point kept (choose_toes) on "
+              f"{chosen.count('extrapolated')}/{len(chosen)} recordings")
     if old:
         pairs = {_key(r): float(str(r["contact_mean"])) for r in old}
         diffs = [float(str(r["contact_mean"])) - pairs[_key(r)] for r in sel if _key(r) in pairs]
@@ -256,7 +270,7 @@ def main() -> None:
     parser.add_argument("--no-clips", action="store_true", help="Heian Shodan only")
     parser.add_argument("--no-heian", action="store_true",
                         help="synthetic clips only (keep the held-out check unseen while tuning)")
-    parser.add_argument("--variants", default=",".join(VARIANTS),
+    parser.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
                         help=f"comma-separated of {', '.join(VARIANTS)}")
     parser.add_argument("--seeds", default="1,2,3")
     parser.add_argument("--rates", default=",".join(f"{r:g}" for r in RATES))

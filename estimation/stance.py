@@ -34,6 +34,15 @@ TOE_BELOW: Final[float] = 0.055
 """Ankle height above the ball of the flat foot, as a fraction of the leg length."""
 
 
+INSTEP_SENSOR: Final[tuple[float, float, float]] = (0.03, 0.02, 0.0)
+"""Where the rolling-foot model takes the foot accelerometer, metres along the foot's axes
+(forward, up, lateral) from the ankle: on the instep, where suits strap it, a few
+centimetres ahead of and above the ankle. As the heel lifts about the ball, the reading of
+a sensor there differs from the ankle's by the foot's rotational terms; taking it at the
+ankle made the readings of a sensor near the ball look like a foot that does not roll
+(docs/translation.md)."""
+
+
 SHANK_RIGIDITY: Final[float] = 0.002
 """A joint whose distance to the ankle varies by less than this fraction (std / mean) rides
 on the shank; the hip's distance varies with the knee's flexion (a 20° bend of a straight

@@ -47,6 +47,7 @@ from .progress import Progress, no_progress
 from .results import TranslationQuality
 from .results import TranslationResult as TranslationResult  # defined there, numpy only
 from .stance import (
+    INSTEP_SENSOR,
     ball_on_foot,
     body_heading,
     estimate_sensor_offset,
@@ -261,7 +262,8 @@ def _balls(p: NDArray[np.float64], feet: list[_Feet], root: int) -> list[_Feet]:
         end = foot_point(p, foot.heel, leg) if foot.toe is None and leg > 0 else None
         if end is not None:
             ball = ball_on_foot(ankle, p[:, end], ankle[:, 1] <= other[:, 1], leg)
-            foot = replace(foot, end=end, ball=(float(ball[0]), float(ball[1]), 0.0))
+            foot = replace(foot, end=end, ball=(float(ball[0]), float(ball[1]), 0.0),
+                           offset=INSTEP_SENSOR)
         out.append(foot)
     return out
 
@@ -442,8 +444,9 @@ class ContactOptions:
         Without toe joints, a toe point at the ball of the foot: on a point rigid with the
         foot (an End Site; ``stance.foot_point``), the ball L = 0.13 and d = 0.055 leg
         lengths ahead of and below the ankle of the foot standing flat
-        (``stance.ball_on_foot``), a heel/toe point like a toe joint's (and the lever-arm
-        fit then has the foot's axes); without such a point, the ankle rolled back by the
+        (``stance.ball_on_foot``), a heel/toe point like a toe joint's, the sensor taken
+        on the instep (``stance.INSTEP_SENSOR``; the lever-arm fit then has the foot's
+        axes); without such a point, the ankle rolled back by the
         heel lift read from its rise above the other ankle (``stance.rise_tilt``). Needs
         ``use_toes``. Off by default: it fails the real recording's held-out check
         (docs/translation.md); ``choose_toes`` decides instead.
