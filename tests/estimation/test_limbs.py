@@ -107,13 +107,13 @@ def test_improved_recovers_exact_limb() -> None:
     # standard lengths 10 % off, as anthropometric tables are for real subjects
     fit = estimate_limb(*leg.args(), standard_lengths=(0.9 * THIGH, 1.1 * SHANK),
                         method="improved")
-    # measured: knee 3.5 mm, ankle 5.2 mm, shank 8 mm long: the table's 10 % errors pull
+    # measured: knee 1.6 mm, ankle 3.8 mm, shank 5 mm long: the table's 10 % errors pull
     # along the bones, which the data leave to second-order effects of the ankle's rotation
-    # (knee 1.5 mm and ankle 12 mm while the straight-limb prior also held the knee across
-    # the hip–ankle chord, which shortened the shank of every limb that stays bent)
-    assert np.linalg.norm(fit.middle_local - leg.knee_local) < 0.0045
+    # (knee 1.5, ankle 12 mm before the hinge rule's changes of issue 20 §3; knee 3.5 while
+    # the straight-limb prior had no pull across the hip–ankle chord at all)
+    assert np.linalg.norm(fit.middle_local - leg.knee_local) < 0.003
     assert np.linalg.norm(fit.distal_local - leg.ankle_local) < 0.007
-    assert mean_error(fit.middle, leg.knee) < 0.0045
+    assert mean_error(fit.middle, leg.knee) < 0.003
     assert mean_error(fit.distal, leg.ankle) < 0.007
     assert fit.quality["lower_length_m"] == pytest.approx(SHANK, abs=0.01)
     assert fit.quality["lower_length_sd_m"] < 1e-3
@@ -276,7 +276,7 @@ def test_levenberg_marquardt_reaches_scipy_minimum(robust: float | None) -> None
     leg = make_leg(n=300, noise_m=0.002, noise_deg=0.5, seed=8)
     limb = limbs.limb_in_upper_frame(*leg.args())
     fun, jac = limbs.improved_problem(limb, (0.4, 0.38), leg.axis_local,
-                                      limbs.PriorWeights(0.03, 3e-4, 1e-4, 3e-4, 0.2),
+                                      limbs.PriorWeights(0.03, 3e-4, 1e-4, 3e-4, 0.2, 0.5),
                                       robust_scale=robust)
     x0 = np.concatenate([leg.knee_local + 0.03, leg.ankle_local - 0.02, [0.35]])
     ref = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", ftol=1e-12,
@@ -305,7 +305,7 @@ def test_improved_jacobian_matches_finite_differences(robust: float | None,
     limb = limbs.limb_in_upper_frame(*leg.args())
     axis = np.array([0.6, 0.0, 0.8])
     fun, jac = limbs.improved_problem(limb, (0.4, 0.38), axis,
-                                      limbs.PriorWeights(0.03, 3e-4, 1e-4, 3e-4, 0.2),
+                                      limbs.PriorWeights(0.03, 3e-4, 1e-4, 3e-4, 0.2, 0.5),
                                       robust_scale=robust)
     x = np.concatenate([leg.knee_local + 0.02, leg.ankle_local - 0.01, [0.37]])
     if bounds_active:  # shank 58 % too long, ankle 0.3 m from its sensor
@@ -323,16 +323,14 @@ def test_flexion_plane_rows_find_the_ankle_of_a_twisting_shank(
         leg = make_leg(twist_deg=30.0, noise_m=0.002, noise_deg=0.5, seed=seed)
         fit = estimate_limb(*leg.args(), standard_lengths=(0.9 * THIGH, 1.1 * SHANK),
                             method="improved")
-        # knee 4.2, 6.3, 6.1 mm (4.2, 4.7, 4.4 while the straight-limb prior also held the
-        # knee across the chord against the table's 10 % too short thigh)
-        assert mean_error(fit.middle, leg.knee) < 0.007
+        # measured: knee 3.9, 5.1, 4.9 mm
+        assert mean_error(fit.middle, leg.knee) < 0.006
         return mean_error(fit.distal, leg.ankle)
 
     with_rows = [ankle_error(seed) for seed in range(3)]
     monkeypatch.setattr(limbs, "_W_PLANE", 0.0)
     without = [ankle_error(seed) for seed in range(3)]
-    # measured: 4.3, 3.8, 7.0 mm with the rows; 16, 12, 14 mm without (3.9, 4.2, 5.3 with the
-    # rows while the straight-limb prior also held the knee across the chord)
+    # measured: 4.2, 3.5, 5.9 mm with the rows; 16, 12, 14 mm without
     assert max(with_rows) < 0.008
     assert np.mean(without) > 2.0 * np.mean(with_rows)
 
@@ -383,10 +381,9 @@ def test_improved_fits_only_measured_frames() -> None:
         # measured: knee 212–316 mm, ankle 68–96 mm off when the guesses are trusted
         assert np.linalg.norm(blind.distal_local - leg.ankle_local) > 0.02
     for fit in fits:
-        # measured: knee 3.6, ankle 7.2 mm (1.2 and 5.2 while the straight-limb prior also
-        # held the knee across the hip–ankle chord against the table's 10 % too short thigh)
+        # measured: knee 2.2, ankle 5.9 mm
         assert fit.quality["fitted_frames"] == 360
-        assert np.linalg.norm(fit.middle_local - leg.knee_local) < 0.0045
+        assert np.linalg.norm(fit.middle_local - leg.knee_local) < 0.003
         assert np.linalg.norm(fit.distal_local - leg.ankle_local) < 0.010
         # joints placed in every frame, the unmeasured ones included
         assert fit.middle.shape == (400, 3)
@@ -541,8 +538,8 @@ def test_a_wide_flexion_arc_decides_its_own_axis() -> None:
 def test_a_limb_that_stays_bent_keeps_its_segment_lengths() -> None:
     # the knee flexes 50–80°, never straight: the straight-limb prior pulled the knee onto the
     # hip–ankle chord, across the flexion plane, and shortened the shank (measured on these
-    # seeds: shank 53–61 mm short, knee 58–65 mm off). Kept along the chord and the axis only:
-    # shank +5 to +12 mm, knee 10–13 mm, ankle 4–5 mm
+    # seeds: shank 53–61 mm short, knee 58–65 mm off). Its pull across the chord now shrinks
+    # with the limb's least flexion: shank +5 to +12 mm, knee 10–13 mm, ankle 4–5 mm
     for seed in range(4):
         leg = make_leg(flexion_deg=30.0, bent_deg=50.0, noise_m=0.002, noise_deg=0.5,
                        twist_deg=5.0, seed=seed)
