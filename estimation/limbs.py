@@ -37,20 +37,24 @@ it then converges as far as the least-squares path (within ~1e-10 of the same mi
 the soft-L1 loss ``ρ``, drops the ``|s|²`` term (it pulls the joints towards the sensor
 origins, a bias of centimetres), and adds the hinge rule: with ``n`` the flexion axis in
 the upper frame (least-scatter direction of the distal joint's path there), the middle
-joint is the point of the axis nearest the proximal joint (``nᵀ(s_j − h) = 0``) and the
-distal joint lies in the same plane (``nᵀ(x̄ − s_j) = 0``); both directions are
-unobservable from a hinge's motion. The distal joint's path across that plane,
+joint lies in the plane of the distal joint's arc (``nᵀ(x̄ − s_j) = 0``) and, at a quarter
+of that weight, in the plane through the proximal joint (``nᵀ(s_j − h) = 0``): a hinge's
+motion does not locate the middle joint along its axis, the flexion-plane rows below do
+locate the distal joint's plane, and the proximal joint sits off it wherever the upper bone
+is not square to the axis. The distal joint's path across that plane,
 ``nᵀ(x(t) − x̄)``, is penalised in every frame (weight 0.2 relative to the data rows): the
 ankle (wrist) centre is the one point of the foot (hand) that a twist of the shank
 (forearm) about its own axis leaves on the flexion arc, which singles it out where the
 length of the shank (forearm) alone hardly varies (-1.5 to -2 mm on the 11-sensor limb
-median, every seed of the accuracy benchmark). The rule is switched off when that path is not a
-clean arc wider than 1 cm. Weak priors (per frame, relative to the data rows: 1e-4 on the
-two standard lengths, 3e-4 on the middle joint lying on the proximal–distal line at the
-standard length ratio and on the distal joint lying near its sensor) keep a motionless
-limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the relative
-rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment lengths
-beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
+median, every seed of the accuracy benchmark). The rule is switched off when that path is
+not a clean arc (least over middle variance above 0.4) wider than 1 cm. Weak priors (per
+frame, relative to the data rows: 1e-4 on the two standard lengths, 3e-4 on the middle joint
+lying on the proximal–distal line at the standard length ratio, across that line in the
+flexion plane only as far as the limb passes through straight (a limb that stays bent has its
+middle joint off the line there), and on the distal joint lying near its sensor) keep a
+motionless limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the
+relative rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment
+lengths beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
 the paper's least-squares solution, the geometric point and a straight limb through the
 distal sensor; the alternation between axis and joints runs on a 400-frame subsample
 from each start and the best is polished on every frame. Weights were chosen on
@@ -766,15 +770,18 @@ def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis:
                      ) -> tuple[Callable[[Float], Float], Callable[[Float], Float]]:
     """θ = (k, a, L): middle joint (upper frame), distal joint (distal frame), lower length.
 
-    Rows: M data rows ρ(l(t) − L); 2 hinge rows; 3 straight-limb rows (middle joint at the
-    standard length ratio on the line from the proximal joint to the distal joint's mean
-    position in the upper frame); 2 length rows; 3 distal-offset rows; 3 plausibility rows
-    (zero unless a segment length leaves ±30 % of its standard length or the distal joint
-    lies more than 0.2 m from its sensor); M flexion-plane rows nᵀ(x(t) − x̄), the distal
-    joint's path across the flexion plane. The ankle (wrist) centre is the one point of the
-    foot (hand) that moves with the shank (forearm) alone, and a twist of the shank (forearm)
-    about its own axis leaves it in place, so in the thigh (upper-arm) frame its path follows
-    the flexion arc; points beside it also swing with the ankle (wrist) and the twist.
+    Rows: M data rows ρ(l(t) − L); 2 hinge rows (middle joint in the plane through the
+    proximal joint, at ``_HIP_PLANE_SHARE`` of the weight, and in the distal joint's plane);
+    3 straight-limb rows (middle joint at the standard length ratio on the line from the
+    proximal joint to the distal joint's mean position in the upper frame, along that line
+    and the axis, across it by ``PriorWeights.across``, ``_line_projector``); 2 length
+    rows; 3 distal-offset rows; 3 plausibility rows (zero unless a segment length leaves ±30
+    % of its standard length or the distal joint lies more than 0.2 m from its sensor); M
+    flexion-plane rows nᵀ(x(t) − x̄), the distal joint's path across the flexion plane. The
+    ankle (wrist) centre is the one point of the foot (hand) that moves with the shank
+    (forearm) alone, and a twist of the shank (forearm) about its own axis leaves it in
+    place, so in the thigh (upper-arm) frame its path follows the flexion arc; points beside
+    it also swing with the ankle (wrist) and the twist.
     """
     problem = _ImprovedProblem(limb, lengths, axis, weights, robust_scale)
     return problem.residuals, problem.jacobian
@@ -788,13 +795,15 @@ class PriorWeights(NamedTuple):
     length: float
     distal: float
     plane: float
+    across: float
 
 
-def _prior_weights(doubt: float, gain: float) -> PriorWeights:
+def _prior_weights(doubt: float, gain: float, across: float) -> PriorWeights:
     """The improved method's prior weights: the hinge's from the doubt about its axis, the
-    straight-limb, length and distal-offset ones scaled by ``gain`` (little motion)."""
+    straight-limb, length and distal-offset ones scaled by ``gain`` (little motion), the
+    straight-limb prior's share across the chord ``across`` (``_straight_share``)."""
     return PriorWeights(_hinge_weight(doubt), gain * _W_LINE, gain * _W_LENGTH,
-                        gain * _W_DISTAL, _W_PLANE)
+                        gain * _W_DISTAL, _W_PLANE, across)
 
 
 def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
@@ -803,6 +812,31 @@ def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
     dev = value - target
     excess = abs(dev) - tol
     return (float(np.sign(dev) * excess), float(np.sign(dev))) if excess > 0 else (0.0, 0.0)
+
+
+def _line_projector(axis: Float, chord: Float, across_share: float) -> Float:
+    """(3, 3) map that keeps the straight-limb prior's components along the flexion ``axis``
+    and along the ``chord`` (proximal joint → distal sensor, upper frame), and scales the one
+    across the chord in the flexion plane by ``across_share`` (``_straight_share``): a limb
+    flexed throughout has its middle joint off the chord there by the sagitta, and pulling it
+    onto the chord shortened both segments (the lower one by 11–16 mm in the median of the
+    accuracy benchmark's limbs)."""
+    across = np.cross(axis, chord)
+    across /= max(float(np.linalg.norm(across)), 1e-12)
+    return np.eye(3) - (1.0 - across_share) * np.outer(across, across)
+
+
+def _straight_share(limb: LimbInUpperFrame, x: Float) -> float:
+    """How far the limb passes through straight at ``x`` = (middle, distal, ...), 1 (it
+    does) to 0 (it stays bent): ``1 / (1 + (φ/_BENT_REF_DEG)²)``, ``φ`` the low
+    (``_BENT_PERCENTILE``) percentile over frames of the flexion angle between the proximal →
+    middle and middle → distal directions."""
+    upper = x[:3] - limb.h.mean(axis=0)
+    lower = limb.distal(x[3:6]) - x[:3]
+    cos = lower @ upper / np.maximum(rows.norms(lower) * np.linalg.norm(upper), 1e-12)
+    bent = float(np.degrees(np.arccos(np.clip(np.percentile(cos, 100 - _BENT_PERCENTILE),
+                                              -1.0, 1.0))))
+    return 1.0 / (1.0 + (bent / _BENT_REF_DEG) ** 2)
 
 
 class _ImprovedProblem:
@@ -817,7 +851,9 @@ class _ImprovedProblem:
         self.b_bar = limb.b.mean(axis=0)
         self.q_bar = limb.q.mean(axis=0)
         self.c_h = np.sqrt(m * weights.hinge)
+        self.c_hip = np.sqrt(m * weights.hinge * _HIP_PLANE_SHARE)
         self.c_s = np.sqrt(m * weights.line)
+        self.line_p = _line_projector(axis, self.b_bar - self.h_bar, weights.across)
         self.c_l = np.sqrt(m * weights.length)
         self.c_d = np.sqrt(m * weights.distal)
         self.c_b = np.sqrt(m * _W_BOUND)
@@ -849,8 +885,8 @@ class _ImprovedProblem:
         x_bar = self.b_bar + self.q_bar @ a
         lu = np.linalg.norm(k - h_bar)
         return np.concatenate([
-            [c_h * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
-            self.c_s * (k - h_bar - self.ratio * (x_bar - h_bar)),
+            [self.c_hip * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
+            self.c_s * self.line_p @ (k - h_bar - self.ratio * (x_bar - h_bar)),
             [self.c_l * (lu - l_up), self.c_l * (length - l_low)],
             self.c_d * a,
             [c_b * _outside(float(lu), l_up, self.tol_up)[0],
@@ -881,11 +917,11 @@ class _ImprovedProblem:
         """Rows (13, 7) of the prior rows' Jacobian, written into ``j``."""
         axis, c_h, c_s, c_b, q_bar = self.axis, self.c_h, self.c_s, self.c_b, self.q_bar
         l_up, l_low = self.lengths
-        j[0, :3] = c_h * axis
+        j[0, :3] = self.c_hip * axis
         j[1, :3] = -c_h * axis
         j[1, 3:6] = c_h * axis @ q_bar
-        j[2:5, :3] = c_s * np.eye(3)
-        j[2:5, 3:6] = -c_s * self.ratio * q_bar
+        j[2:5, :3] = c_s * self.line_p
+        j[2:5, 3:6] = -c_s * self.ratio * self.line_p @ q_bar
         e = k - self.h_bar
         j[5, :3] = self.c_l * e / np.linalg.norm(e)
         j[6, 6] = self.c_l
@@ -905,14 +941,27 @@ _W_HINGE = 0.01     # hinge rule, fully on for planar distal paths. 0.03 until i
 # that weight the rule overrode what the data locate of a knee (elbow) off its neighbours'
 # line or not a pure hinge (on the realistic rigs its rows cost 3-10x the data's gain at the
 # true joints); 0.01 lowers the 11-sensor limb median on both rigs and every seed
+_HIP_PLANE_SHARE = 0.25  # the hinge rule's row putting the middle joint in the proximal
+# joint's plane, relative to its row putting it in the distal joint's: a hinge turns the
+# distal joint in a plane through the middle one, which the flexion-plane rows locate, while
+# the proximal joint sits off that plane wherever the upper bone is not square to the axis
+# (a carrying angle); the middle joint's offset along the axis itself is seen by neither
 _W_LINE = 3e-4      # middle joint on the proximal–distal line at the standard length ratio
+# (across the line scaled by _straight_share: see _line_projector)
+_BENT_REF_DEG = 10.0  # least flexion at which the straight-limb prior keeps half its pull
+# across the chord (10 and 40 tie on the limb median of realistic seeds 1-2 and BVH 1, 20 is
+# 0.2-0.8 mm worse; on held-out realistic 3-5 and BVH 2, 40 is 0.3-1.3 mm worse than 10, and
+# 10 is within 0.4 mm of no pull across the chord at all)
+_BENT_PERCENTILE = 10.0  # the limb's least flexion: this low percentile over frames
 _W_LENGTH = 1e-4    # standard lengths (anthropometric tables are ±20 % off real subjects)
 _W_DISTAL = 3e-4    # distal joint near its sensor (as the paper's w_S, weaker, distal only)
 _W_PLANE = 0.2      # distal joint's path in the flexion plane, per frame (see improved_problem)
 _W_BOUND = 1.0      # lengths beyond ±_BOUND of the standard ones (implausible): strong
 _BOUND = 0.3
 _DISTAL_REACH = 0.2  # m: the ankle (wrist) lies within this distance of the foot (hand) sensor
-_PLANARITY_OFF = 0.2  # hinge rule off when the distal path is this far from planar
+_PLANARITY_OFF = 0.4  # hinge rule off when the distal path is this far from planar (0.2
+# until its rows agreed with the distal joint's plane: a knee or elbow that turns about
+# the shank or forearm as it flexes leaves estimated paths less planar than 0.2)
 _ARC_MIN_M = 0.01     # ... or when its in-plane spread is below 1 cm (noise, not flexion)
 _ALTERNATE = 2      # axis ↔ joints alternations
 
@@ -1019,16 +1068,17 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     # Little relative rotation between the two sensors means the data hardly constrain the
     # joints (and their noise would be fitted): lean on the priors accordingly.
     gain = float(np.clip((_MOTION_REF_DEG / max(motion_deg, 1e-3)) ** 2, 1.0, 100.0))
-    best: tuple[float, Float, Float, float] | None = None
+    best: tuple[float, Float, Float, float, float] | None = None
     # Several starts on the subsample (the objective has local minima when the limb moves
     # little); the best one is polished on every frame.
     for start in starts:
         axis, doubt = _hinge_axis(limb, start)
+        share = _straight_share(limb, start)
         length = float(rows.norms(limb.distal(start[3:6]) - start[:3]).mean())
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
-            fun, jac = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain),
+            fun, jac = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain, share),
                                         robust_scale=robust_scale)
             # MINPACK's trust region from these rough starts: the objective has several
             # local minima and its steps decide the basin (cheap on the subsample)
@@ -1038,21 +1088,22 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
             x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
             report(0.3 + 0.3 * next(fits) / (len(starts) * _ALTERNATE), "limbs")
             new_axis, doubt = _hinge_axis(limb, x)
+            share = _straight_share(limb, x)
             if new_axis @ axis < 0:
                 new_axis = -new_axis
             moved = float(np.arccos(np.clip(new_axis @ axis, -1.0, 1.0)))
             axis = new_axis
             if moved < 1e-4:
                 break
-        fun, _ = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain),
+        fun, _ = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain, share),
                                   robust_scale=robust_scale)
         r = fun(x)
         value = float(r @ r)
         if best is None or value < best[0]:
-            best = (value, x, axis, doubt)
+            best = (value, x, axis, doubt, share)
     assert best is not None
-    _, x, axis, doubt = best
-    fun, jac = improved_problem(limb, lengths, axis, _prior_weights(doubt, gain),
+    _, x, axis, doubt, share = best
+    fun, jac = improved_problem(limb, lengths, axis, _prior_weights(doubt, gain, share),
                                 robust_scale=robust_scale)
     if coarse is not limb:
         cost, normal = normal_from_residuals(fun, jac)
