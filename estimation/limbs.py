@@ -254,6 +254,14 @@ class LimbInUpperFrame:
                         np.ascontiguousarray(self.q.reshape(self.n, 9).T),
                         np.ascontiguousarray(self.h.T))
 
+    def frame_major(self) -> LimbInUpperFrame:
+        """The same limb with ``b``, ``q``, ``h`` in contiguous memory (copies of transposed
+        views), for the fits whose passes run frame by frame."""
+        if all(a.flags.c_contiguous for a in (self.b, self.q, self.h)):
+            return self
+        return LimbInUpperFrame(b=np.ascontiguousarray(self.b), q=np.ascontiguousarray(self.q),
+                                h=np.ascontiguousarray(self.h), by_component=self.by_component)
+
     def every(self, step: int) -> LimbInUpperFrame:
         """Every ``step``-th frame (views)."""
         cm = self.by_component
@@ -306,7 +314,8 @@ def _world(proximal: ArrayLike, upper_positions: ArrayLike, upper_rotations: Rot
 def _in_upper_frame(world: _World) -> LimbInUpperFrame:
     """The limb in the upper frame, computed component-major (``LimbRows``: a numpy loop per
     row over the frames instead of one per frame: 4x faster than the batched matmul of
-    (F, 3, 3) stacks for ``q``) and kept in both layouts."""
+    (F, 3, 3) stacks for ``q``); the frame-major arrays are transposed views of the rows
+    (``LimbInUpperFrame.frame_major`` copies them for the fits that run frame by frame)."""
     n = world.hip.shape[0]
     u = _by_component(world.ru.reshape(n, 9)).reshape(3, 3, n)
     q = np.einsum("kim,kjm->ijm", u, _by_component(world.rd.reshape(n, 9)).reshape(3, 3, n))
@@ -316,8 +325,8 @@ def _in_upper_frame(world: _World) -> LimbInUpperFrame:
     if not (np.isfinite(q).all() and np.isfinite(b).all()):
         raise InputError("limb rotations contain NaN; fill gaps first", field="rotations")
     q = q.reshape(9, n)
-    return LimbInUpperFrame(b=_by_component(b), q=_by_component(q).reshape(n, 3, 3),
-                            h=_by_component(h), by_component=LimbRows(b, q, h))
+    return LimbInUpperFrame(b=b.T, q=q.T.reshape(n, 3, 3), h=h.T,
+                            by_component=LimbRows(b, q, h))
 
 
 def _by_component(a: Float) -> Float:
@@ -477,7 +486,7 @@ class _PaperTerms:
         m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
         k, a = theta[:3], theta[3:]
         # the distal joint b + Q a in the upper frame, less the middle one: (3, M) rows
-        d = np.einsum("j,ijm->im", a, self.q.reshape(3, 3, m))
+        d = a @ self.q.reshape(3, 3, m)  # Σ_j a_j Q_ij: a BLAS product per row i
         d += self.b
         d -= k[:, None]
         ll = np.sqrt(np.einsum("im,im->m", d, d))
@@ -1240,7 +1249,8 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
     x0 = _initial_point(_coarse(limb) or limb, lengths)
     quality: dict[str, Any] = {"method": method}
     if method == "paper" and options.optimizer == "nelder-mead":
-        theta, n_eval, ok = _fit_paper_nm(limb, x0, lengths, w_s=w_s, w_l=w_l, progress=report)
+        theta, n_eval, ok = _fit_paper_nm(limb.frame_major(), x0, lengths, w_s=w_s, w_l=w_l,
+                                          progress=report)
         quality["optimizer"] = "nelder-mead"
         return theta, n_eval, ok, quality
     theta, n_eval, ok = _fit_paper_ls(limb, x0, lengths, w_s=w_s, w_l=w_l, objective=objective,
@@ -1248,6 +1258,7 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
     quality["optimizer"] = "least-squares"
     if method == "improved":
         report(0.3, "limbs")
+        measured = measured.frame_major()
         theta, more, ok, extra = _fit_improved(
             measured, [theta, x0, _straight_start(measured, lengths)], lengths,
             options.robust_scale, report)

@@ -227,6 +227,13 @@ def test_limb_in_upper_frame_matches_scipy_in_both_layouts() -> None:
     assert plain.by_component is None
     for got, want in zip(plain.component_major(), rows, strict=True):
         np.testing.assert_array_equal(got, want)
+    # frame by frame (Nelder-Mead, the improved method): contiguous copies of the same values
+    contiguous = limb.frame_major()
+    for got, want in ((contiguous.b, limb.b), (contiguous.q, limb.q), (contiguous.h, limb.h)):
+        assert got.flags.c_contiguous
+        np.testing.assert_array_equal(got, want)
+    assert contiguous.frame_major() is contiguous
+    assert contiguous.component_major() is rows
     every = limb.every(4)
     assert every.n == 23
     np.testing.assert_array_equal(every.q, limb.q[::4])
