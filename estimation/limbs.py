@@ -744,8 +744,18 @@ def _soft_l1(r: Float, scale: float) -> tuple[Float, Float]:
     return r * np.sqrt(2.0 / (s + 1.0)), np.sqrt(0.5 * (s + 1.0)) / s
 
 
-def _hinge_axis(limb: LimbInUpperFrame, x: Float) -> tuple[Float, float]:
-    """Flexion axis in the upper frame at ``x`` = (middle, distal, ...), and the doubt about it.
+def _hinge_state(limb: LimbInUpperFrame, x: Float) -> tuple[Float, float, float]:
+    """At ``x`` = (middle, distal, ...): the flexion axis and the doubt about it
+    (``_hinge_axis``), and the straight-limb prior's share across the chord
+    (``_straight_share``), from one distal joint path."""
+    path, proximal = limb.distal(x[3:6]), limb.h.mean(axis=0)
+    axis, doubt = _hinge_axis(path, proximal, x[:3])
+    return axis, doubt, _straight_share(path, proximal, x[:3])
+
+
+def _hinge_axis(path: Float, proximal: Float, middle: Float) -> tuple[Float, float]:
+    """Flexion axis in the upper frame from the distal joint's ``path`` (F, 3) there, and the
+    doubt about it.
 
     The distal joint circles around the axis, so the axis is its path's direction of least
     scatter. An arc a few degrees long is nearly straight, though: across its tangent the
@@ -763,12 +773,12 @@ def _hinge_axis(limb: LimbInUpperFrame, x: Float) -> tuple[Float, float]:
     (no usable axis): the planarity ratio (least over middle variance) relative to
     ``_PLANARITY_OFF``, or the arc being no wider than the noise (middle spread under
     ``_ARC_MIN_M``)."""
-    cov = np.cov(limb.distal(x[3:6]), rowvar=False)
+    cov = np.cov(path, rowvar=False)
     vals = np.linalg.eigvalsh(cov)
     planarity = float(vals[0] / vals[1]) if vals[1] > 0 else 1.0
     spread = float(np.sqrt(max(vals[1], 0.0)))
     width = float(np.clip((spread - _ARC_MIN_M) / _ARC_MIN_M, 0.0, 1.0))
-    g = limb.h.mean(axis=0) - x[:3]
+    g = proximal - middle
     g /= max(float(np.linalg.norm(g)), 1e-12)
     _, vecs = np.linalg.eigh(cov + _ARC_MIN_M ** 2 * np.outer(g, g))
     return vecs[:, 0], float(1.0 - (1.0 - min(planarity / _PLANARITY_OFF, 1.0)) * width)
@@ -835,13 +845,13 @@ def _line_projector(axis: Float, chord: Float, across_share: float) -> Float:
     return np.eye(3) - (1.0 - across_share) * np.outer(across, across)
 
 
-def _straight_share(limb: LimbInUpperFrame, x: Float) -> float:
-    """How far the limb passes through straight at ``x`` = (middle, distal, ...), 1 (it
-    does) to 0 (it stays bent): ``1 / (1 + (φ/_BENT_REF_DEG)²)``, ``φ`` the low
-    (``_BENT_PERCENTILE``) percentile over frames of the flexion angle between the proximal →
-    middle and middle → distal directions."""
-    upper = x[:3] - limb.h.mean(axis=0)
-    lower = limb.distal(x[3:6]) - x[:3]
+def _straight_share(path: Float, proximal: Float, middle: Float) -> float:
+    """How far the limb passes through straight, 1 (it does) to 0 (it stays bent):
+    ``1 / (1 + (φ/_BENT_REF_DEG)²)``, ``φ`` the low (``_BENT_PERCENTILE``) percentile over
+    frames of the flexion angle between the ``proximal`` → ``middle`` and middle → distal
+    (``path``, (F, 3)) directions."""
+    upper = middle - proximal
+    lower = path - middle
     cos = lower @ upper / np.maximum(rows.norms(lower) * np.linalg.norm(upper), 1e-12)
     bent = float(np.degrees(np.arccos(np.clip(np.percentile(cos, 100 - _BENT_PERCENTILE),
                                               -1.0, 1.0))))
@@ -1081,8 +1091,7 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     # Several starts on the subsample (the objective has local minima when the limb moves
     # little); the best one is polished on every frame.
     for start in starts:
-        axis, doubt = _hinge_axis(limb, start)
-        share = _straight_share(limb, start)
+        axis, doubt, share = _hinge_state(limb, start)
         length = float(rows.norms(limb.distal(start[3:6]) - start[:3]).mean())
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
@@ -1096,8 +1105,7 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
             n_eval += int(sol.nfev + sol.njev)
             x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
             report(0.3 + 0.3 * next(fits) / (len(starts) * _ALTERNATE), "limbs")
-            new_axis, doubt = _hinge_axis(limb, x)
-            share = _straight_share(limb, x)
+            new_axis, doubt, share = _hinge_state(limb, x)
             if new_axis @ axis < 0:
                 new_axis = -new_axis
             moved = float(np.arccos(np.clip(new_axis @ axis, -1.0, 1.0)))

@@ -47,9 +47,6 @@ class ArtifactStore(Protocol):
     def delete(self, key: str) -> None:
         """Remove ``key`` if present."""
 
-    def exists(self, key: str) -> bool:
-        """Whether ``key`` is stored."""
-
     def size(self, key: str) -> int | None:
         """The stored bytes' length; None if ``key`` is absent."""
 
@@ -119,10 +116,6 @@ class LocalArtifactStore:
         """Remove the file."""
         self._path(key).unlink(missing_ok=True)
 
-    def exists(self, key: str) -> bool:
-        """Whether the file exists."""
-        return self._path(key).exists()
-
     def size(self, key: str) -> int | None:
         """The file's size."""
         try:
@@ -185,10 +178,6 @@ class S3ArtifactStore:
     def delete(self, key: str) -> None:
         """Delete the object."""
         self.client.delete_object(Bucket=self.bucket, Key=self._key(key))
-
-    def exists(self, key: str) -> bool:
-        """Whether the object exists."""
-        return self.size(key) is not None
 
     def size(self, key: str) -> int | None:
         """The object's ``ContentLength``."""

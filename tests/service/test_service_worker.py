@@ -323,7 +323,7 @@ def test_retention_purges_old_records_and_artifacts(client: TestClient, runtime:
     assert purge(runtime, now=time.time() + 11) == 2
     assert client.get(f"/v1/jobs/{job['id']}").status_code == 404
     assert client.get(f"/v1/recordings/{rec['id']}").status_code == 404
-    assert not any(runtime.artifacts.exists(k) for k in keys)
+    assert all(runtime.artifacts.size(k) is None for k in keys)
 
 
 def test_a_lost_queue_message_is_sent_again(client: TestClient, runtime: Runtime,
