@@ -67,6 +67,17 @@ def test_every_count_of_decimals_and_integer_digits(decimals: int) -> None:
             assert text == rows, (decimals, digits)
 
 
+def test_integer_parts_at_every_power_of_ten(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Integer digits are divided out in the narrowest type that holds them (16, 32, 64
+    bits): both sides of each power of ten, where a type or a leading zero changes."""
+    monkeypatch.setattr(numtext, "_python_block", None)  # every digit from numpy here
+    for digits in range(1, 16):
+        for decimals in sorted({0, min(3, 15 - digits), 15 - digits}):
+            table = np.array([[10.0 ** digits - 1, -(10.0 ** (digits - 1))],
+                              [10.0 ** (digits - 1) - 1, 0.3], [-7.0, 0.0]])
+            assert fixed_text(table, decimals, sep=" ") == printf_rows(table, decimals, " ")
+
+
 def test_any_memory_layout() -> None:
     table = np.random.default_rng(2).normal(size=(9, 6)) * 1e3
     for view in (table.T, np.asfortranarray(table), table[::2, ::3]):
