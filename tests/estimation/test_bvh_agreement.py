@@ -431,11 +431,12 @@ def test_continuous_euler_of_small_steps_is_the_twin_scans_bit_for_bit(
     # steps under 30 degrees a channel (the short path, no twin scan) near gimbal lock and
     # through the outer angles' wraps: the same bits as the scan of every step
     rng = np.random.default_rng(12)
-    walk = np.cumsum(rng.normal(scale=0.02, size=(5000, 3)), axis=0)
-    walk[:, 0] += 1.5
+    walk = np.cumsum(rng.normal(scale=0.005, size=(5000, 3)), axis=0)
+    walk[:, 0] += 1.3  # middle angle up to 85 degrees
     angles = Rotation.from_rotvec(walk).as_euler("ZXY", degrees=True)
     step = np.diff(angles, axis=0)
     assert np.abs(step).max() > 300.0  # wraps of the outer angles
+    assert np.abs(angles[:, 1]).max() > 80.0  # near gimbal lock
     assert np.abs(step - 360.0 * np.round(step / 360.0)).max() < 30.0  # else no short path
     short = continuous_euler(angles)
     monkeypatch.setattr(bvh_module, "SMALL_STEP_DEG", 0.0)  # every step scanned
