@@ -21,6 +21,17 @@ def test_python_m_bonefit_prints_the_installed_version() -> None:
     assert done.stdout.strip() == f"bonefit {version('bonefit')}"
 
 
+def test_the_version_is_looked_up_only_for_version() -> None:
+    # importlib.metadata is tens of milliseconds of every command's start
+    code = ("import sys; from bonefit.cli import build_parser; "
+            "build_parser(['skeleton']).parse_args(['skeleton', 'take.csv']); "
+            "print('importlib.metadata' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+
+
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exit_:
         main(["--help"])
