@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from importlib.metadata import version
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -30,6 +32,40 @@ def test_the_version_is_looked_up_only_for_version() -> None:
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "False"
+
+
+class Exited(Exception):
+    """How a test sees ``os._exit`` (which would end pytest)."""
+
+
+@pytest.mark.parametrize(("argv", "fast"), [
+    (["skeleton", "take.csv"], True), (["translate", "take.bvh"], True),
+    (["serve"], False), (["submit", "take.csv"], False)])
+def test_estimating_commands_exit_without_the_interpreters_teardown(
+        argv: list[str], fast: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    def os_exit(code: int) -> None:
+        raise Exited(code)
+
+    monkeypatch.setattr(bonefit.cli.os, "_exit", os_exit)
+    monkeypatch.setattr(bonefit.cli, "main", lambda arguments: 5 if arguments == argv else 9)
+    monkeypatch.setattr(sys, "argv", ["bonefit", *argv])
+    with pytest.raises(Exited if fast else SystemExit) as exit_:
+        bonefit.cli.entry()
+    code = exit_.value.args[0] if fast else exit_.value.code
+    assert code == 5
+
+
+def test_python_m_bonefit_writes_whole_files_and_exits_with_the_code(tmp_path: Path) -> None:
+    out = tmp_path / "walk.json"
+    done = subprocess.run([sys.executable, "-m", "bonefit", "skeleton", "--example", "-o",
+                           str(out), "--quiet"], capture_output=True, text=True, timeout=300,
+                          check=False)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(out.read_text())["kind"] == "skeleton"
+    bad = subprocess.run([sys.executable, "-m", "bonefit", "skeleton", str(tmp_path / "no.csv")],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2
+    assert "no such file" in bad.stderr
 
 
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
