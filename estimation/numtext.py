@@ -280,17 +280,36 @@ class JsonArray:
         table = values.reshape(-1, 1) if flat else values
         first = True
         yield "["
+        layout = _Layout(self.decimals, sep, sep if flat else sep + "[", "" if flat else "]",
+                         None)
         step = max(1, BLOCK_VALUES // max(table.shape[1], 1))
         for start in range(0, table.shape[0], step):
-            rounded = np.round(table[start:start + step], self.decimals)
-            for text in fixed_blocks(rounded, self.decimals, sep=sep,
-                                     row_start=sep if flat else sep + "[",
-                                     row_end="" if flat else "]"):
-                yield text[len(sep):] if first else text
-                first = False
+            text = _rounded_text(table[start:start + step], layout)
+            yield text[len(sep):] if first else text
+            first = False
             if done is not None:
-                done(rounded.size)
+                done(table[start:start + step].size)
         yield "]"
+
+
+_EXACT_DIGITS: Final[float] = 2.0 ** 49
+"""Scaled values below which :func:`_rounded_text` writes the digits of ``rint(v * 10**d)``
+itself: ``np.round``'s value ``n / 10**d`` times ``10**d`` is then within a quarter of the
+integer ``n``, so printf writes ``n``'s digits."""
+
+
+def _rounded_text(block: NDArray[np.float64], layout: _Layout) -> str:
+    """The text of ``np.round(block, decimals)`` with ``decimals`` decimals (``fixed_text``
+    of it), the digits from ``rint(block * 10**decimals)``, ``np.round``'s own intermediate,
+    without dividing back and scaling again: the same text, a third fewer passes. Blocks
+    with a value beyond :data:`_EXACT_DIGITS` once scaled, or not finite, are rounded and
+    written by ``fixed_text``."""
+    scaled = np.rint(block * 10.0 ** layout.decimals)
+    if scaled.size and scaled.min() > -_EXACT_DIGITS and scaled.max() < _EXACT_DIGITS:
+        # the sign of n / 10**d is n's, -0.0 included
+        return _numpy_block(scaled, scaled, layout)
+    return fixed_text(np.round(block, layout.decimals), layout.decimals, sep=layout.sep,
+                      row_start=layout.row_start, row_end=layout.row_end)
 
 
 @dataclass(frozen=True, eq=False)

@@ -111,6 +111,32 @@ def test_json_document_has_the_values_of_rounded_lists(separators: tuple[str, st
     assert "e-" not in text  # no exponent notation for small values
 
 
+@pytest.mark.parametrize("decimals", [0, 3, 6, 8])
+def test_json_arrays_are_the_rounded_values_printf_byte_for_byte(
+        decimals: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The digits come from ``rint(v * 10**d)``, np.round's intermediate: the text of the
+    rounded values, negative zeros and halfway cases included; a block with a value too
+    large for that goes through np.round and printf."""
+    monkeypatch.setattr(numtext, "BLOCK_VALUES", 6)  # blocks of two rows
+    rng = np.random.default_rng(decimals)
+    values = rng.normal(size=(9, 3)) * 10.0 ** rng.integers(-9, 5, size=(9, 3))
+    values[0] = [-0.0, -1e-12, 0.5 * 10.0 ** -decimals]  # "-0...", "-0...", a halfway case
+    values[1] = [2.5, -1.5 * 10.0 ** -decimals, 1e-300]
+    values[4, 1] = 3e14  # past 2**49 once scaled (for decimals > 1): np.round, then printf
+    rounded = np.round(values, decimals)
+    expected = "[" + ", ".join("[" + ", ".join(f"{v:.{decimals}f}" for v in row) + "]"
+                               for row in rounded.tolist()) + "]"
+    slow: list[int] = []
+
+    def counted(table: np.ndarray, places: int, **layout: Any) -> str:
+        slow.append(len(table))
+        return fixed_text(table, places, **layout)
+
+    monkeypatch.setattr(numtext, "fixed_text", counted)
+    assert "".join(JsonArray(values, decimals).blocks(", ")) == expected
+    assert slow == ([2] if decimals > 0 else [])  # only the block of rows 4 and 5
+
+
 @pytest.mark.parametrize("layout", [{}, {"indent": 2}, {"separators": (",", ":")}])
 def test_a_later_value_is_computed_when_reached_and_laid_out_as_json_dumps(
         layout: dict[str, Any]) -> None:
