@@ -34,25 +34,19 @@ def test_the_version_is_looked_up_only_for_version() -> None:
     assert done.stdout.strip() == "False"
 
 
-class Exited(Exception):
-    """How a test sees ``os._exit`` (which would end pytest)."""
-
-
-@pytest.mark.parametrize(("argv", "fast"), [
+@pytest.mark.parametrize(("argv", "frozen"), [
     (["skeleton", "take.csv"], True), (["translate", "take.bvh"], True),
     (["serve"], False), (["submit", "take.csv"], False)])
-def test_estimating_commands_exit_without_the_interpreters_teardown(
-        argv: list[str], fast: bool, monkeypatch: pytest.MonkeyPatch) -> None:
-    def os_exit(code: int) -> None:
-        raise Exited(code)
-
-    monkeypatch.setattr(bonefit.cli.os, "_exit", os_exit)
+def test_estimating_commands_exit_without_the_teardowns_collections(
+        argv: list[str], frozen: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    froze: list[bool] = []
+    monkeypatch.setattr(bonefit.cli.gc, "freeze", lambda: froze.append(True))
     monkeypatch.setattr(bonefit.cli, "main", lambda arguments: 5 if arguments == argv else 9)
     monkeypatch.setattr(sys, "argv", ["bonefit", *argv])
-    with pytest.raises(Exited if fast else SystemExit) as exit_:
+    with pytest.raises(SystemExit) as exit_:
         bonefit.cli.entry()
-    code = exit_.value.args[0] if fast else exit_.value.code
-    assert code == 5
+    assert exit_.value.code == 5
+    assert froze == ([True] if frozen else [])
 
 
 def test_python_m_bonefit_writes_whole_files_and_exits_with_the_code(tmp_path: Path) -> None:
