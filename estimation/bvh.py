@@ -632,9 +632,15 @@ def continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
     angles = np.asarray(angles, dtype=float)
     if len(angles) < 2:
         return angles.copy()
-    states = _twin_states(angles)
-    chosen = np.where(states[..., None] == 1, _twin(angles), angles)
-    turns = np.round(np.diff(chosen, axis=0) / 360.0)
+    change = angles[1:] - angles[:-1]
+    turns = np.round(change / 360.0)
+    change -= 360.0 * turns  # _wrap's operations: the wrapped change
+    if float(np.abs(change).max()) * 3.0 < SMALL_STEP_DEG:
+        chosen = angles  # every step small (the usual case): no frame takes its twin
+    else:
+        states = _twin_states(angles)
+        chosen = np.where(states[..., None] == 1, _twin(angles), angles)
+        turns = np.round(np.diff(chosen, axis=0) / 360.0)
     out = chosen.copy()
     out[1:] -= 360.0 * np.cumsum(turns, axis=0)
     return out
@@ -1181,12 +1187,16 @@ def _quat_multiply(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np
 def _vector_parts(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N, 4) holding the vector parts ``pw qv + qw pv + pv × qv`` of the products p·q, the
     scalar part left for the caller (whose order of operations sets its last bits)."""
-    px, py, pz, pw = p.T
-    qx, qy, qz, qw = q.T
-    out = np.empty((max(len(p), len(q)), 4))
-    out[:, 0] = pw * qx + qw * px + (py * qz - pz * qy)
-    out[:, 1] = pw * qy + qw * py + (pz * qx - px * qz)
-    out[:, 2] = pw * qz + qw * pz + (px * qy - py * qx)
+    n = max(len(p), len(q))
+    out = np.empty((n, 4))
+    first, second, third = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(3):  # into three reused temporaries, the same operations in order
+        i, j = (k + 1) % 3, (k + 2) % 3
+        np.multiply(p[:, 3], q[:, k], out=first)
+        first += np.multiply(q[:, 3], p[:, k], out=second)
+        np.multiply(p[:, i], q[:, j], out=second)
+        second -= np.multiply(p[:, j], q[:, i], out=third)
+        np.add(first, second, out=out[:, k])
     return out
 
 

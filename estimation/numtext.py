@@ -135,23 +135,25 @@ def _ascii8_words(values: NDArray[np.uint64]) -> NDArray[np.uint64]:
     return np.ascontiguousarray(words, dtype="<u8")
 
 
-def _ascii8(values: NDArray[np.uint64]) -> NDArray[np.uint8]:
-    """The eight zero-padded ASCII digits (..., 8) of integers below 10**8 (...)."""
-    digits: NDArray[np.uint8] = _ascii8_words(values).view(np.uint8)
-    return digits.reshape(*values.shape, 8)
+_DIGIT_TYPES: Final[tuple[tuple[int, type[np.unsignedinteger[Any]]], ...]] = (
+    (4, np.uint16), (9, np.uint32), (16, np.uint64))
+"""The narrowest unsigned type of integers of up to so many digits: :func:`_put_digits`
+divides in it (the narrower, the faster)."""
 
 
 def _put_digits(values: NDArray[np.uint64], out: NDArray[np.uint8]) -> None:
-    """Zero-padded ASCII digits of non-negative integers (R, C) below 10**16 into ``out``
-    (R, C, W), W at most 16."""
+    """Zero-padded ASCII digits of non-negative integers (R, C) below 10**W into ``out``
+    (R, C, W), W at most 16: one division by ten per digit, each digit stored straight into
+    its strided column (no (R, C, 8) temporary to copy from)."""
     width = out.shape[-1]
-    if width > 8:
-        high = values // np.uint64(10**8)
-        out[..., :width - 8] = _ascii8(high)[..., 16 - width:]
-        values = values - high * np.uint64(10**8)
-        out = out[..., width - 8:]
-        width = 8
-    out[...] = _ascii8(values)[..., 8 - width:]
+    kind = next(kind for digits, kind in _DIGIT_TYPES if width <= digits)
+    rest = values.astype(kind)
+    ten, zero = kind(10), kind(_DIGIT0)
+    for k in range(width - 1, 0, -1):
+        higher = rest // ten
+        np.add(rest - higher * ten, zero, out=out[..., k], casting="unsafe")
+        rest = higher
+    np.add(rest, zero, out=out[..., 0], casting="unsafe")
 
 
 @dataclass(frozen=True, eq=False)
@@ -223,8 +225,9 @@ def _put_number_digits(fields: _Fields, whole: NDArray[np.uint64],
         chars[..., 1] = whole.astype(np.uint8) + np.uint8(ord("0"))
         return
     _put_digits(whole, chars[..., 1:1 + width])
-    n_int = np.searchsorted(10 ** np.arange(1, width, dtype=np.uint64), whole, side="right")
-    fields.keep()[..., 1:1 + width] = np.arange(width) >= width - 1 - n_int[..., None]
+    keep = fields.keep()
+    for k in range(width - 1):  # a leading digit is kept if the number reaches its place
+        np.greater_equal(whole, np.uint64(10 ** (width - 1 - k)), out=keep[..., 1 + k])
 
 
 def _numpy_block(block: NDArray[np.float64], scaled: NDArray[np.float64],
@@ -277,17 +280,36 @@ class JsonArray:
         table = values.reshape(-1, 1) if flat else values
         first = True
         yield "["
+        layout = _Layout(self.decimals, sep, sep if flat else sep + "[", "" if flat else "]",
+                         None)
         step = max(1, BLOCK_VALUES // max(table.shape[1], 1))
         for start in range(0, table.shape[0], step):
-            rounded = np.round(table[start:start + step], self.decimals)
-            for text in fixed_blocks(rounded, self.decimals, sep=sep,
-                                     row_start=sep if flat else sep + "[",
-                                     row_end="" if flat else "]"):
-                yield text[len(sep):] if first else text
-                first = False
+            text = _rounded_text(table[start:start + step], layout)
+            yield text[len(sep):] if first else text
+            first = False
             if done is not None:
-                done(rounded.size)
+                done(table[start:start + step].size)
         yield "]"
+
+
+_EXACT_DIGITS: Final[float] = 2.0 ** 49
+"""Scaled values below which :func:`_rounded_text` writes the digits of ``rint(v * 10**d)``
+itself: ``np.round``'s value ``n / 10**d`` times ``10**d`` is then within a quarter of the
+integer ``n``, so printf writes ``n``'s digits."""
+
+
+def _rounded_text(block: NDArray[np.float64], layout: _Layout) -> str:
+    """The text of ``np.round(block, decimals)`` with ``decimals`` decimals (``fixed_text``
+    of it), the digits from ``rint(block * 10**decimals)``, ``np.round``'s own intermediate,
+    without dividing back and scaling again: the same text, a third fewer passes. Blocks
+    with a value beyond :data:`_EXACT_DIGITS` once scaled, or not finite, are rounded and
+    written by ``fixed_text``."""
+    scaled = np.rint(block * 10.0 ** layout.decimals)
+    if scaled.size and scaled.min() > -_EXACT_DIGITS and scaled.max() < _EXACT_DIGITS:
+        # the sign of n / 10**d is n's, -0.0 included
+        return _numpy_block(scaled, scaled, layout)
+    return fixed_text(np.round(block, layout.decimals), layout.decimals, sep=layout.sep,
+                      row_start=layout.row_start, row_end=layout.row_end)
 
 
 @dataclass(frozen=True, eq=False)

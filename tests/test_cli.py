@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from importlib.metadata import version
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -19,6 +21,45 @@ def test_python_m_bonefit_prints_the_installed_version() -> None:
                           capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == f"bonefit {version('bonefit')}"
+
+
+def test_the_version_is_looked_up_only_for_version() -> None:
+    # importlib.metadata is tens of milliseconds of every command's start
+    code = ("import sys; from bonefit.cli import build_parser; "
+            "build_parser(['skeleton']).parse_args(['skeleton', 'take.csv']); "
+            "print('importlib.metadata' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(("argv", "frozen"), [
+    (["skeleton", "take.csv"], True), (["translate", "take.bvh"], True),
+    (["serve"], False), (["submit", "take.csv"], False)])
+def test_estimating_commands_exit_without_the_teardowns_collections(
+        argv: list[str], frozen: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    froze: list[bool] = []
+    monkeypatch.setattr(bonefit.cli.gc, "freeze", lambda: froze.append(True))
+    monkeypatch.setattr(bonefit.cli, "main", lambda arguments: 5 if arguments == argv else 9)
+    monkeypatch.setattr(sys, "argv", ["bonefit", *argv])
+    with pytest.raises(SystemExit) as exit_:
+        bonefit.cli.entry()
+    assert exit_.value.code == 5
+    assert froze == ([True] if frozen else [])
+
+
+def test_python_m_bonefit_writes_whole_files_and_exits_with_the_code(tmp_path: Path) -> None:
+    out = tmp_path / "walk.json"
+    done = subprocess.run([sys.executable, "-m", "bonefit", "skeleton", "--example", "-o",
+                           str(out), "--quiet"], capture_output=True, text=True, timeout=300,
+                          check=False)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(out.read_text())["kind"] == "skeleton"
+    bad = subprocess.run([sys.executable, "-m", "bonefit", "skeleton", str(tmp_path / "no.csv")],
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2
+    assert "no such file" in bad.stderr
 
 
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:

@@ -17,6 +17,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from bonefit.estimation import bvh as bvh_module
 from bonefit.estimation.bvh import (
     EULER_ORDERS,
     JUMP_DEG,
@@ -423,6 +424,25 @@ def test_continuous_euler_of_slow_motion_with_jumps_matches_frame_by_frame() -> 
     assert np.abs(angles[:, 1]).max() > 85.0
     np.testing.assert_allclose(continuous_euler(angles), sequential_continuous_euler(angles),
                                atol=1e-9)
+
+
+def test_continuous_euler_of_small_steps_is_the_twin_scans_bit_for_bit(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # steps under 30 degrees a channel (the short path, no twin scan) near gimbal lock and
+    # through the outer angles' wraps: the same bits as the scan of every step
+    rng = np.random.default_rng(12)
+    walk = np.cumsum(rng.normal(scale=0.005, size=(5000, 3)), axis=0)
+    walk[:, 0] += 1.3  # middle angle up to 85 degrees
+    angles = Rotation.from_rotvec(walk).as_euler("ZXY", degrees=True)
+    step = np.diff(angles, axis=0)
+    assert np.abs(step).max() > 300.0  # wraps of the outer angles
+    assert np.abs(angles[:, 1]).max() > 80.0  # near gimbal lock
+    assert np.abs(step - 360.0 * np.round(step / 360.0)).max() < 30.0  # else no short path
+    short = continuous_euler(angles)
+    monkeypatch.setattr(bvh_module, "SMALL_STEP_DEG", 0.0)  # every step scanned
+    scanned = continuous_euler(angles)
+    assert short.tobytes() == scanned.tobytes()
+    np.testing.assert_allclose(short, sequential_continuous_euler(angles), atol=1e-9)
 
 
 @pytest.mark.parametrize("order", ["ZXY", "ZYX", "YXZ", "YZX", "XYZ", "XZY"])

@@ -67,6 +67,17 @@ def test_every_count_of_decimals_and_integer_digits(decimals: int) -> None:
             assert text == rows, (decimals, digits)
 
 
+def test_integer_parts_at_every_power_of_ten(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Integer digits are divided out in the narrowest type that holds them (16, 32, 64
+    bits): both sides of each power of ten, where a type or a leading zero changes."""
+    monkeypatch.setattr(numtext, "_python_block", None)  # every digit from numpy here
+    for digits in range(1, 16):
+        for decimals in sorted({0, min(3, 15 - digits), 15 - digits}):
+            table = np.array([[10.0 ** digits - 1, -(10.0 ** (digits - 1))],
+                              [10.0 ** (digits - 1) - 1, 0.3], [-7.0, 0.0]])
+            assert fixed_text(table, decimals, sep=" ") == printf_rows(table, decimals, " ")
+
+
 def test_any_memory_layout() -> None:
     table = np.random.default_rng(2).normal(size=(9, 6)) * 1e3
     for view in (table.T, np.asfortranarray(table), table[::2, ::3]):
@@ -98,6 +109,32 @@ def test_json_document_has_the_values_of_rounded_lists(separators: tuple[str, st
                  "t": np.round(pos[:, 0], 5).tolist(), "s": "x\u0000y", "e": []}
     assert json.loads(text) == reference == plain(doc)
     assert "e-" not in text  # no exponent notation for small values
+
+
+@pytest.mark.parametrize("decimals", [0, 3, 6, 8])
+def test_json_arrays_are_the_rounded_values_printf_byte_for_byte(
+        decimals: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The digits come from ``rint(v * 10**d)``, np.round's intermediate: the text of the
+    rounded values, negative zeros and halfway cases included; a block with a value too
+    large for that goes through np.round and printf."""
+    monkeypatch.setattr(numtext, "BLOCK_VALUES", 6)  # blocks of two rows
+    rng = np.random.default_rng(decimals)
+    values = rng.normal(size=(9, 3)) * 10.0 ** rng.integers(-9, 5, size=(9, 3))
+    values[0] = [-0.0, -1e-12, 0.5 * 10.0 ** -decimals]  # "-0...", "-0...", a halfway case
+    values[1] = [2.5, -1.5 * 10.0 ** -decimals, 1e-300]
+    values[4, 1] = 3e14  # past 2**49 once scaled (for decimals > 1): np.round, then printf
+    rounded = np.round(values, decimals)
+    expected = "[" + ", ".join("[" + ", ".join(f"{v:.{decimals}f}" for v in row) + "]"
+                               for row in rounded.tolist()) + "]"
+    slow: list[int] = []
+
+    def counted(table: np.ndarray, places: int, **layout: Any) -> str:
+        slow.append(len(table))
+        return fixed_text(table, places, **layout)
+
+    monkeypatch.setattr(numtext, "fixed_text", counted)
+    assert "".join(JsonArray(values, decimals).blocks(", ")) == expected
+    assert slow == ([2] if decimals > 0 else [])  # only the block of rows 4 and 5
 
 
 @pytest.mark.parametrize("layout", [{}, {"indent": 2}, {"separators": (",", ":")}])
