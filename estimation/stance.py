@@ -10,6 +10,10 @@ acceleration the second derivative of that path: linear in r, which is fitted to
 measured magnitudes where the foot is planted (the mounting rotation is unknown, the
 magnitude does not depend on it).
 
+Where the file has no toe joint, the contacts are decoded with the ball at the toe joint's
+place and the path holds still the points of the sole the foot rolls over, under the heel
+and the ball (:func:`ball_on_foot`).
+
 References: the rigid-body acceleration of a point, a = a_o + α×r + ω×(ω×r) (e.g. Goldstein,
 Classical Mechanics, ch. 4.10); the rolling stance point follows the foot's rocker, heel then
 forefoot (Perry & Burnfield, Gait Analysis, 2nd ed., ch. 3).
@@ -32,6 +36,13 @@ TOE_AHEAD: Final[float] = 0.13
 
 TOE_BELOW: Final[float] = 0.055
 """Ankle height above the ball of the flat foot, as a fraction of the leg length."""
+
+SOLE_BELOW: Final[float] = 0.08
+"""Ankle height above the floor, as a fraction of the leg length: the heel and the ball
+touch the floor this far below the ankle of the flat foot (ankle height 0.039 H, hip
+height 0.530 H: Winter, Biomechanics and Motor Control of Human Movement, 4th ed.,
+ch. 4). A foot rolls over these points (heel strike, heel-off), not over the ankle or the
+toe joint, which move a few centimetres forward as it rolls."""
 
 
 INSTEP_SENSOR: Final[tuple[float, float, float]] = (0.03, 0.02, 0.0)
@@ -186,19 +197,28 @@ def leg_length(positions: NDArray[np.float64], ankle: int, root: int) -> float:
 
 
 def ball_on_foot(ankle: NDArray[np.float64], point: NDArray[np.float64],
-                 flat: NDArray[np.bool_], leg_m: float) -> NDArray[np.float64]:
-    """Ball of the foot (3,) in :func:`foot_axes` of ``ankle`` and a ``point`` rigid with the
-    foot (F, 3 each, metres, +Y up): :data:`TOE_AHEAD` leg lengths ahead of and
-    :data:`TOE_BELOW` below the ankle when the foot stands flat.
+                 flat: NDArray[np.bool_], leg_m: float, *, sole: bool = False
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Ball of the foot and heel point (3,) each in :func:`foot_axes` of ``ankle`` and a
+    ``point`` rigid with the foot (F, 3 each, metres, +Y up), when the foot stands flat: the
+    ball :data:`TOE_AHEAD` leg lengths ahead of and :data:`TOE_BELOW` below the ankle (the
+    toe joint's place), the heel the ankle itself; with ``sole`` both on the sole, at
+    :data:`SOLE_BELOW` below the ankle (the points that touch the floor, still while the
+    foot rolls over them).
 
     The foot stands flat at the median pitch β of ankle → ``point`` over the frames of
-    ``flat`` (F,) (all frames when fewer than 10): the ball (L, −d) along the flat foot's
+    ``flat`` (F,) (all frames when fewer than 10): a point (L, −d) along the flat foot's
     heading and up is (L cos β − d sin β, −L sin β − d cos β, 0) along the axes.
     """
     ahead = _unit(point - ankle)
     pitch = np.arcsin(np.clip(ahead[:, 1], -1.0, 1.0))
     beta = float(np.median(pitch[flat] if int(flat.sum()) >= 10 else pitch))
-    length, drop = TOE_AHEAD * leg_m, TOE_BELOW * leg_m
+    drop = (SOLE_BELOW if sole else TOE_BELOW) * leg_m
+    heel_drop = SOLE_BELOW * leg_m if sole else 0.0
+    return (_on_flat_foot(beta, TOE_AHEAD * leg_m, drop), _on_flat_foot(beta, 0.0, heel_drop))
+
+
+def _on_flat_foot(beta: float, length: float, drop: float) -> NDArray[np.float64]:
     return np.array([length * math.cos(beta) - drop * math.sin(beta),
                      -length * math.sin(beta) - drop * math.cos(beta), 0.0])
 

@@ -151,7 +151,8 @@ class _Feet:
     """Heel/toe contact points of one foot: a soft blend of heel and toe by which is lower.
 
     The toe is the file's toe joint, or else the ball of the foot placed by ``ball`` on the
-    axes of the ankle and a point rigid with the foot (``end``, e.g. an End Site)."""
+    axes of the ankle and a point rigid with the foot (``end``, e.g. an End Site); the heel
+    is the ankle, or with ``end`` the point ``heel_at`` on those axes."""
 
     heel: int
     toe: int | None
@@ -163,6 +164,14 @@ class _Feet:
     roll: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     end: int | None = None  # a joint rigid with the foot, when there is no toe joint
     ball: tuple[float, float, float] = (0.0, 0.0, 0.0)  # in foot_axes(heel, end), m
+    heel_at: tuple[float, float, float] = (0.0, 0.0, 0.0)  # likewise, m
+
+    def heel_path(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Path (F, 3) of the heel point: the ankle, or ``heel_at`` on the foot's axes."""
+        if self.end is None or not any(self.heel_at):
+            out: NDArray[np.float64] = p[:, self.heel]
+            return out
+        return sensor_track(p[:, self.heel], self.axes(p), np.asarray(self.heel_at))
 
     @property
     def has_toe(self) -> bool:
@@ -192,7 +201,7 @@ class _Feet:
     def weights(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if not self.has_toe:
             return np.ones(p.shape[0])
-        gap = self.toe_path(p)[:, 1] - (p[:, self.heel, 1] - self.drop)
+        gap = self.toe_path(p)[:, 1] - (self.heel_path(p)[:, 1] - self.drop)
         return 0.5 * (1.0 + np.tanh(gap / 0.02))
 
     def sole(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -200,7 +209,7 @@ class _Feet:
         if not self.has_toe:
             return p[:, self.heel, 1].copy()
         w = self.weights(p)
-        return w * (p[:, self.heel, 1] - self.drop) + (1 - w) * self.toe_path(p)[:, 1]
+        return w * (self.heel_path(p)[:, 1] - self.drop) + (1 - w) * self.toe_path(p)[:, 1]
 
     def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if not self.has_toe:
@@ -209,24 +218,26 @@ class _Feet:
             out: NDArray[np.float64] = p[:, self.heel] - self.roll
             return out
         w = self.weights(p)[:, None]
-        return w * p[:, self.heel] + (1 - w) * self.toe_path(p)
+        return w * self.heel_path(p) + (1 - w) * self.toe_path(p)
 
     def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
         earlier frame (so switching heel→toe moves nothing)."""
         if not self.has_toe:
             return np.diff(self.point(p), axis=0)
-        d_heel = p[1:, self.heel] - p[:-1, self.heel]
+        heel = self.heel_path(p)
+        d_heel = heel[1:] - heel[:-1]
         w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
         toe = self.toe_path(p)
         return w * d_heel + (1 - w) * (toe[1:] - toe[:-1])
 
 
 def _feet(recording: KinematicsRecording, left_foot: str, right_foot: str,
-          use_toes: bool, *, balls: bool = False) -> tuple[_Feet, _Feet]:
+          use_toes: bool, *, balls: bool = False, sole: bool = False) -> tuple[_Feet, _Feet]:
     """Both feet's contact points: with ``use_toes`` the toe joints named by the recording,
-    else (``balls``) the ball of the foot on a point rigid with it; each toe's ``drop`` from
-    the frames where it is the lower."""
+    else (``balls``) the ball of the foot on a point rigid with it (with ``sole``, heel and
+    ball on the sole: ``stance.ball_on_foot``); each toe's ``drop`` from the frames where it
+    is the lower."""
     p = recording.positions
     bare = []
     for joint in (left_foot, right_foot):
@@ -234,7 +245,7 @@ def _feet(recording: KinematicsRecording, left_foot: str, right_foot: str,
         bare.append(_Feet(recording.index(joint), recording.index(name) if name else None,
                           0.0))
     if use_toes and balls:
-        bare = _balls(p, bare, recording.index(recording.root))
+        bare = _balls(p, bare, recording.index(recording.root), sole=sole)
     toes = [f.toe_path(p) if f.has_toe else None for f in bare]
     out = []
     for k, foot in enumerate(bare):
@@ -245,24 +256,27 @@ def _feet(recording: KinematicsRecording, left_foot: str, right_foot: str,
         other = other_toe[:, 1] if other_toe is not None else p[:, bare[1 - k].heel, 1]
         own = toe[:, 1] if other_toe is not None else p[:, foot.heel, 1]
         lower = own <= other
-        gap = p[:, foot.heel, 1] - toe[:, 1]
+        gap = foot.heel_path(p)[:, 1] - toe[:, 1]
         drop = float(np.median(gap[lower] if lower.sum() > 10 else gap))
         out.append(replace(foot, drop=drop))
     return out[0], out[1]
 
 
-def _balls(p: NDArray[np.float64], feet: list[_Feet], root: int) -> list[_Feet]:
+def _balls(p: NDArray[np.float64], feet: list[_Feet], root: int, *, sole: bool
+           ) -> list[_Feet]:
     """``feet`` where a foot without a toe joint but with a point rigid with it
-    (``stance.foot_point``) gets the ball of the foot on that point (``stance.ball_on_foot``,
-    flat where its ankle is the lower)."""
+    (``stance.foot_point``) gets the ball of the foot and the heel point on that point
+    (``stance.ball_on_foot`` of ``sole``, flat where its ankle is the lower)."""
     out = []
     for k, foot in enumerate(feet):
         ankle, other = p[:, foot.heel], p[:, feet[1 - k].heel]
         leg = leg_length(p, foot.heel, root)
         end = foot_point(p, foot.heel, leg) if foot.toe is None and leg > 0 else None
         if end is not None:
-            ball = ball_on_foot(ankle, p[:, end], ankle[:, 1] <= other[:, 1], leg)
+            ball, heel = ball_on_foot(ankle, p[:, end], ankle[:, 1] <= other[:, 1], leg,
+                                      sole=sole)
             foot = replace(foot, end=end, ball=(float(ball[0]), float(ball[1]), 0.0),
+                           heel_at=(float(heel[0]), float(heel[1]), 0.0),
                            offset=INSTEP_SENSOR)
         out.append(foot)
     return out
@@ -446,7 +460,9 @@ class ContactOptions:
         lengths ahead of and below the ankle of the foot standing flat
         (``stance.ball_on_foot``), a heel/toe point like a toe joint's, the sensor taken
         on the instep (``stance.INSTEP_SENSOR``; the lever-arm fit then has the foot's
-        axes); without such a point, the ankle rolled back by the
+        axes) for the decoding; the path then holds still the points of the sole the foot
+        rolls over, heel and ball 0.08 leg lengths below the flat foot's ankle
+        (``stance.SOLE_BELOW``); without such a point, the ankle rolled back by the
         heel lift read from its rise above the other ankle (``stance.rise_tilt``). Needs
         ``use_toes``. Off by default: it fails the real recording's held-out check
         (docs/translation.md); ``choose_toes`` decides instead.
@@ -1125,13 +1141,15 @@ def _hachaj_path(recording: KinematicsRecording, names: tuple[str, str], opt: Ha
 def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: int,
                   opt: ContactOptions, *, report: Progress, started: float) -> _Path:
     """The contact model's translation: contact states (from the file or decoded), then the
-    path that keeps the planted feet still; ``contacts_s`` counts from ``started``."""
+    path that keeps the planted feet still (a ball of the foot placed on an End Site: the
+    sole's heel and ball, ``stance.ball_on_foot``); ``contacts_s`` counts from
+    ``started``."""
     lf, rf = names
     feet = _feet(recording, lf, rf, use_toes=opt.use_toes)
     extra: dict[str, Any] = {}
     if opt.use_file_contacts and all(k in recording.contacts for k in names):
         # the file's contacts need no choice: toe points only where asked for outright
-        extended = (_extended_feet(recording, names, root)
+        extended = (_extended_feet(recording, names, root, sole=True)
                     if opt.use_toes and opt.extrapolate_toes else None)
         feet = extended if extended is not None else feet
         states = _file_states(recording, names)
@@ -1140,6 +1158,9 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
         extended = _extended_feet(recording, names, root) if opt.use_toes else None
         feet, states, info = _chosen_feet(recording, feet, extended, names=names, root=root,
                                           opt=opt)
+        if extended is not None and feet is extended:
+            # decoded with the toe joint's ball, held still on the sole's points
+            feet = _extended_feet(recording, names, root, sole=True) or feet
         extra.update(info)
         extra["contacts_source"] = "accelerometers"
     report(0.6, "contacts")
@@ -1158,12 +1179,13 @@ def _contact_path(recording: KinematicsRecording, names: tuple[str, str], root: 
     return _Path(translation, corrected, contacts, floor, levels, feet, extra, contacts_s)
 
 
-def _extended_feet(recording: KinematicsRecording, names: tuple[str, str], root: int
-                   ) -> tuple[_Feet, _Feet] | None:
+def _extended_feet(recording: KinematicsRecording, names: tuple[str, str], root: int, *,
+                   sole: bool = False) -> tuple[_Feet, _Feet] | None:
     """The feet with a toe point extrapolated where the file has no toe joint: the ball of
-    the foot on a point rigid with it, else the rolled point (:func:`_rolling_feet`); None
-    when that changes nothing (both feet have toe joints, or no leg is found)."""
-    feet = _feet(recording, *names, use_toes=True, balls=True)
+    the foot on a point rigid with it (``sole``: see :func:`_feet`), else the rolled point
+    (:func:`_rolling_feet`); None when that changes nothing (both feet have toe joints, or
+    no leg is found)."""
+    feet = _feet(recording, *names, use_toes=True, balls=True, sole=sole)
     feet = _rolling_feet(recording, feet, names, root)
     if all(f.toe is not None or (f.end is None and f.roll is None) for f in feet):
         return None

@@ -9,6 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from bonefit.estimation.kinematics import GRAVITY
 from bonefit.estimation.stance import (
+    SOLE_BELOW,
+    TOE_AHEAD,
     UP,
     ball_on_foot,
     body_heading,
@@ -136,15 +138,17 @@ def test_body_heading_is_horizontal_and_faces_forward() -> None:
     np.testing.assert_allclose(body_heading(left, right), [[0, 0, 1], [1, 0, 0]], atol=1e-12)
 
 
-def heel_lift_with_end_site(end_pitch_deg: float) -> tuple[np.ndarray, np.ndarray,
-                                                           np.ndarray, np.ndarray]:
+def heel_lift_with_end_site(end_pitch_deg: float, *, ahead: float = 0.13,
+                            below: float = 0.055, lift_deg: float = 40.0
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ankle, an End Site rigid with the foot 16 cm away pitched ``end_pitch_deg`` when the
-    foot is flat, the still ball (0.13 and 0.055 leg lengths of 0.9 m ahead of and below the
-    flat foot's ankle) and the flat frames: flat for 20 frames, then the heel lifts to 40°
-    about the ball."""
+    foot is flat, the still pivot (``ahead`` and ``below`` leg lengths of 0.9 m ahead of and
+    below the flat foot's ankle; by default the ball) and the flat frames: flat for 20
+    frames, then the foot turns about the pivot, the heel up by ``lift_deg`` (negative: the
+    toes up)."""
     leg = 0.9
-    length, drop = 0.13 * leg, 0.055 * leg
-    theta = np.concatenate([np.zeros(20), np.radians(np.linspace(0.0, 40.0, 50))])
+    length, drop = ahead * leg, below * leg
+    theta = np.concatenate([np.zeros(20), np.radians(np.linspace(0.0, lift_deg, 50))])
     ball = np.array([0.4, 0.0, 1.0])
     forward = np.array([0.6, 0.0, 0.8])
     lateral = np.cross(forward, UP)
@@ -160,10 +164,30 @@ def test_ball_on_an_end_site_stays_still_while_the_heel_lifts(end_pitch_deg: flo
     # wherever the End Site sits on the foot, the ball placed on it does not move while the
     # foot rolls over it (the ankle alone moves 8 cm here)
     ankle, end, ball, flat = heel_lift_with_end_site(end_pitch_deg)
-    local = ball_on_foot(ankle, end, flat, 0.9)
+    local, heel = ball_on_foot(ankle, end, flat, 0.9)
     path = sensor_track(ankle, foot_axes(ankle, end), local)
     np.testing.assert_allclose(path, np.broadcast_to(ball, path.shape), atol=1e-12)
     assert np.linalg.norm(ankle - ankle[0], axis=1).max() > 0.07
+    np.testing.assert_allclose(heel, 0.0, atol=1e-15)  # the heel point is the ankle
+
+
+@pytest.mark.parametrize("end_pitch_deg", [-45.0, 0.0, 10.0])
+@pytest.mark.parametrize(("ahead", "lift_deg"), [(TOE_AHEAD, 40.0), (0.0, -20.0)],
+                         ids=["heel-off", "heel-strike"])
+def test_sole_points_stay_still_while_the_foot_rolls_over_them(
+        end_pitch_deg: float, ahead: float, lift_deg: float) -> None:
+    # a foot rolls over the floor: forward over the sole's ball as the heel lifts, back on
+    # the heel as the toes come down; the sole's points (SOLE_BELOW under the flat foot's
+    # ankle) stay still where the ankle moves 6-8 cm and the toe joint's ball 2-3 cm
+    ankle, end, pivot, flat = heel_lift_with_end_site(end_pitch_deg, ahead=ahead,
+                                                      below=SOLE_BELOW, lift_deg=lift_deg)
+    axes = foot_axes(ankle, end)
+    ball, heel = ball_on_foot(ankle, end, flat, 0.9, sole=True)
+    path = sensor_track(ankle, axes, ball if ahead else heel)
+    np.testing.assert_allclose(path, np.broadcast_to(pivot, path.shape), atol=1e-12)
+    joint_ball, _ = ball_on_foot(ankle, end, flat, 0.9)
+    for moving in (ankle, sensor_track(ankle, axes, joint_ball)):
+        assert np.linalg.norm(moving - moving[0], axis=1).max() > 0.015
 
 
 def test_foot_point_is_the_joint_rigid_with_the_foot() -> None:
