@@ -773,10 +773,11 @@ def _along_weight(limb: LimbInUpperFrame, x: Float, gain: float) -> float:
     d = limb.distal(x[3:6]) - x[:3]
     u = d / np.maximum(rows.norms(d), 1e-12)[:, None]
     dl_da = np.einsum("fi,fij->fj", u, limb.q)
-    j = np.column_stack([-u, dl_da, np.ones(limb.n)])
+    j = np.column_stack([dl_da, -u, np.ones(limb.n)])
     h = j.T @ j
-    rest = [0, 1, 2, 6]
-    info = h[3:6, 3:6] - h[3:6, rest] @ np.linalg.pinv(h[np.ix_(rest, rest)]) @ h[rest, 3:6]
+    # the middle joint and the length eliminated (a ridge for a limb that does not move)
+    rest = h[3:, 3:] + 1e-12 * np.trace(h) * np.eye(4)
+    info = h[:3, :3] - h[:3, 3:] @ np.linalg.solve(rest, h[3:, :3])
     e = dl_da.mean(axis=0)
     e /= max(float(np.linalg.norm(e)), 1e-12)
     off = np.eye(3) - np.outer(e, e)
