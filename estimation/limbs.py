@@ -53,7 +53,10 @@ lying on the proximal–distal line at the standard length ratio, across that li
 flexion plane only as far as the limb passes through straight (a limb that stays bent has its
 middle joint off the line there), and on the distal joint lying near its sensor) keep a
 motionless limb well posed; they are raised by ``(20°/motion)²`` (at most 100×) when the
-relative rotation of the two sensors stays under 20°. Flat-bottomed bounds reject segment
+relative rotation of the two sensors stays under 20°. For a hand (``distal_in_line``) the
+standard forearm length gets up to 3e-3 more where the data locate the wrist along the
+forearm far less than across it (a hand that hardly turns against the forearm), against the
+prior towards the hand sensor, which sits beyond the wrist. Flat-bottomed bounds reject segment
 lengths beyond ±30 % of the standard ones and a distal joint over 0.2 m from its sensor. Starts:
 the paper's least-squares solution, the geometric point and a straight limb through the
 distal sensor; the alternation between axis and joints runs on a 400-frame subsample
@@ -753,6 +756,36 @@ def _hinge_state(limb: LimbInUpperFrame, x: Float) -> tuple[Float, float, float]
     return axis, doubt, _straight_share(path, proximal, x[:3])
 
 
+def _along_weight(limb: LimbInUpperFrame, x: Float, gain: float) -> float:
+    """Weight of the prior holding the lower segment at its standard length, at ``x`` =
+    (middle, distal, ...), for a distal segment in line with the lower one (a hand:
+    ``LimbOptions.distal_in_line``).
+
+    The data rows' information on the distal joint ``a`` (the Schur complement of their
+    normal matrix, the middle joint and the free length eliminated) is small along the
+    lower segment when the distal segment hardly turns against it: the segment's length
+    then barely varies wherever ``a`` sits on it. There the prior near the distal sensor,
+    which sits beyond the joint along the segment, and the flexion-plane rows, which favour
+    points near the middle joint where the joint is not a pure hinge, place the joint; the
+    standard length, at ``_W_ALONG``, holds it instead, in full when that information is
+    small against the least across the segment (``_ALONG_RATIO``), and divided by
+    ``gain²`` for a limb that hardly moves, where the data locate it in no direction."""
+    d = limb.distal(x[3:6]) - x[:3]
+    u = d / np.maximum(rows.norms(d), 1e-12)[:, None]
+    dl_da = np.einsum("fi,fij->fj", u, limb.q)
+    j = np.column_stack([dl_da, -u, np.ones(limb.n)])
+    h = j.T @ j
+    # the middle joint and the length eliminated (a ridge for a limb that does not move)
+    rest = h[3:, 3:] + 1e-12 * np.trace(h) * np.eye(4)
+    info = h[:3, :3] - h[:3, 3:] @ np.linalg.solve(rest, h[3:, :3])
+    e = dl_da.mean(axis=0)
+    e /= max(float(np.linalg.norm(e)), 1e-12)
+    off = np.eye(3) - np.outer(e, e)
+    across = float(np.linalg.eigvalsh(off @ info @ off)[1])  # [0]: the 0 along e
+    ratio = max(float(e @ info @ e), 0.0) / max(across, 1e-30)
+    return _W_ALONG / (1.0 + (ratio / _ALONG_RATIO) ** 2) / gain ** 2
+
+
 def _hinge_axis(path: Float, proximal: Float, middle: Float) -> tuple[Float, float]:
     """Flexion axis in the upper frame from the distal joint's ``path`` (F, 3) there, and the
     doubt about it.
@@ -794,7 +827,8 @@ def improved_problem(limb: LimbInUpperFrame, lengths: tuple[float, float], axis:
     3 straight-limb rows (middle joint at the standard length ratio on the line from the
     proximal joint to the distal joint's mean position in the upper frame, along that line
     and the axis, across it by ``PriorWeights.across``, ``_line_projector``); 2 length
-    rows; 3 distal-offset rows; 3 plausibility rows (zero unless a segment length leaves ±30
+    rows (the lower one at ``PriorWeights.along`` more, ``_along_weight``); 3 distal-offset
+    rows; 3 plausibility rows (zero unless a segment length leaves ±30
     % of its standard length or the distal joint lies more than 0.2 m from its sensor); M
     flexion-plane rows nᵀ(x(t) − x̄), the distal joint's path across the flexion plane. The
     ankle (wrist) centre is the one point of the foot (hand) that moves with the shank
@@ -815,14 +849,16 @@ class PriorWeights(NamedTuple):
     distal: float
     plane: float
     across: float
+    along: float = 0.0
 
 
-def _prior_weights(doubt: float, gain: float, across: float) -> PriorWeights:
+def _prior_weights(doubt: float, gain: float, across: float, along: float) -> PriorWeights:
     """The improved method's prior weights: the hinge's from the doubt about its axis, the
     straight-limb, length and distal-offset ones scaled by ``gain`` (little motion), the
-    straight-limb prior's share across the chord ``across`` (``_straight_share``)."""
+    straight-limb prior's share across the chord ``across`` (``_straight_share``), the
+    lower length's extra weight ``along`` (``_along_weight``)."""
     return PriorWeights(_hinge_weight(doubt), gain * _W_LINE, gain * _W_LENGTH,
-                        gain * _W_DISTAL, _W_PLANE, across)
+                        gain * _W_DISTAL, _W_PLANE, across, along)
 
 
 def _outside(value: float, target: float, tol: float) -> tuple[float, float]:
@@ -874,6 +910,7 @@ class _ImprovedProblem:
         self.c_s = np.sqrt(m * weights.line)
         self.line_p = _line_projector(axis, self.b_bar - self.h_bar, weights.across)
         self.c_l = np.sqrt(m * weights.length)
+        self.c_low = np.sqrt(m * (weights.length + weights.along))
         self.c_d = np.sqrt(m * weights.distal)
         self.c_b = np.sqrt(m * _W_BOUND)
         l_up, l_low = lengths
@@ -906,7 +943,7 @@ class _ImprovedProblem:
         return np.concatenate([
             [self.c_hip * axis @ (k - h_bar), c_h * axis @ (x_bar - k)],
             self.c_s * self.line_p @ (k - h_bar - self.ratio * (x_bar - h_bar)),
-            [self.c_l * (lu - l_up), self.c_l * (length - l_low)],
+            [self.c_l * (lu - l_up), self.c_low * (length - l_low)],
             self.c_d * a,
             [c_b * _outside(float(lu), l_up, self.tol_up)[0],
              c_b * _outside(float(length), l_low, self.tol_low)[0],
@@ -943,7 +980,7 @@ class _ImprovedProblem:
         j[2:5, 3:6] = -c_s * self.ratio * self.line_p @ q_bar
         e = k - self.h_bar
         j[5, :3] = self.c_l * e / np.linalg.norm(e)
-        j[6, 6] = self.c_l
+        j[6, 6] = self.c_low
         j[7:10, 3:6] = self.c_d * np.eye(3)
         j[10, :3] = c_b * _outside(float(np.linalg.norm(e)), l_up, self.tol_up)[1] * e \
             / np.linalg.norm(e)
@@ -982,6 +1019,11 @@ _PLANARITY_OFF = 0.4  # hinge rule off when the distal path is this far from pla
 # until its rows agreed with the distal joint's plane: a knee or elbow that turns about
 # the shank or forearm as it flexes leaves estimated paths less planar than 0.2)
 _ARC_MIN_M = 0.01     # ... or when its in-plane spread is below 1 cm (noise, not flexion)
+_W_ALONG = 3e-3     # the lower segment at its standard length where the data do not locate the
+# distal joint along it (_along_weight; a hand in line with the forearm only): 1e-3 and 3e-3
+# both lower the limb median of realistic seeds 1-2 and BVH seed 1, 3e-3 by more
+_ALONG_RATIO = 0.3  # information along the segment / least across it at which that prior
+# keeps 1/2 of its weight (0.1 and 1.0 give the same limb medians within 0.2 mm)
 _ALTERNATE = 2      # axis ↔ joints alternations
 
 
@@ -1036,6 +1078,12 @@ class LimbOptions:
     robust_scale : float or None
         ``"improved"`` only: residual scale (metres) of the soft-L1 loss; None for plain
         least squares.
+    distal_in_line : bool
+        ``"improved"`` only: the distal segment continues the lower one (a hand beyond the
+        forearm; a foot, across the shank, does not), so its sensor sits beyond the distal
+        joint along the lower segment. Where the data do not locate that joint along the
+        segment (the hand hardly turns against the forearm), the standard lower length
+        then holds it there (``_along_weight``) against the prior towards the sensor.
 
     Examples
     --------
@@ -1048,6 +1096,7 @@ class LimbOptions:
     w_s: float = 0.01
     w_l: float = 0.01
     robust_scale: float | None = 0.01
+    distal_in_line: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in ("paper", "improved"):
@@ -1076,10 +1125,11 @@ def _straight_start(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Flo
 
 
 def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[float, float],
-                  robust_scale: float | None, report: Progress,
+                  options: LimbOptions, report: Progress,
                   ) -> tuple[Float, int, bool, dict[str, Any]]:
     """The improved objective from each start on the subsample, the best polished on every
     frame; ``report`` 0.3 → 0.6 by subsample fit, 0.6 → 1 from the polish's iterations."""
+    robust_scale = options.robust_scale
     n_eval, ok = 0, False
     fits = itertools.count(1)
     coarse = _coarse(limb) or limb
@@ -1087,17 +1137,18 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     # Little relative rotation between the two sensors means the data hardly constrain the
     # joints (and their noise would be fitted): lean on the priors accordingly.
     gain = float(np.clip((_MOTION_REF_DEG / max(motion_deg, 1e-3)) ** 2, 1.0, 100.0))
-    best: tuple[float, Float, Float, float, float] | None = None
+    best: tuple[float, Float, Float, float, PriorWeights] | None = None
     # Several starts on the subsample (the objective has local minima when the limb moves
     # little); the best one is polished on every frame.
     for start in starts:
         axis, doubt, share = _hinge_state(limb, start)
+        along = _along_weight(coarse, start, gain) if options.distal_in_line else 0.0
+        weights = _prior_weights(doubt, gain, share, along)
         length = float(rows.norms(limb.distal(start[3:6]) - start[:3]).mean())
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
         for _ in range(_ALTERNATE):
-            fun, jac = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain, share),
-                                        robust_scale=robust_scale)
+            fun, jac = improved_problem(coarse, lengths, axis, weights, robust_scale=robust_scale)
             # MINPACK's trust region from these rough starts: the objective has several
             # local minima and its steps decide the basin (cheap on the subsample)
             sol = least_squares(fun, x, jac=jac, method="lm", x_scale="jac",
@@ -1106,22 +1157,22 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
             x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
             report(0.3 + 0.3 * next(fits) / (len(starts) * _ALTERNATE), "limbs")
             new_axis, doubt, share = _hinge_state(limb, x)
+            along = _along_weight(coarse, x, gain) if options.distal_in_line else 0.0
+            weights = _prior_weights(doubt, gain, share, along)
             if new_axis @ axis < 0:
                 new_axis = -new_axis
             moved = float(np.arccos(np.clip(new_axis @ axis, -1.0, 1.0)))
             axis = new_axis
             if moved < 1e-4:
                 break
-        fun, _ = improved_problem(coarse, lengths, axis, _prior_weights(doubt, gain, share),
-                                  robust_scale=robust_scale)
+        fun, _ = improved_problem(coarse, lengths, axis, weights, robust_scale=robust_scale)
         r = fun(x)
         value = float(r @ r)
         if best is None or value < best[0]:
-            best = (value, x, axis, doubt, share)
+            best = (value, x, axis, doubt, weights)
     assert best is not None
-    _, x, axis, doubt, share = best
-    fun, jac = improved_problem(limb, lengths, axis, _prior_weights(doubt, gain, share),
-                                robust_scale=robust_scale)
+    _, x, axis, doubt, weights = best
+    fun, jac = improved_problem(limb, lengths, axis, weights, robust_scale=robust_scale)
     if coarse is not limb:
         cost, normal = normal_from_residuals(fun, jac)
         x, more, ok = levenberg_marquardt(cost, _reporting(normal, report, 0.6, 1.0), x)
@@ -1268,8 +1319,7 @@ def _fit_limb(limb: LimbInUpperFrame, measured: LimbInUpperFrame, objective: Pap
         report(0.3, "limbs")
         measured = measured.frame_major()
         theta, more, ok, extra = _fit_improved(
-            measured, [theta, x0, _straight_start(measured, lengths)], lengths,
-            options.robust_scale, report)
+            measured, [theta, x0, _straight_start(measured, lengths)], lengths, options, report)
         n_eval += more
         quality.update(extra)
         quality["fitted_frames"] = measured.n

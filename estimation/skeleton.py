@@ -1308,7 +1308,7 @@ def locate_limb_by_variance(ctx: SkeletonContext, located: LocatedJoints, limb: 
         standard_lengths=(std[keys[0]], std[keys[1]]),
         method="paper" if opt.method == "reduced" else "improved",
         optimizer=opt.optimizer if isinstance(opt, ReducedOptions) else "least-squares",
-        w_s=opt.w_s, w_l=opt.w_l, progress=stage,
+        w_s=opt.w_s, w_l=opt.w_l, progress=stage, distal_in_line=limb.is_arm,
         valid=sensors.ok[upper] & sensors.ok[distal] if opt.method == "auto" else None)
     located.joints[mid] = lf.middle
     located.joints[dist] = lf.distal

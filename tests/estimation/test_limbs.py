@@ -47,13 +47,19 @@ class Leg:
 
 def make_leg(n: int = 400, *, flexion_deg: float = 80.0, noise_m: float = 0.0,  # noqa: PLR0913
              noise_deg: float = 0.0, twist_deg: float = 0.0, axis_tilt_deg: float = 0.0,
-             bent_deg: float = 0.0, knee_along_axis_m: float = 0.0, seed: int = 0) -> Leg:
+             bent_deg: float = 0.0, knee_along_axis_m: float = 0.0, distal_deg: float = 25.0,
+             distal_mount: tuple[float, float, float] = (0.02, -0.03, 0.08), seed: int = 0,
+             lengths: tuple[float, float] = (THIGH, SHANK)) -> Leg:
     """A hip–knee–ankle chain: pure hinge knee about the thigh's x axis, or that axis tilted
     ``axis_tilt_deg`` towards the thigh's y (its length), (and, with ``twist_deg``, a twist
     of the shank about its own axis, as the tibia's or the forearm's), ball ankle, sensors
     3–8 cm off the bones with random orientations. The knee flexes ``bent_deg`` plus 0 to
     ``flexion_deg``; ``knee_along_axis_m`` moves it along the hinge axis (x) off the hip's
-    plane, the shank staying square to the axis (a carrying angle). Knee and ankle are exact."""
+    plane, the shank staying square to the axis (a carrying angle). The foot turns against
+    the shank by up to ``distal_deg`` (about its x axis, half that about the others); its
+    sensor sits at ``distal_mount`` from the ankle in the foot's frame (a hand's sensor lies
+    beyond the joint along the segment, -y); ``lengths`` upper and lower segments, metres.
+    Knee and ankle are exact."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) / 60.0
 
@@ -73,12 +79,13 @@ def make_leg(n: int = 400, *, flexion_deg: float = 80.0, noise_m: float = 0.0,  
             * Rotation.from_euler("Y", wave(twist_deg)[:, None])
     else:
         shank = thigh * Rotation.from_euler("XY", np.column_stack([knee_angle, wave(twist_deg)]))
-    foot = shank * Rotation.from_euler("XZY", np.column_stack([wave(25), wave(12), wave(12)]))
-    knee_off = np.array([knee_along_axis_m, -THIGH, 0.0])
+    foot = shank * Rotation.from_euler("XZY", np.column_stack(
+        [wave(distal_deg), wave(distal_deg / 2), wave(distal_deg / 2)]))
+    knee_off = np.array([knee_along_axis_m, -lengths[0], 0.0])
     knee = hip + thigh.apply(knee_off)
-    ankle = knee + shank.apply([0.0, -SHANK, 0.0])
+    ankle = knee + shank.apply([0.0, -lengths[1], 0.0])
     upper_mount = np.array([0.05, -0.22, 0.04])
-    distal_mount = np.array([0.02, -0.03, 0.08])
+    distal_mount = np.asarray(distal_mount, dtype=float)
     s_u, s_d = Rotation.random(rng=rng), Rotation.random(rng=rng)
     upper_rot = thigh * s_u
     distal_rot = foot * s_d
@@ -571,3 +578,25 @@ def test_a_knee_off_the_hip_plane_follows_the_ankle_plane() -> None:
         assert mean_error(fit.distal, leg.ankle) < 0.008
     assert max(along) < 0.0075
     assert np.mean(along) < 0.005
+
+
+def test_a_hand_that_does_not_turn_keeps_its_wrist_on_the_forearm() -> None:
+    # an arm (upper arm 30 cm, forearm 25 cm) flexing 20-90°, the hand turning at most 3°
+    # against the forearm, its sensor 6 cm beyond the wrist along the forearm and 4 cm off it:
+    # the forearm's length hardly varies wherever the wrist sits along it, and the prior
+    # towards the hand sensor drew the wrist out by 30 mm (measured on these seeds: wrist
+    # 33-38 mm off, forearm 28-34 mm long). As a hand in line with its forearm the standard
+    # length holds it: wrist 12-17 mm, forearm 4-5 mm long; with the table 10 % long or
+    # short, wrist 29-33 or 17-20 mm (40-45 and 26-30 without)
+    upper, fore = 0.30, 0.25
+    for seed in range(4):
+        leg = make_leg(flexion_deg=70.0, bent_deg=20.0, noise_m=0.002, noise_deg=0.5,
+                       twist_deg=5.0, distal_deg=3.0, distal_mount=(0.01, -0.06, 0.04),
+                       seed=seed, lengths=(upper, fore))
+        free = estimate_limb(*leg.args(), standard_lengths=(upper, fore), method="improved")
+        hand = estimate_limb(*leg.args(), standard_lengths=(upper, fore), method="improved",
+                             distal_in_line=True)
+        assert mean_error(free.distal, leg.ankle) > 0.030
+        assert mean_error(hand.distal, leg.ankle) < 0.020
+        assert hand.quality["lower_length_m"] == pytest.approx(fore, abs=0.008)
+        assert mean_error(hand.middle, leg.knee) < 0.010
