@@ -555,15 +555,16 @@ def euler_degrees(rotation: Rotation, order: str) -> NDArray[np.float64]:
     return angles
 
 
-def _twin_states(angles: NDArray[np.float64]) -> NDArray[np.intp]:
+def _twin_states(angles: NDArray[np.float64], big: NDArray[np.bool_]) -> NDArray[np.intp]:
     """Per frame (F, ...), 0 for the given Tait–Bryan triple, 1 for its twin, choosing at each
-    frame the one nearest (sum of wrapped differences) to the previous frame's choice.
+    frame the one nearest (sum of wrapped differences) to the previous frame's choice; ``big``
+    (F-1, ...) the steps that may take the twin (:func:`_big_steps`).
 
     The choice at frame i depends on frame i−1's only: a map of {0, 1} onto itself per frame.
     A map that sends both states to one decides the state by itself; the others keep or swap
     it. So a frame's state is that of the last deciding step before it (0 at the first frame),
     swapped once per swapping step since: two cumulative passes over the take."""
-    maps = _twin_maps(angles)  # (F-1, ..., previous state): the next state
+    maps = _twin_maps(angles, big)  # (F-1, ..., previous state): the next state
     deciding = maps[..., 0] == maps[..., 1]
     swaps = np.cumsum(maps[..., 0] & ~deciding, axis=0)
     step = np.arange(len(maps)).reshape(-1, *([1] * (maps.ndim - 2)))
@@ -582,16 +583,23 @@ triple's twin is certainly further away (by at least 360° minus twice this, far
 rounding), so the step keeps whichever of the two the previous frame had."""
 
 
-def _twin_maps(angles: NDArray[np.float64]) -> NDArray[np.bool_]:
+def _big_steps(wrapped: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """The steps (F-1, ...) whose wrapped changes ``wrapped`` (F-1, ..., 3) of the given
+    triples sum to :data:`SMALL_STEP_DEG` or more: only these may take the twin."""
+    big: NDArray[np.bool_] = np.abs(wrapped).sum(axis=-1) >= SMALL_STEP_DEG
+    return big
+
+
+def _twin_maps(angles: NDArray[np.float64], big_steps: NDArray[np.bool_]
+               ) -> NDArray[np.bool_]:
     """Per step (F-1, ..., 2): from each state of the previous frame (0: the given triple,
     1: its twin), whether this frame is nearer as its twin (sum of wrapped differences).
 
-    Only the steps whose given triples change by :data:`SMALL_STEP_DEG` or more are measured
-    all four ways; every other step keeps the state (its twin is at least 270° off)."""
-    same = np.abs(_wrap(angles[1:] - angles[:-1])).sum(axis=-1)
-    maps = np.zeros((*same.shape, 2), dtype=bool)
+    Only the ``big_steps`` (:func:`_big_steps`) are measured all four ways; every other step
+    keeps the state (its twin is at least 270° off)."""
+    maps = np.zeros((*big_steps.shape, 2), dtype=bool)
     maps[..., 1] = True
-    big = np.nonzero(same >= SMALL_STEP_DEG)
+    big = np.nonzero(big_steps)
     if big[0].size:
         later = angles[1:][big]
         earlier = angles[:-1][big]
@@ -634,11 +642,11 @@ def continuous_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
         return angles.copy()
     change = angles[1:] - angles[:-1]
     turns = np.round(change / 360.0)
-    change -= 360.0 * turns  # _wrap's operations: the wrapped change
-    if float(np.abs(change).max()) * 3.0 < SMALL_STEP_DEG:
+    big = _big_steps(change - 360.0 * turns)  # _wrap's operations: the wrapped change
+    if not big.any():
         chosen = angles  # every step small (the usual case): no frame takes its twin
     else:
-        states = _twin_states(angles)
+        states = _twin_states(angles, big)
         chosen = np.where(states[..., None] == 1, _twin(angles), angles)
         turns = np.round(np.diff(chosen, axis=0) / 360.0)
     out = chosen.copy()

@@ -198,18 +198,27 @@ class _Feet:
             return p[:, self.heel].copy()
         return sensor_track(p[:, self.heel], self.axes(p), np.asarray(self.offset))
 
+    def blend(self, p: NDArray[np.float64]
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The heel's weight (F,) in the contact point, by which of heel (lowered by ``drop``)
+        and toe is lower, with the heel and toe paths (F, 3 each) it blends (only for
+        :attr:`has_toe`): each path computed once for every use."""
+        heel, toe = self.heel_path(p), self.toe_path(p)
+        gap = toe[:, 1] - (heel[:, 1] - self.drop)
+        return 0.5 * (1.0 + np.tanh(gap / 0.02)), heel, toe
+
     def weights(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if not self.has_toe:
             return np.ones(p.shape[0])
-        gap = self.toe_path(p)[:, 1] - (self.heel_path(p)[:, 1] - self.drop)
-        return 0.5 * (1.0 + np.tanh(gap / 0.02))
+        return self.blend(p)[0]
 
     def sole(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Height of the contact point (toe frame: heel heights lowered by ``drop``)."""
         if not self.has_toe:
             return p[:, self.heel, 1].copy()
-        w = self.weights(p)
-        return w * (self.heel_path(p)[:, 1] - self.drop) + (1 - w) * self.toe_path(p)[:, 1]
+        w, heel, toe = self.blend(p)
+        out: NDArray[np.float64] = w * (heel[:, 1] - self.drop) + (1 - w) * toe[:, 1]
+        return out
 
     def point(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         if not self.has_toe:
@@ -217,19 +226,19 @@ class _Feet:
                 return p[:, self.heel].copy()
             out: NDArray[np.float64] = p[:, self.heel] - self.roll
             return out
-        w = self.weights(p)[:, None]
-        return w * self.heel_path(p) + (1 - w) * self.toe_path(p)
+        w, heel, toe = self.blend(p)
+        blended: NDArray[np.float64] = w[:, None] * heel + (1 - w[:, None]) * toe
+        return blended
 
     def steps(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """Displacement (F−1, 3) of the contact point between frames, the point chosen on the
         earlier frame (so switching heel→toe moves nothing)."""
         if not self.has_toe:
             return np.diff(self.point(p), axis=0)
-        heel = self.heel_path(p)
-        d_heel = heel[1:] - heel[:-1]
-        w = 0.5 * (self.weights(p)[:-1] + self.weights(p)[1:])[:, None]
-        toe = self.toe_path(p)
-        return w * d_heel + (1 - w) * (toe[1:] - toe[:-1])
+        weights, heel, toe = self.blend(p)
+        w = 0.5 * (weights[:-1] + weights[1:])[:, None]
+        out: NDArray[np.float64] = w * (heel[1:] - heel[:-1]) + (1 - w) * (toe[1:] - toe[:-1])
+        return out
 
 
 def _feet(recording: KinematicsRecording, left_foot: str, right_foot: str,
