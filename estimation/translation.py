@@ -478,10 +478,12 @@ class ContactOptions:
     choose_toes : bool
         Where a foot has no toe joint but a toe point can be extrapolated (as
         ``extrapolate_toes`` does), decode the contacts with the ankle and with the toe
-        point and keep the model whose decoding costs less per 10 ms (quality
-        ``toe_model``, ``decoded_cost_ankle``, ``decoded_cost_extrapolated``): a foot whose
-        kinematics do not roll like the data says stays on the ankle. Doubles the decoding's
-        cost on such files; nothing changes with toe joints.
+        point and keep the toe point unless the ankle's decoding costs less per 10 ms both
+        in all and in its accelerometer residuals alone (:func:`ankle_explains_better`;
+        quality ``toe_model``, ``decoded_cost_ankle``, ``decoded_cost_extrapolated``,
+        ``decoded_accelerometer_cost_ankle``, ``decoded_accelerometer_cost_extrapolated``):
+        a foot whose kinematics do not roll like the data says stays on the ankle. Doubles
+        the decoding's cost on such files; nothing changes with toe joints.
     lever_arm_prior_m : float
         Scale of the prior on the foot accelerometer's offset from the ankle, m: the offset
         is fitted to the readings of the planted foot (``stance.estimate_sensor_offset``)
@@ -638,8 +640,9 @@ def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
     fps = recording.fps
     sigma = _smoothing_frames(opt, fps)
     points = [f.point(p) for f in feet]
-    cost = _acceleration_costs(recording, p, feet, root, points=points, readings=readings,
-                               opt=opt)
+    acc = _acceleration_costs(recording, p, feet, root, points=points, readings=readings,
+                              opt=opt)
+    cost = acc.copy()
     rel_speed = np.linalg.norm(_derivative(points[0], fps) - _derivative(points[1], fps),
                                axis=1)
     rel_scale = _relative_speed_scale(readings[0], recording.acceleration_frame, rel_speed,
@@ -648,10 +651,11 @@ def _decode(recording: KinematicsRecording, p: NDArray[np.float64],
     cost *= 100.0 / fps  # costs are per 10 ms, whatever the frame rate
     switch = _switch_costs(opt)
     states = _viterbi(cost, switch)
-    total = float(cost[np.arange(states.shape[0]), states].sum()
-                  + switch[states[:-1], states[1:]].sum())
+    on_path = np.arange(states.shape[0]), states
+    total = float(cost[on_path].sum() + switch[states[:-1], states[1:]].sum())
     return states, {"relative_speed_scale_m_s": rel_scale,
-                    "decoded_cost": total * fps / 100.0 / states.shape[0]}
+                    "decoded_cost": total * fps / 100.0 / states.shape[0],
+                    "decoded_accelerometer_cost": float(acc[on_path].mean())}
 
 
 def _fitted_offsets(fps: float, p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
@@ -1205,23 +1209,48 @@ def _chosen_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
                  extended: tuple[_Feet, _Feet] | None, *, names: tuple[str, str], root: int,
                  opt: ContactOptions
                  ) -> tuple[tuple[_Feet, _Feet], NDArray[np.int64], dict[str, Any]]:
-    """Feet and decoded states: with ``extended`` feet (toe points extrapolated) the model
-    whose decoding costs less per 10 ms (``choose_toes``; it explains the accelerometers and
-    the feet's kinematics better), or the extended one outright (``extrapolate_toes``)."""
+    """Feet and decoded states: with ``extended`` feet (toe points extrapolated) the toe
+    point unless the ankle's decoding is the cheaper per 10 ms both in all and in its
+    accelerometer part alone (``choose_toes``: :func:`ankle_explains_better`), or the
+    extended one outright (``extrapolate_toes``)."""
     if extended is not None and opt.extrapolate_toes:
         feet = extended
     states, info = _contact_states(recording, feet, names, root, opt)
     chosen = "extrapolated" if feet is extended else "ankle"
     if extended is not None and opt.choose_toes and feet is not extended:
         states_x, info_x = _contact_states(recording, extended, names, root, opt)
-        costs = {"decoded_cost_ankle": info["decoded_cost"],
-                 "decoded_cost_extrapolated": info_x["decoded_cost"]}
-        if info_x["decoded_cost"] < info["decoded_cost"]:
+        costs = {f"{key}_{model}": part[key] for model, part in
+                 (("ankle", info), ("extrapolated", info_x))
+                 for key in ("decoded_cost", "decoded_accelerometer_cost")}
+        if not ankle_explains_better(info, info_x):
             feet, states, info, chosen = extended, states_x, info_x, "extrapolated"
         info.update(costs)
     if extended is not None:
         info["toe_model"] = chosen
     return feet, states, info
+
+
+def ankle_explains_better(ankle: Mapping[str, float], toe: Mapping[str, float]) -> bool:
+    """Whether ``choose_toes`` keeps the ankle held still rather than the toe point.
+
+    Parameters
+    ----------
+    ankle, toe : mapping of str to float
+        Each model's decoding: ``decoded_cost`` (the Viterbi path's cost per 10 ms) and
+        ``decoded_accelerometer_cost`` (its accelerometer residuals alone, per 10 ms).
+
+    Returns
+    -------
+    bool
+        True when the ankle's decoding is the cheaper on both. The toe point's model holds
+        the ankle still too while the foot stands flat, so it is kept unless the data favour
+        the ankle outright: by the whole cost alone the priors (more single-support frames,
+        more switches) outweighed a better accelerometer fit where the foot rolls only now
+        and then (a kick's heel-off), by the accelerometer part alone a sensor near the ball
+        read like the ankle's still point (docs/translation.md).
+    """
+    return bool(ankle["decoded_cost"] <= toe["decoded_cost"]
+                and ankle["decoded_accelerometer_cost"] <= toe["decoded_accelerometer_cost"])
 
 
 def _rolling_feet(recording: KinematicsRecording, feet: tuple[_Feet, _Feet],
