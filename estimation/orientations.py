@@ -89,7 +89,7 @@ class _Down(NamedTuple):
     the same bits)."""
 
     mask: NDArray[np.bool_]
-    index: NDArray[np.intp] | None  # None: many, use the mask
+    frames: NDArray[np.intp] | None  # their indices; None: many, use the mask
     sign: Float | None
 
     @classmethod
@@ -104,19 +104,19 @@ class _Down(NamedTuple):
         """``rows`` (fresh arrays when changed) negated in the frames down."""
         if self.sign is not None:
             return tuple(row * self.sign for row in rows)
-        if self.index is None or not self.index.size:
+        if self.frames is None or not self.frames.size:
             return rows
         out = tuple(row.copy() for row in rows)
         for row in out:
-            row[self.index] *= -1.0
+            row[self.frames] *= -1.0
         return out
 
     def turned(self, q: Float) -> Float:
         """Quaternion rows ``q`` (4, F) composed with ``p`` in the frames down."""
         if self.sign is not None:
             return np.asarray(np.where(self.mask, q[::-1] * _TURN_Z, q))
-        if self.index is not None and self.index.size:
-            q[:, self.index] = q[::-1, self.index] * _TURN_Z
+        if self.frames is not None and self.frames.size:
+            q[:, self.frames] = q[::-1, self.frames] * _TURN_Z
         return q
 
 
