@@ -14,10 +14,11 @@ Run from the project root::
 The process is configured as the CLI's estimating commands and the service's workers configure
 theirs: BLAS on one thread (``OPENBLAS_NUM_THREADS=1`` and its siblings, unless already set;
 threaded BLAS on these thin arrays adds noise, not speed) and glibc's malloc keeping freed
-memory for the next estimate (``memory.retain_freed_memory``; without it each estimate faults
-in its pages anew, about 2,700 minor faults for one default estimate at RT1 size).
-``--default-malloc`` leaves malloc's own thresholds, as before 2026-11-27, to measure what that
-changes.
+memory for the next estimate (``memory.retain_freed_memory``: in a process that estimates a
+recording it loaded, each default estimate at RT1 size otherwise faults in about 2,700 pages
+anew; here the recordings simulated first have usually raised malloc's dynamic thresholds
+already, and the estimates take almost no faults either way). ``--default-malloc`` leaves
+malloc's own thresholds, as before 2026-11-27.
 
 Prints four tables: time per method (with its stages: gap filling, torso joints, limbs,
 orientations, from the progress reports); Nelder–Mead against the default least-squares
