@@ -11,8 +11,14 @@ Run from the project root::
     .venv/bin/python benchmarks/skeleton_speed.py            # RT1 size, 3 runs
     .venv/bin/python benchmarks/skeleton_speed.py --runs 5 --scales 1 4 16
 
-BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` and its siblings, unless already set), as in
-the service's workers: threaded BLAS on these thin arrays adds noise, not speed.
+The process is configured as the CLI's estimating commands and the service's workers configure
+theirs: BLAS on one thread (``OPENBLAS_NUM_THREADS=1`` and its siblings, unless already set;
+threaded BLAS on these thin arrays adds noise, not speed) and glibc's malloc keeping freed
+memory for the next estimate (``memory.retain_freed_memory``: in a process that estimates a
+recording it loaded, each default estimate at RT1 size otherwise faults in about 2,700 pages
+anew; here the recordings simulated first have usually raised malloc's dynamic thresholds
+already, and the estimates take almost no faults either way). ``--default-malloc`` leaves
+malloc's own thresholds, as before 2026-11-27.
 
 Prints four tables: time per method (with its stages: gap filling, torso joints, limbs,
 orientations, from the progress reports); Nelder–Mead against the default least-squares
@@ -30,13 +36,17 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
-# before numpy loads BLAS
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from bonefit.estimation.memory import retain_freed_memory
+from bonefit.estimation.threads import limit_blas_threads
+
+limit_blas_threads()  # before numpy loads BLAS
+if "--default-malloc" not in sys.argv:
+    retain_freed_memory()
 
 import numpy as np  # noqa: E402
 
@@ -206,6 +216,8 @@ def main() -> None:
     parser.add_argument("--scales", type=int, nargs="+", default=[1, 4, 16])
     parser.add_argument("--held-out-only", action="store_true",
                         help="only the Nelder–Mead / least-squares ratios on held-out inputs")
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="leave glibc malloc's thresholds (see above; read at import)")
     args = parser.parse_args()
     if args.held_out_only:
         held_out_ratios(args)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -363,11 +364,13 @@ turns non-positive after 18-135 frames on the speed benchmark's recordings (tors
 11 and 15 sensors, with slip)."""
 
 
+@functools.lru_cache(maxsize=16)
 def _autocorrelation_sizes(n: int) -> tuple[int, ...]:
     """Transform lengths for the autocorrelation of ``n`` samples: one of about
     ``n + SHORT_LAGS`` (its lags up to ``SHORT_LAGS`` are exact: the circular wrap falls on
     the zero padding; half the length of the full one at 6,283 frames), then the full
-    ``>= 2n − 1`` (every lag)."""
+    ``>= 2n − 1`` (every lag). Cached: every joint of a recording asks for the same ``n``,
+    and the search takes 17 µs, a tenth of the transforms."""
     full = smooth_length(2 * n - 1)
     short = smooth_length(n + SHORT_LAGS)
     return (short, full) if short < full else (full,)

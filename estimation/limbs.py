@@ -526,8 +526,8 @@ class _PaperTerms:
         g = _SIGN * gram[:6, 10] + self.w_s * theta
         g[:3] += gram[6:9, 11]
         j_bar = _SIGN * gram[:6, 9] / m
-        h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar) \
-            + self.w_s * np.eye(6)
+        h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar)
+        h.flat[::7] += self.w_s  # + w_S I (no identity matrices: µs each, 23 passes a limb)
         h[:3, :3] += w_l / m * gram[6:9, 6:9]
         if not self.exact:
             return geo.value, g, h
@@ -566,11 +566,15 @@ class _PaperTerms:
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
-        second = gram[9, 12] * np.eye(6) - _SIGN_OUTER * (z[:6] @ z[14:20].T)
+        # a I − X as −X with a added to its diagonal: the same values, bit for bit
+        second = np.negative(_SIGN_OUTER * (z[:6] @ z[14:20].T))
+        second.flat[::7] += gram[9, 12]
         cross = (self.q @ cl).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
-        second[:3, :3] += gram[9, 13] * np.eye(3) - z[6:9] @ z[20:].T
+        upper = np.negative(z[6:9] @ z[20:].T)
+        upper.flat[::4] += gram[9, 13]
+        second[:3, :3] += upper
         return np.asarray(second)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Mapping
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -75,6 +76,50 @@ def _frame_from_yz(y: Float, z: Float) -> Axes:
     return _cross(y, z), y, z
 
 
+_TURN_Z = np.array([[-1.0], [-1.0], [1.0], [1.0]])
+"""``p ⊗ q' = (−q'_z, −q'_y, q'_x, q'_w)`` with ``p = (0, 0, 0, 1)`` (R_z(π)): these signs
+times the components of q' in reverse order."""
+
+
+class _Down(NamedTuple):
+    """The frames whose bone points down (``y₁ < 0``), for ``quat_from_xy``: as indices when
+    fewer than a quarter (changed one by one), else as a mask and a sign per frame (a forearm
+    or shank points down in most frames, where gathering and scattering the indices took as
+    long as the rest of the function; the products with ±1 negate exactly, so both ways give
+    the same bits)."""
+
+    mask: NDArray[np.bool_]
+    frames: NDArray[np.intp] | None  # their indices; None: many, use the mask
+    sign: Float | None
+
+    @classmethod
+    def of(cls, y1: Float) -> _Down:
+        mask = y1 < 0
+        count = int(np.count_nonzero(mask))
+        if 4 * count < mask.size:
+            return cls(mask, np.flatnonzero(mask), None)
+        return cls(mask, None, np.where(mask, -1.0, 1.0))
+
+    def negated(self, rows: tuple[Float, ...]) -> tuple[Float, ...]:
+        """``rows`` (fresh arrays when changed) negated in the frames down."""
+        if self.sign is not None:
+            return tuple(row * self.sign for row in rows)
+        if self.frames is None or not self.frames.size:
+            return rows
+        out = tuple(row.copy() for row in rows)
+        for row in out:
+            row[self.frames] *= -1.0
+        return out
+
+    def turned(self, q: Float) -> Float:
+        """Quaternion rows ``q`` (4, F) composed with ``p`` in the frames down."""
+        if self.sign is not None:
+            return np.asarray(np.where(self.mask, q[::-1] * _TURN_Z, q))
+        if self.frames is not None and self.frames.size:
+            q[:, self.frames] = q[::-1, self.frames] * _TURN_Z
+        return q
+
+
 def quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     """The frame with y (a unit vector: the bone) kept exactly, x made orthogonal to it and
     z = x × y, as quaternions written into ``out`` (F, 4), ``w ≥ 0``.
@@ -84,13 +129,8 @@ def quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     e_x onto ``(a, 0, c)``, the projection of ``sᵀ x`` on the xz plane."""
     # for y₁ < 0 (1 + y₁ would cancel) the frame turned by P = R_z(π), which negates the
     # first two components of y and x, is composed instead, and q = p ⊗ q' with p = (0, 0, 0, 1)
-    # (few frames: changed through their indices, not through masks over every frame)
-    down = np.flatnonzero(y[1] < 0)
-    y0, y1, x0, x1 = y[0], y[1], x[0], x[1]
-    if down.size:
-        y0, y1, x0, x1 = y0.copy(), y1.copy(), x0.copy(), x1.copy()
-        for v in (y0, y1, x0, x1):
-            v[down] *= -1.0
+    down = _Down.of(y[1])
+    y0, y1, x0, x1 = down.negated((y[0], y[1], x[0], x[1]))
     y2, x2 = y[2], x[2]
     one_y = 1.0 + y1
     # sᵀ x = (x₀ − y₀ h, ·, x₂ − y₂ h) with h = x₁ + (y₀ x₀ + y₂ x₂) / (1 + y₁)
@@ -118,8 +158,7 @@ def quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     np.multiply(one_y, ty, out=q[2])
     np.multiply(y2, ty, out=q[3])
     q[3] -= y0 * tw
-    if down.size:
-        q[:, down] = q[::-1, down] * np.array([[-1.0], [-1.0], [1.0], [1.0]])
+    q = down.turned(q)
     scale = one_y * r
     scale *= turn
     np.sqrt(scale, out=scale)

@@ -530,7 +530,7 @@ class SensorPoses:
             def task(_report: Report) -> tuple[FilledGaps, list[Rotation]]:
                 for k in ks:
                     col = recording.index(use[k])
-                    pos[k] = recording.positions[:, col]
+                    rows.copy_into(pos[k], recording.positions[:, col])
                     quat[k, :4] = recording.quaternions[:, col].T
                 part = slice(ks.start, ks.stop)
                 try:

@@ -26,6 +26,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from bonefit.estimation import memory
 from bonefit.estimation.errors import BonefitError
 
 from .artifacts import tenant_prefix
@@ -280,7 +281,11 @@ class Worker:
 
 def run_worker(settings: Settings, *, parent_pid: int | None = None,
                kinds: Mapping[str, Kind] | None = None) -> int:
-    """The body of ``bonefit worker --concurrency 1``: serve until SIGTERM/SIGINT."""
+    """The body of ``bonefit worker --concurrency 1``: serve until SIGTERM/SIGINT.
+
+    Freed memory is kept for the next job's arrays (``memory.retain_freed_memory``), as the
+    CLI's estimating commands keep it: without it every estimate faults in its pages anew."""
+    memory.retain_freed_memory()
     # job folders and downloaded inputs go here, so that a killed worker's are found again
     tmp = private_tmp(settings.data_dir)
     previous_tempdir, tempfile.tempdir = tempfile.tempdir, str(tmp)

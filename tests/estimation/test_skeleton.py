@@ -584,6 +584,21 @@ def test_a_custom_anthropometric_table_must_be_positive_and_finite(sim15: Sim) -
     assert info.value.field == "anthropometry.shank"
 
 
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_sensor_poses_copy_the_measured_positions_from_any_memory_layout(
+        order: str, sim11: Sim) -> None:
+    """Each sensor's column is copied row by row as one item when its entries are
+    contiguous (C order), entry by entry otherwise (F order): the same values."""
+    rec = sim11[0]
+    rec = replace(rec, positions=np.asarray(rec.positions, order=order))
+    use = list(skeleton.REDUCED_SEGMENTS)
+    poses = SensorPoses.of(rec, use, [])
+    for seg in use:
+        measured, ok = rec.positions[:, rec.index(seg)], poses.ok[seg]
+        assert ok.sum() > 0.9 * rec.n_frames, seg
+        assert np.array_equal(poses.positions[seg][ok], measured[ok]), seg
+
+
 @pytest.mark.parametrize("per_sensor", [False, True])
 def test_sensor_poses_in_one_step_or_sensor_by_sensor_are_the_same(
         per_sensor: bool, sim11: Sim, monkeypatch: pytest.MonkeyPatch) -> None:

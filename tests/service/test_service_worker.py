@@ -391,6 +391,23 @@ def test_a_worker_stopped_while_loading_never_says_it_is_ready(
     assert not any(" ready " in m for m in messages)
 
 
+def test_a_worker_keeps_freed_memory_as_the_estimating_commands_do(
+        settings: Settings, monkeypatch: pytest.MonkeyPatch) -> None:
+    import bonefit.service.worker as worker_module
+    from bonefit.estimation import memory
+
+    calls: list[bool] = []
+    monkeypatch.setattr(memory, "retain_freed_memory", lambda: calls.append(True) or True)
+    monkeypatch.setattr(worker_module, "preload", lambda: os.kill(os.getpid(), signal.SIGTERM))
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        assert worker_module.run_worker(settings) == 0
+    finally:
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
+    assert calls == [True]
+
+
 def test_a_message_for_a_job_not_in_the_store_is_dropped_with_a_log_line(
         runtime: Runtime, worker: Worker, caplog: pytest.LogCaptureFixture) -> None:
     """As when the database crashed after the job was queued but before it became durable
