@@ -74,6 +74,13 @@ HACHAJ_WINDOW: Final[int] = 100
 HACHAJ_EPS_M: Final[float] = 0.05
 """Pass-2 threshold of the reference implementation (5 cm)."""
 
+POSE_JUMP_FACTOR: Final[float] = 2.0
+"""A carried step faster than this times the recording's 99th percentile of carried speeds
+is a jump of the pose, not a movement of the body (:func:`pose_jumps`)."""
+
+POSE_JUMP_MIN_SPEED: Final[float] = 2.0
+"""m/s: slower steps are never taken for a jump of the pose (:func:`pose_jumps`)."""
+
 
 # --------------------------------------------------------------------------- shared pieces
 
@@ -844,14 +851,15 @@ def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
                      states: NDArray[np.int64], w_left: NDArray[np.float64], *, root: int,
                      dt: float) -> NDArray[np.float64]:
     """Translation (F, 3) that keeps the supporting contact points still, with ballistic
-    steps across flights (the take-off velocity of the last 50 ms held); its vertical
-    component is replaced by the caller."""
+    steps across flights and jumps of the pose (:func:`pose_jumps`; the take-off velocity
+    of the last 50 ms held); its vertical component is replaced by the caller."""
     n = p.shape[0]
     in_contact = states != 0
     steps_l, steps_r = feet[0].steps(p), feet[1].steps(p)
     pair_contact = in_contact[:-1] & in_contact[1:]
     wl = 0.5 * (w_left[:-1] + w_left[1:])[:, None]
     steps = -(wl * steps_l + (1 - wl) * steps_r)
+    pair_contact &= ~pose_jumps(steps, pair_contact, dt)
     steps[~pair_contact] = 0.0
     hips_steps = p[1:, root] - p[:-1, root]
     translation = np.zeros((n, 3))
@@ -869,6 +877,38 @@ def _horizontal_path(p: NDArray[np.float64], feet: tuple[_Feet, _Feet],
         translation[start + 1:] += np.concatenate(
             [np.cumsum(delta, axis=0), np.repeat(delta.sum(axis=0)[None], n - stop - 1, 0)])
     return translation
+
+
+def pose_jumps(steps: NDArray[np.float64], carried: NDArray[np.bool_], dt: float
+               ) -> NDArray[np.bool_]:
+    """Frame pairs whose step no planted point can carry: a jump of the pose.
+
+    Parameters
+    ----------
+    steps : ndarray, shape (F-1, 3)
+        The body's displacement between frames that holding the supporting contact points
+        still gives, m.
+    carried : ndarray of bool, shape (F-1,)
+        Pairs on which a contact point carries the body.
+    dt : float
+        Frame interval, s.
+
+    Returns
+    -------
+    ndarray of bool, shape (F-1,)
+        Carried pairs whose horizontal speed exceeds ``POSE_JUMP_FACTOR`` times the 99th
+        percentile of the carried speeds (the recording's own fastest support) and
+        ``POSE_JUMP_MIN_SPEED``: a pose that jumps between two frames (a file's first frame
+        in another pose, a dropout) moves the feet, not the body, so the path bridges it
+        like a flight instead of carrying the body by the jump.
+    """
+    speed = np.linalg.norm(steps[:, [0, 2]], axis=1) / dt
+    if carried.sum() < 10:
+        return np.zeros_like(carried)
+    top = float(np.quantile(speed[carried], 0.99))
+    out: NDArray[np.bool_] = carried & (speed > max(POSE_JUMP_FACTOR * top,
+                                                    POSE_JUMP_MIN_SPEED))
+    return out
 
 
 class _Support(NamedTuple):

@@ -3,6 +3,7 @@ synthetic recordings with a known path."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from bonefit.estimation.translation import (
     hachaj_smooth,
     hachaj_window_length,
     method_options,
+    pose_jumps,
 )
 
 SHADOW = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "shadow"
@@ -200,6 +202,48 @@ def test_no_vertical_jumps_when_the_support_changes() -> None:
     true_dy = np.diff(truth.root[:, 1])
     assert np.abs(dy).max() < np.abs(true_dy).max() + 0.01
     assert result.quality["max_vertical_jump_cm"] < 1.0
+
+
+@pytest.mark.parametrize("fps", [30.0, 60.0, 100.0])
+def test_a_first_frame_in_another_pose_does_not_move_the_body(fps: float) -> None:
+    # Files often start in another pose (a T-pose, a calibration frame): every joint but the
+    # hips jumps between frames 0 and 1. Holding a planted foot through that jump would carry
+    # the body 30 cm; the walker's true path does not move (27.5 cm mean error before).
+    rec, truth, _ = simulate_walker(fps=fps)
+    positions = rec.positions.copy()
+    hips = rec.index(rec.root)
+    others = np.arange(positions.shape[1]) != hips
+    positions[0, others] += np.array([0.25, -0.05, 0.15])
+    jumped = replace(rec, positions=positions)
+    clean = estimate_translation(rec)
+    result = estimate_translation(jumped)
+    moved = result.root[:, [0, 2]] - result.root[0, [0, 2]]
+    true_moved = truth.root[:, [0, 2]] - truth.root[0, [0, 2]]
+    error_m = np.linalg.norm(moved - true_moved, axis=1)
+    assert error_m.mean() < 0.03  # measured: 0.018-0.021 m, as without the jump
+    assert np.allclose(result.root[1:, [0, 2]] - result.root[1, [0, 2]],
+                       clean.root[1:, [0, 2]] - clean.root[1, [0, 2]], atol=0.005)
+
+
+def test_pose_jumps_are_steps_far_beyond_the_recordings_own_fastest_support() -> None:
+    dt = 0.01
+    rng = np.random.default_rng(3)
+    # a sprinter carried at 8 m/s (±10 %): fast, but every step like the others
+    speed = 8.0 * (1 + 0.1 * rng.standard_normal(500))
+    steps = np.zeros((500, 3))
+    steps[:, 2] = speed * dt
+    carried = np.ones(500, dtype=bool)
+    assert not pose_jumps(steps, carried, dt).any()
+    # the pose jumps 20 cm between two frames; a pair in flight is never a jump
+    steps[100, 0] = 0.2
+    steps[300, 0] = 0.5
+    carried[300] = False
+    assert np.flatnonzero(pose_jumps(steps, carried, dt)).tolist() == [100]
+    # a walker standing nearly still: drifts of 5 cm/s do not make a jump of 0.5 m/s
+    slow = np.zeros((500, 3))
+    slow[:, 0] = 0.0005 * rng.standard_normal(500)
+    slow[200, 0] = 0.005
+    assert not pose_jumps(slow, np.ones(500, dtype=bool), dt).any()
 
 
 def test_contacts_from_the_file_are_used() -> None:
