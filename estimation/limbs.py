@@ -1128,6 +1128,16 @@ def _straight_start(limb: LimbInUpperFrame, lengths: tuple[float, float]) -> Flo
         h_bar + lengths[0] * toward / max(float(np.linalg.norm(toward)), 1e-9), np.zeros(3)])
 
 
+def _hinge_and_weights(limb: LimbInUpperFrame, coarse: LimbInUpperFrame, x: Float,
+                       gain: float, options: LimbOptions) -> tuple[Float, float, PriorWeights]:
+    """At ``x`` = (middle, distal, ...): the flexion axis and the doubt about it
+    (:func:`_hinge_state` on every frame of ``limb``) and the prior weights they give, the
+    lower length's extra from the subsample ``coarse`` for a hand (``_along_weight``)."""
+    axis, doubt, share = _hinge_state(limb, x)
+    along = _along_weight(coarse, x, gain) if options.distal_in_line else 0.0
+    return axis, doubt, _prior_weights(doubt, gain, share, along)
+
+
 def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[float, float],
                   options: LimbOptions, report: Progress,
                   ) -> tuple[Float, int, bool, dict[str, Any]]:
@@ -1145,9 +1155,7 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
     # Several starts on the subsample (the objective has local minima when the limb moves
     # little); the best one is polished on every frame.
     for start in starts:
-        axis, doubt, share = _hinge_state(limb, start)
-        along = _along_weight(coarse, start, gain) if options.distal_in_line else 0.0
-        weights = _prior_weights(doubt, gain, share, along)
+        axis, doubt, weights = _hinge_and_weights(limb, coarse, start, gain, options)
         length = float(rows.norms(limb.distal(start[3:6]) - start[:3]).mean())
         x = np.concatenate([start[:6], [length]])
         # The axis depends on the distal joint and vice versa: alternate.
@@ -1160,9 +1168,7 @@ def _fit_improved(limb: LimbInUpperFrame, starts: list[Float], lengths: tuple[fl
             n_eval += int(sol.nfev + sol.njev)
             x, ok = np.asarray(sol.x, dtype=float), bool(sol.status > 0)
             report(0.3 + 0.3 * next(fits) / (len(starts) * _ALTERNATE), "limbs")
-            new_axis, doubt, share = _hinge_state(limb, x)
-            along = _along_weight(coarse, x, gain) if options.distal_in_line else 0.0
-            weights = _prior_weights(doubt, gain, share, along)
+            new_axis, doubt, weights = _hinge_and_weights(limb, coarse, x, gain, options)
             if new_axis @ axis < 0:
                 new_axis = -new_axis
             moved = float(np.arccos(np.clip(new_axis @ axis, -1.0, 1.0)))
