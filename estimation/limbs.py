@@ -520,28 +520,28 @@ class _PaperTerms:
         geo = self.geometry(theta)
         z = self._rows(geo)
         m, w_l = self.limb.n, self.w_l
-        # every sum is an entry of one of two products of rows of z (see ``_rows``): 8 × 16
-        # and 4 × 8 rows, shapes OpenBLAS's 4 × 8 kernels fill, 72 µs for 6,283 frames where
-        # the three products of the 23 rows, (10, 14), (6, 6) and (3, 3), took 131; a BLAS
-        # product adds each entry's terms in the same order whatever the shapes (the same
-        # bits)
-        lead = z[:8] @ z[:16].T
-        hip = z[16:20] @ z[16:24].T
-        g = _SIGN * lead[:6, 7] + self.w_s * theta
-        g[:3] += hip[:3, 3]
-        j_bar = _SIGN * lead[:6, 6] / m
+        # every sum is an entry of one of two products of rows of z (see ``_rows``), 8 × 16
+        # and 4 × 8 rows: shapes OpenBLAS's 4 × 8 kernels fill, 72 µs for 6,283 frames where
+        # three products, (10, 14), (6, 6) and (3, 3) rows, took 131. A BLAS product adds
+        # each entry's terms in the same order whatever the shapes: the same bits
+        by_j = z[:8] @ z[:16].T
+        by_e = z[16:20] @ z[16:24].T
+        g = _SIGN * by_j[:6, 7] + self.w_s * theta
+        g[:3] += by_e[:3, 3]
+        j_bar = _SIGN * by_j[:6, 6] / m
         # j̄ j̄ᵀ as np.outer forms it, without its checks (µs a call)
-        h = (1.0 + w_l) / m * (_SIGN_OUTER * lead[:6, :6]) - j_bar[:, None] * j_bar
+        h = (1.0 + w_l) / m * (_SIGN_OUTER * by_j[:6, :6]) - j_bar[:, None] * j_bar
         h.flat[::7] += self.w_s  # + w_S I (no identity matrices: µs each, 23 passes a limb)
-        h[:3, :3] += w_l / m * hip[:3, :3]
+        h[:3, :3] += w_l / m * by_e[:3, :3]
         if not self.exact:
             return geo.value, g, h
-        return geo.value, g, h, h + self._second_order(z[14], lead, hip)
+        return geo.value, g, h, h + self._second_order(z[14], by_j, by_e)
 
     def _rows(self, geo: _Geometry) -> Float:
-        """Rows (24, M) of z, in two groups, each the rows of one product: u, uᵀQ (j up to
-        the sign of its first block), ones, c, then (with ``exact``) u and uᵀQ times c/l,
-        then c/l, c_u/l_u; and ê, c_u, ê times c_u/l_u, a row of zeros.
+        """Rows (24, M) of z in two groups, the rows of ``normal``'s two products: 0–5 u, uᵀQ
+        (j up to the sign of its first block), 6 ones, 7 c, 8–13 u and uᵀQ times c/l (with
+        ``exact``), 14 c/l, 15 c_u/l_u; then 16–18 ê, 19 c_u, 20–22 ê times c_u/l_u (with
+        ``exact``), 23 zeros (the second product's fourth row of four).
 
         Every sum of the normal equations is an entry of a product of rows of z. z is
         component-major so that numpy's loops run over frames, not over 3 components."""
@@ -567,19 +567,19 @@ class _PaperTerms:
             np.multiply(z[16:19], cul, out=z[20:23])
         return z
 
-    def _second_order(self, cl: Float, lead: Float, hip: Float) -> Float:
+    def _second_order(self, cl: Float, by_j: Float, by_e: Float) -> Float:
         """``Σ r ∇²r`` (6, 6), from the row c/l and the two products of ``normal``."""
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         # a I − X as −X with a added to its diagonal: the same values, bit for bit
-        second = np.negative(_SIGN_OUTER * lead[:6, 8:14])
-        second.flat[::7] += lead[6, 14]
+        second = np.negative(_SIGN_OUTER * by_j[:6, 8:14])
+        second.flat[::7] += by_j[6, 14]
         cross = (self.q @ cl).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
-        upper = np.negative(hip[:3, 4:7])
-        upper.flat[::4] += lead[6, 15]
+        upper = np.negative(by_e[:3, 4:7])
+        upper.flat[::4] += by_j[6, 15]
         second[:3, :3] += upper
         return np.asarray(second)
 
