@@ -520,60 +520,66 @@ class _PaperTerms:
         geo = self.geometry(theta)
         z = self._rows(geo)
         m, w_l = self.limb.n, self.w_l
-        # Σ x yᵀ of the plain rows, then the two weighted blocks: three small products take
-        # 80 µs for 6,283 frames where the one (10, 23) product took 210 (OpenBLAS's kernels)
-        gram = z[:10] @ z[:14].T
-        g = _SIGN * gram[:6, 10] + self.w_s * theta
-        g[:3] += gram[6:9, 11]
-        j_bar = _SIGN * gram[:6, 9] / m
-        h = (1.0 + w_l) / m * (_SIGN_OUTER * gram[:6, :6]) - np.outer(j_bar, j_bar)
+        # every sum is an entry of one of two products of rows of z (see ``_rows``), 8 × 16
+        # and 4 × 8 rows: shapes OpenBLAS's 4 × 8 kernels fill, 72 µs for 6,283 frames where
+        # three products, (10, 14), (6, 6) and (3, 3) rows, took 131. A BLAS product adds
+        # each entry's terms in the same order whatever the shapes: the same bits
+        by_j = z[:8] @ z[:16].T
+        by_e = z[16:20] @ z[16:24].T
+        g = _SIGN * by_j[:6, 7] + self.w_s * theta
+        g[:3] += by_e[:3, 3]
+        j_bar = _SIGN * by_j[:6, 6] / m
+        # j̄ j̄ᵀ as np.outer forms it, without its checks (µs a call)
+        h = (1.0 + w_l) / m * (_SIGN_OUTER * by_j[:6, :6]) - j_bar[:, None] * j_bar
         h.flat[::7] += self.w_s  # + w_S I (no identity matrices: µs each, 23 passes a limb)
-        h[:3, :3] += w_l / m * gram[6:9, 6:9]
+        h[:3, :3] += w_l / m * by_e[:3, :3]
         if not self.exact:
             return geo.value, g, h
-        return geo.value, g, h, h + self._second_order(z, gram)
+        return geo.value, g, h, h + self._second_order(z[14], by_j, by_e)
 
     def _rows(self, geo: _Geometry) -> Float:
-        """Rows (23, M) of z: u, uᵀQ, ê per frame (j up to the sign of its first block, then
-        ê) and ones, then c, c_u, c/l, c_u/l_u; rows 14–22 are left for ``_second_order``.
+        """Rows (24, M) of z in two groups, the rows of ``normal``'s two products: 0–5 u, uᵀQ
+        (j up to the sign of its first block), 6 ones, 7 c, 8–13 u and uᵀQ times c/l (with
+        ``exact``), 14 c/l, 15 c_u/l_u; then 16–18 ê, 19 c_u, 20–22 ê times c_u/l_u (with
+        ``exact``), 23 zeros (the second product's fourth row of four).
 
         Every sum of the normal equations is an entry of a product of rows of z. z is
-        frame-major so that numpy's loops run over frames, not over 3 components."""
+        component-major so that numpy's loops run over frames, not over 3 components."""
         m, (l_up, l_low), w_l, q = self.limb.n, self.lengths, self.w_l, self.q
         inv_l = 1.0 / geo.ll
         inv_lu = 1.0 / geo.lu
         if self._z is None:
-            self._z = np.empty((23, m))
-            self._z[9] = 1.0  # the ones, set once
+            self._z = np.zeros((24, m))
+            self._z[6] = 1.0  # the ones, set once
         z = self._z
         np.multiply(geo.d, inv_l, out=z[:3])
         np.einsum("im,ijm->jm", z[:3], q.reshape(3, 3, m), out=z[3:6])  # uᵀQ
-        np.multiply(geo.e, inv_lu, out=z[6:9])
-        c, cu, cl, cul = z[10], z[11], z[12], z[13]
+        np.multiply(geo.e, inv_lu, out=z[16:19])
+        c, cl, cul, cu = z[7], z[14], z[15], z[19]
         np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
         c -= (geo.ll_mean + w_l * l_low) / m
         np.subtract(geo.lu, l_up, out=cu)
         cu *= w_l / m
         np.multiply(c, inv_l, out=cl)
         np.multiply(cu, inv_lu, out=cul)
+        if self.exact:
+            np.multiply(z[:6], cl, out=z[8:14])
+            np.multiply(z[16:19], cul, out=z[20:23])
         return z
 
-    def _second_order(self, z: Float, gram: Float) -> Float:
-        """``Σ r ∇²r`` (6, 6), from the rows ``z`` (completed here) and their ``gram``."""
-        cl, cul = z[12], z[13]
-        np.multiply(z[:6], cl, out=z[14:20])
-        np.multiply(z[6:9], cul, out=z[20:])
+    def _second_order(self, cl: Float, by_j: Float, by_e: Float) -> Float:
+        """``Σ r ∇²r`` (6, 6), from the row c/l and the two products of ``normal``."""
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         # a I − X as −X with a added to its diagonal: the same values, bit for bit
-        second = np.negative(_SIGN_OUTER * (z[:6] @ z[14:20].T))
-        second.flat[::7] += gram[9, 12]
+        second = np.negative(_SIGN_OUTER * by_j[:6, 8:14])
+        second.flat[::7] += by_j[6, 14]
         cross = (self.q @ cl).reshape(3, 3)
         second[:3, 3:] -= cross
         second[3:, :3] -= cross.T
-        upper = np.negative(z[6:9] @ z[20:].T)
-        upper.flat[::4] += gram[9, 13]
+        upper = np.negative(by_e[:3, 4:7])
+        upper.flat[::4] += by_j[6, 15]
         second[:3, :3] += upper
         return np.asarray(second)
 
