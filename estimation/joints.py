@@ -312,9 +312,10 @@ def percentile(x: NDArray[np.float64], q: float,
     ``of(x)``, applying ``of`` only to the two order statistics it needs."""
     pos = q / 100.0 * (x.size - 1)
     lo = int(np.floor(pos))
-    hi = min(lo + 1, x.size - 1)
-    part = np.partition(x, (lo, hi))
-    low, high = part[[lo, hi]] if of is None else of(part[[lo, hi]])
+    part = np.partition(x, lo)
+    # the next order statistic is the least above: half the cost of partitioning at both
+    pair = np.array([part[lo], part[lo + 1:].min() if lo + 1 < x.size else part[lo]])
+    low, high = pair if of is None else of(pair)
     return float(low + (pos - lo) * (high - low))
 
 
