@@ -1034,7 +1034,8 @@ def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
     try:
         return estimate_joint(
             pa, ra, pb, rb, method=plan.estimator,
-            loss=opt.loss, valid=np.column_stack([sensors.ok[a], sensors.ok[b]]),
+            # (F, 2) as a transposed view: each sensor's column contiguous
+            loss=opt.loss, valid=np.stack([sensors.ok[a], sensors.ok[b]]).T,
             neighbours=plan.neighbours, hinge_prior=0.0 if opt.plain else 0.01,
             trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
             highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
