@@ -312,9 +312,10 @@ def percentile(x: NDArray[np.float64], q: float,
     ``of(x)``, applying ``of`` only to the two order statistics it needs."""
     pos = q / 100.0 * (x.size - 1)
     lo = int(np.floor(pos))
-    hi = min(lo + 1, x.size - 1)
-    part = np.partition(x, (lo, hi))
-    low, high = part[[lo, hi]] if of is None else of(part[[lo, hi]])
+    part = np.partition(x, lo)
+    # the next order statistic is the least above: half the cost of partitioning at both
+    pair = np.array([part[lo], part[lo + 1:].min() if lo + 1 < x.size else part[lo]])
+    low, high = pair if of is None else of(pair)
     return float(low + (pos - lo) * (high - low))
 
 
@@ -509,10 +510,11 @@ class JointData:
         return self.excluded if 2 * self.excluded.size <= self.n else None
 
 
-def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation,
-               positions_b: NDArray[np.float64], rotations_b: Rotation,
+def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation | NDArray[np.float64],
+               positions_b: NDArray[np.float64], rotations_b: Rotation | NDArray[np.float64],
                valid: NDArray[np.bool_] | None = None) -> JointData:
-    """Check and prepare two sensors' samples (arguments as in ``estimate_joint``).
+    """Check and prepare two sensors' samples (arguments as in ``estimate_joint``; rotations
+    also as their matrices (F, 3, 3), taken as they are).
 
     Raises
     ------
@@ -544,8 +546,13 @@ def joint_data(positions_a: NDArray[np.float64], rotations_a: Rotation,
     if n - excluded.size < 3:
         raise EstimationError("fewer than 3 frames where both sensors are valid",
                               field="positions")
-    return JointData(pa, pb, rotations_a.as_matrix(), rotations_b.as_matrix(), pb - pa,
+    return JointData(pa, pb, _matrices(rotations_a), _matrices(rotations_b), pb - pa,
                      ok_a, ok_b, both, excluded, both.astype(float))
+
+
+def _matrices(rotations: Rotation | NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rotation matrices (F, 3, 3) of a Rotation, or the matrices given."""
+    return rotations if isinstance(rotations, np.ndarray) else rotations.as_matrix()
 
 
 @dataclass(frozen=True, eq=False)
@@ -595,6 +602,14 @@ def highpass_system(data: JointData, highpass: int) -> HighpassSystem:
     return HighpassSystem(big_a, big_y)
 
 
+class Sides(NamedTuple):
+    """The two sides of the joint equation at a centre, without slip: the residual and the
+    reconstruction share them."""
+
+    rec_a: NDArray[np.float64]  # (F, 3) R_a c_a + p_a
+    rb_cb: NDArray[np.float64]  # (F, 3) R_b c_b
+
+
 class NormalEquations(NamedTuple):
     """Normal equations of the centre ``c = [c_a; c_b]`` at some frame weights."""
 
@@ -631,12 +646,20 @@ class JointModel:
                                    data.unit_excluded if first else None)
         return NormalEquations(normal, rhs, np.zeros((0, 7)))
 
-    def residual(self, c: NDArray[np.float64], back: NDArray[np.float64]
-                 ) -> NDArray[np.float64]:
-        """Per-frame residual (F, 3) of the (unfiltered) joint equation at centre ``c``,
-        with the slip that goes with it (``back`` from its normal equations) when modelled."""
+    def sides(self, c: NDArray[np.float64]) -> Sides:
+        """The two sides of the joint equation without slip at centre ``c``."""
         data = self.data
-        res = rows.apply(data.ra, c[:3]) + data.pa - rows.apply(data.rb, c[3:]) - data.pb
+        return Sides(rows.transform(data.ra, c[:3], data.pa), rows.apply(data.rb, c[3:]))
+
+    def residual(self, c: NDArray[np.float64], back: NDArray[np.float64],
+                 sides: Sides | None = None) -> NDArray[np.float64]:
+        """Per-frame residual (F, 3) of the (unfiltered) joint equation at centre ``c``,
+        with the slip that goes with it (``back`` from its normal equations) when modelled;
+        ``sides``: ``self.sides(c)`` when already at hand."""
+        data = self.data
+        rec_a, rb_cb = self.sides(c) if sides is None else sides
+        res = rec_a - rb_cb
+        res -= data.pb
         if self.slip is not None:
             res = res + _slip_displacement(data.ra, data.rb, self.slip.basis,
                                            slip_coefficients(back, c))
@@ -650,11 +673,12 @@ class JointModel:
         return rows.norms(self.residual(c, back))
 
     def variance_per_information(self, c: NDArray[np.float64], w: NDArray[np.float64],
-                                 back: NDArray[np.float64]) -> float:
+                                 back: NDArray[np.float64], sides: Sides | None = None
+                                 ) -> float:
         """``σ²/N_eff`` at ``c``: the residual variance per axis over the effective number
         of samples (slow slip counts as few), the variance of the centre per unit of the
-        normalised system's eigenvalue along a direction."""
-        res_vec = self.residual(c, back)
+        normalised system's eigenvalue along a direction (``sides`` as in ``residual``)."""
+        res_vec = self.residual(c, back, sides)
         sigma2 = float(np.einsum("t,ti,ti->", w, res_vec, res_vec)) / (3.0 * float(w.sum()))
         return sigma2 / effective_samples(res_vec, w)
 
@@ -775,14 +799,16 @@ def robust_fit(model: JointModel, priors: Priors | None = None, *, loss: str = "
     return RobustFit(c, c_data, w, sv, weak, prior_weight, system.back, system.normal)
 
 
-def fit_information(model: JointModel, fit: RobustFit) -> NDArray[np.float64]:
+def fit_information(model: JointModel, fit: RobustFit, sides: Sides | None = None
+                    ) -> NDArray[np.float64]:
     """How well the joint's own data locate its centre: the precision (6, 6), m⁻², of the
     data-only centre ``fit.c_data``, ``N / (σ²/N_eff)`` with ``N`` the normalised normal
     matrix, ``σ²`` the residual variance per axis and ``N_eff`` its effective sample count
     (slow slip counts as few samples, so slip makes it small). Directions the motion leaves
-    undetermined have about zero precision."""
+    undetermined have about zero precision. ``sides``: ``model.sides(fit.c_data)`` when
+    already at hand."""
     normal = fit.normal if fit.normal is not None else model.normal_equations(fit.w).normal
-    v = model.variance_per_information(fit.c_data, fit.w, fit.back)
+    v = model.variance_per_information(fit.c_data, fit.w, fit.back, sides)
     return np.asarray(normal / max(v, 1e-300), dtype=np.float64)
 
 
@@ -943,16 +969,20 @@ class Reconstruction(NamedTuple):
     squared: NDArray[np.float64]  # (F,) its square
 
 
-def reconstruct(model: JointModel, c: NDArray[np.float64], back: NDArray[np.float64]
-                ) -> Reconstruction:
+def reconstruct(model: JointModel, c: NDArray[np.float64], back: NDArray[np.float64],
+                sides: Sides | None = None) -> Reconstruction:
     """``R_a (c_a − s_a) + p_a`` and ``R_b (c_b − s_b) + p_b`` (slip ``s`` with the slip
-    model): their mean, or the one whose sensor was measured."""
+    model): their mean, or the one whose sensor was measured. ``sides``: ``model.sides(c)``
+    when already at hand (without a slip model; taken over, ``rec_a`` overwritten)."""
     data = model.data
     ra, rb = data.ra, data.rb
     if model.slip is not None:
         beta = slip_coefficients(back, c).reshape(2, -1, 3)
         rec_a = np.einsum("tij,tj->ti", ra, c[:3] - model.slip.basis @ beta[0]) + data.pa
         rec_b = np.einsum("tij,tj->ti", rb, c[3:] - model.slip.basis @ beta[1]) + data.pb
+    elif sides is not None:
+        rec_a = sides.rec_a
+        rec_b = sides.rb_cb + data.pb
     else:
         rec_a = rows.transform(ra, c[:3], data.pa)
         rec_b = rows.transform(rb, c[3:], data.pb)
@@ -967,11 +997,19 @@ def reconstruct(model: JointModel, c: NDArray[np.float64], back: NDArray[np.floa
     return Reconstruction(positions, residuals, squared)
 
 
-def _motion_range(rotations_a: Rotation, rotations_b: Rotation, both: NDArray[np.bool_], *,
+def _motion_range(rotations_a: Rotation | NDArray[np.float64],
+                  rotations_b: Rotation | NDArray[np.float64], both: NDArray[np.bool_], *,
                   measured: float | None, min_range_deg: float, warn_range_deg: float
                   ) -> tuple[float, list[str]]:
-    """The range of motion (degrees) and its warnings; EstimationError below the minimum."""
-    rom = range_of_motion(rotations_a, rotations_b, both) if measured is None else measured
+    """The range of motion (degrees) and its warnings; EstimationError below the minimum,
+    InputError for rotations given as matrices without the range ``measured``."""
+    if measured is not None:
+        rom = measured
+    elif isinstance(rotations_a, Rotation) and isinstance(rotations_b, Rotation):
+        rom = range_of_motion(rotations_a, rotations_b, both)
+    else:
+        raise InputError("rotations given as matrices need range_of_motion_deg",
+                         field="range_of_motion_deg")
     if rom < min_range_deg:
         raise EstimationError(
             f"the two segments rotate only {rom:.1f}° relative to each other; at least "
@@ -1205,8 +1243,9 @@ class JointHints:
 
 
 def estimate_joint(
-    positions_a: NDArray[np.float64], rotations_a: Rotation, positions_b: NDArray[np.float64],
-    rotations_b: Rotation, *, valid: NDArray[np.bool_] | None = None,
+    positions_a: NDArray[np.float64], rotations_a: Rotation | NDArray[np.float64],
+    positions_b: NDArray[np.float64], rotations_b: Rotation | NDArray[np.float64], *,
+    valid: NDArray[np.bool_] | None = None,
     range_of_motion_deg: float | None = None, options: JointOptions | None = None,
     **keywords: Any,
 ) -> JointFit:
@@ -1217,7 +1256,9 @@ def estimate_joint(
     positions_a, positions_b : ndarray, shape (F, 3)
         Sensor origins in the world frame, metres (NaN rows are dropped samples).
     rotations_a, rotations_b : Rotation, length F
-        Sensor → world rotations.
+        Sensor → world rotations; or their matrices, ndarray (F, 3, 3), when
+        ``range_of_motion_deg`` is given (a caller fitting several joints of one sensor
+        converts its rotations once).
     valid : ndarray of bool, shape (F,) or (F, 2), optional
         Frames (or per-sensor samples) to fit; defaults to the finite ones.
     range_of_motion_deg : float, optional
@@ -1241,7 +1282,7 @@ def estimate_joint(
     ------
     InputError
         An unknown ``method`` or ``loss``, an unknown keyword (``field`` names it), both
-        ``options`` and option keywords.
+        ``options`` and option keywords, rotation matrices without ``range_of_motion_deg``.
     EstimationError
         When the relative rotation of the two bodies spans less than ``min_range_deg``.
 
@@ -1286,7 +1327,8 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
     fit = robust_fit(model, priors, loss=options.loss, huber_k=options.huber_k,
                      n_iterations=options.n_iterations,
                      report=lambda fraction: robust(fraction, "joints"))
-    information = fit_information(model, fit)
+    sides = model.sides(fit.c_data)
+    information = fit_information(model, fit, sides)
     sd = fit_sd(information)
     progress(0.8, "joints")
     neighbours = hints.neighbours
@@ -1306,7 +1348,8 @@ def fit_joint(model: JointModel, options: JointOptions, hints: JointHints, *, ro
             warnings.append("hinge-like joint: its centre along the axis was fixed by the "
                             f"{decision.rule} rule")
     progress(0.9, "joints")
-    rec = reconstruct(model, c, fit.back)
+    # the data-only centre kept (no prior, rule or GDKE moved it): its sides are at hand
+    rec = reconstruct(model, c, fit.back, sides if c is fit.c_data else None)
     progress(1.0, "joints")
     quality = _joint_quality(data, fit, rec, options, rom=rom, sd=sd)
     quality.update(_prior_quality(fit, priors, c))

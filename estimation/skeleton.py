@@ -954,6 +954,9 @@ class SkeletonContext:
     motion: JointMotion
     shared: SharedSlip | None
     highpass: int  # frames
+    # rotation matrices (F, 3, 3) of the torso joints' sensors, each shared by up to three
+    # joints: converted once (``locate_torso``), dropped after the torso (``derived_torso``)
+    matrices: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
 
 def skeleton_context(sensors: SensorPoses, options: SkeletonOptions, fps: float,
@@ -1023,15 +1026,21 @@ def _fit_on(ctx: SkeletonContext, plan: JointPlan, pa: NDArray[np.float64],
     a, b = JOINT_SEGMENTS[plan.name]
     sensors, opt = ctx.sensors, ctx.options
     auto = opt.method == "auto"
+    rom = ctx.motion.rom.get(plan.name)
+    # the torso's matrices where converted: estimate_joint takes them with a measured range
+    ra, rb = ((ctx.matrices.get(a, sensors.rotations[a]),
+               ctx.matrices.get(b, sensors.rotations[b]))
+              if rom is not None else (sensors.rotations[a], sensors.rotations[b]))
     try:
         return estimate_joint(
-            pa, sensors.rotations[a], pb, sensors.rotations[b], method=plan.estimator,
-            loss=opt.loss, valid=np.column_stack([sensors.ok[a], sensors.ok[b]]),
+            pa, ra, pb, rb, method=plan.estimator,
+            # (F, 2) as a transposed view: each sensor's column contiguous
+            loss=opt.loss, valid=np.stack([sensors.ok[a], sensors.ok[b]]).T,
             neighbours=plan.neighbours, hinge_prior=0.0 if opt.plain else 0.01,
             trust_data_sd_m=GOOD_DATA_SD_M if auto else 0.0,
             highpass=ctx.highpass, bone_length=plan.bone_length, min_range_deg=0.0,
             symmetry=plan.symmetry, prior=plan.prior if auto else None,
-            range_of_motion_deg=ctx.motion.rom.get(plan.name), progress=progress)
+            range_of_motion_deg=rom, progress=progress)
     except EstimationError as exc:
         raise EstimationError(f"{plan.name}: {exc.detail}", field=plan.name) from None
 
@@ -1204,6 +1213,9 @@ def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress)
     ``located``, merged in that order), then the waist and the neck between them;
     ``report(fraction, "torso")`` as they are located."""
     first = [name for name in _TORSO_JOINTS if name not in _MIDLINE]
+    rotations = ctx.sensors.rotations
+    ctx.matrices.update({s: rotations[s].as_matrix() for s in dict.fromkeys(
+        s for name in _TORSO_JOINTS for s in JOINT_SEGMENTS[name])})
 
     def locate_alone(name: str) -> Callable[[Report], LocatedJoints]:
         def task(report_joint: Report) -> LocatedJoints:
@@ -1246,7 +1258,8 @@ def mirror_torso(ctx: SkeletonContext, located: LocatedJoints,
 
 
 def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
-    """Root and chest from the torso joints (Miura et al. 2015, §2.1 and eq. 1)."""
+    """Root and chest from the torso joints (Miura et al. 2015, §2.1 and eq. 1); the torso's
+    rotation matrices are dropped after."""
     joints, offsets = located.joints, located.offsets
     joints["root"] = estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"])
     joints["chest"] = estimate_chest(joints["waist"], joints["neck"], joints["l_shoulder"],
@@ -1255,8 +1268,10 @@ def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
                                              + offsets["r_hip"].local) / 3.0)
     # the mean of R_tᵀ (C − p) over the frames: the chest joint in the chest sensor's frame
     sensors = ctx.sensors
-    chest_local = rows.sum_transposed(sensors.rotations["chest"].as_matrix(),
-                                      joints["chest"] - sensors.positions["chest"]
+    chest = ctx.matrices.pop("chest", None)
+    ctx.matrices.clear()
+    chest_local = rows.sum_transposed(sensors.rotations["chest"].as_matrix() if chest is None
+                                      else chest, joints["chest"] - sensors.positions["chest"]
                                       ) / joints["chest"].shape[0]
     offsets["chest"] = JointOffset("chest", chest_local)
     located.quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
