@@ -7,6 +7,7 @@ solving them directly costs less than MINPACK's QR of the full Jacobian at every
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any, Final, NamedTuple
 
@@ -125,7 +126,7 @@ def _lm_iteration(cost: Callable[[Float], float], x: Float,
         # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
         # M + μD is positive definite
         predicted = float(-2.0 * (g @ step) - step @ model @ step)
-        if not np.isfinite(predicted):
+        if not math.isfinite(predicted):
             return x, n_eval, _Damping(mu, nu), False
         if predicted <= rtol * e:
             # nothing left to gain: x is the minimum up to rounding
