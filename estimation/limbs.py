@@ -471,9 +471,15 @@ class _Passes:
     two products of ``_PaperTerms.normal``; ``cross`` (3, 3) ``Σ (c/l) Q``; ``h`` and
     ``second`` (6, 6) JᵀJ and ``Σ r ∇²r`` before ``normal`` copies them out."""
 
-    def __init__(self, m: int) -> None:
-        z = np.zeros((24, m))
-        z[6] = 1.0  # the ones, set once
+    def __init__(self, m: int, exact: bool) -> None:
+        # every row is written at each pass but these: ones, zeros, and without ``exact``
+        # the second-order rows (zeros, as in their products' unused entries)
+        z = np.empty((24, m))
+        z[6] = 1.0
+        z[23] = 0.0
+        if not exact:
+            z[8:14] = 0.0
+            z[20:23] = 0.0
         self.z = z
         self.u, self.uq, self.j, self.second_j = z[:3], z[3:6], z[:6], z[8:14]
         self.c, self.cl, self.cul = z[7], z[14], z[15]
@@ -564,7 +570,7 @@ class _PaperTerms:
         """``(E, Jᵀr, JᵀJ[, K])`` at ``theta``."""
         geo = self.geometry(theta)
         if self._passes is None:
-            self._passes = _Passes(self.limb.n)
+            self._passes = _Passes(self.limb.n, self.exact)
         p = self._passes
         self._rows(geo, p)
         m, w_l = self.limb.n, self.w_l
