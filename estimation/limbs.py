@@ -502,6 +502,17 @@ class _Passes:
         self.second_ak, self.upper_diagonal = self.second[3:, :3], self.upper.reshape(9)[::4]
 
 
+def _lengths(v: Float, scratch: Float) -> Float:
+    """Lengths of the columns of ``v`` (3, M), the squares through ``scratch`` (3, M): as
+    ``einsum("im,im->m")`` adds them (the same bits), in three calls that take 0.7–0.8 of
+    its time (1.4 against 1.8 µs over 400 frames, 4.5 against 6.3 over 6,283)."""
+    np.multiply(v, v, out=scratch)
+    lengths: Float = scratch[0] + scratch[1]
+    lengths += scratch[2]
+    np.sqrt(lengths, out=lengths)
+    return lengths
+
+
 class _PaperTerms:
     """The paper's E of one limb and its normal equations (see ``paper_normal``), sharing
     one pass over the frames at the last point asked for.
@@ -521,7 +532,7 @@ class _PaperTerms:
         self.b, self.q, self.h = (np.ascontiguousarray(r) for r in limb.component_major())
         m = limb.n
         self.q3 = self.q.reshape(3, 3, m)
-        self._offsets = np.empty((3, m))  # E's three deviations, summed in one call
+        self._scratch = np.empty((3, m))  # squares of components, then E's three deviations
         # the signs (exact) folded into the constants: one product instead of two
         self._hessian_scale = (1.0 + w_l) / m * _SIGN_OUTER
         self._signed_m = _SIGN * m
@@ -539,13 +550,11 @@ class _PaperTerms:
         d = theta[3:] @ self.q3  # Σ_j a_j Q_ij: a BLAS product per row i
         d += self.b
         d -= k
-        ll = np.einsum("im,im->m", d, d)
-        np.sqrt(ll, out=ll)
+        ll = _lengths(d, self._scratch)
         e = k - self.h
-        lu = np.einsum("im,im->m", e, e)
-        np.sqrt(lu, out=lu)
+        lu = _lengths(e, self._scratch)
         ll_mean = np.einsum("f->", ll) / m
-        offsets = self._offsets
+        offsets = self._scratch
         np.subtract(ll, ll_mean, out=offsets[0])
         np.subtract(lu, l_up, out=offsets[1])
         np.subtract(ll, l_low, out=offsets[2])
