@@ -7,6 +7,7 @@ solving them directly costs less than MINPACK's QR of the full Jacobian at every
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any, Final, NamedTuple
 
@@ -118,14 +119,15 @@ def _lm_iteration(cost: Callable[[Float], float], x: Float,
     e, g, h, curv = at_x
     mu, nu = damp
     diag = h.diagonal()
-    diag = np.maximum(diag, 1e-12 * max(float(diag.max()), 1e-300))
+    # ufunc reductions, not the array methods' Python wrappers (µs an iteration)
+    diag = np.maximum(diag, 1e-12 * max(float(np.maximum.reduce(diag)), 1e-300))
     n_eval = 0
     while True:
         step, model = _damped_step(curv, h, mu * diag, g)
         # decrease of the quadratic model, E − (E + 2gᵀs + sᵀMs), positive when
         # M + μD is positive definite
         predicted = float(-2.0 * (g @ step) - step @ model @ step)
-        if not np.isfinite(predicted):
+        if not math.isfinite(predicted):
             return x, n_eval, _Damping(mu, nu), False
         if predicted <= rtol * e:
             # nothing left to gain: x is the minimum up to rounding
@@ -164,8 +166,8 @@ def _damped_step(curv: Float | None, h: Float, damping: Float, g: Float,
         # LAPACK's dposv: a Cholesky factorisation, which fails (info > 0) unless the matrix
         # is positive definite, and the solve, in one call (7 µs against 21 for numpy's two)
         _, step, info = lapack.dposv(a, -g, overwrite_a=True)
-        if info == 0 and np.isfinite(step).all():
-            return np.asarray(step, dtype=np.float64), model
+        if info == 0 and np.logical_and.reduce(np.isfinite(step)):
+            return step, model
     return np.full(g.shape, np.nan), h
 
 

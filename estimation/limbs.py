@@ -415,6 +415,7 @@ def paper_residuals(limb: LimbInUpperFrame, lengths: tuple[float, float], w_s: f
 
 _SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 _SIGN_OUTER = np.outer(_SIGN, _SIGN)
+_NEGATIVE_SIGN_OUTER = -_SIGN_OUTER
 
 class PaperObjective(NamedTuple):
     """The paper's E at θ, its normal equations, and the two segment lengths per frame; the
@@ -461,6 +462,57 @@ class _Geometry(NamedTuple):
     ll_mean: float
 
 
+class _Passes:
+    """The buffers of one limb's passes over the frames, allocated at its first normal
+    equations, and the views of them that every pass uses: each slice or transpose is a numpy
+    call (about 0.3 µs), some 30 a pass, which the subsample's passes over ~400 frames feel.
+
+    ``z`` holds the rows of ``_PaperTerms._rows``; ``by_j`` (8, 16) and ``by_e`` (4, 8) the
+    two products of ``_PaperTerms.normal``; ``cross`` (3, 3) ``Σ (c/l) Q``; ``h`` and
+    ``second`` (6, 6) JᵀJ and ``Σ r ∇²r`` before ``normal`` copies them out."""
+
+    def __init__(self, m: int, exact: bool) -> None:
+        # every row is written at each pass but these: ones, zeros, and without ``exact``
+        # the second-order rows (zeros, as in their products' unused entries)
+        z = np.empty((24, m))
+        z[6] = 1.0
+        z[23] = 0.0
+        if not exact:
+            z[8:14] = 0.0
+            z[20:23] = 0.0
+        self.z = z
+        self.u, self.uq, self.j, self.second_j = z[:3], z[3:6], z[:6], z[8:14]
+        self.c, self.cl, self.cul = z[7], z[14], z[15]
+        self.e, self.cu, self.second_e = z[16:19], z[19], z[20:23]
+        self.rows_j, self.cols_j = z[:8], z[:16].T
+        self.rows_e, self.cols_e = z[16:20], z[16:24].T
+        by_j, by_e = np.empty((8, 16)), np.empty((4, 8))
+        self.by_j, self.by_e = by_j, by_e
+        self.jj, self.j_bar, self.jc = by_j[:6, :6], by_j[:6, 6], by_j[:6, 7]
+        self.jj_cl = by_j[:6, 8:14]
+        self.ee, self.ec, self.ee_cul = by_e[:3, :3], by_e[:3, 3], by_e[:3, 4:7]
+        self.cross_flat = np.empty(9)
+        self.cross = self.cross_flat.reshape(3, 3)
+        self.cross_t = self.cross.T
+        # JᵀJ and Σ r ∇²r formed in place, with views of their diagonals and blocks
+        self.h, self.second, self.upper = np.empty((6, 6)), np.empty((6, 6)), np.empty((3, 3))
+        self.h_diagonal, self.h_kk = self.h.reshape(36)[::7], self.h[:3, :3]
+        self.second_diagonal = self.second.reshape(36)[::7]
+        self.second_kk, self.second_ka = self.second[:3, :3], self.second[:3, 3:]
+        self.second_ak, self.upper_diagonal = self.second[3:, :3], self.upper.reshape(9)[::4]
+
+
+def _lengths(v: Float, scratch: Float) -> Float:
+    """Lengths of the columns of ``v`` (3, M), the squares through ``scratch`` (3, M): as
+    ``einsum("im,im->m")`` adds them (the same bits), in three calls that take 0.7–0.8 of
+    its time (1.4 against 1.8 µs over 400 frames, 4.5 against 6.3 over 6,283)."""
+    np.multiply(v, v, out=scratch)
+    lengths: Float = scratch[0] + scratch[1]
+    lengths += scratch[2]
+    np.sqrt(lengths, out=lengths)
+    return lengths
+
+
 class _PaperTerms:
     """The paper's E of one limb and its normal equations (see ``paper_normal``), sharing
     one pass over the frames at the last point asked for.
@@ -478,7 +530,13 @@ class _PaperTerms:
         # frames takes about 60)
         self._last: tuple[list[float], _Geometry] | None = None
         self.b, self.q, self.h = (np.ascontiguousarray(r) for r in limb.component_major())
-        self._z: Float | None = None  # the rows of ``_rows``, allocated once
+        m = limb.n
+        self.q3 = self.q.reshape(3, 3, m)
+        self._scratch = np.empty((3, m))  # squares of components, then E's three deviations
+        # the signs (exact) folded into the constants: one product instead of two
+        self._hessian_scale = (1.0 + w_l) / m * _SIGN_OUTER
+        self._signed_m = _SIGN * m
+        self._passes: _Passes | None = None  # allocated at the first normal equations
 
     def geometry(self, theta: Float) -> _Geometry:
         """The geometry at ``theta`` (cached: ``normal`` is asked for at the point ``cost``
@@ -487,20 +545,22 @@ class _PaperTerms:
         if self._last is not None and self._last[0] == point:
             return self._last[1]
         m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
-        k, a = theta[:3], theta[3:]
+        k = theta[:3, None]
         # the distal joint b + Q a in the upper frame, less the middle one: (3, M) rows
-        d = a @ self.q.reshape(3, 3, m)  # Σ_j a_j Q_ij: a BLAS product per row i
+        d = theta[3:] @ self.q3  # Σ_j a_j Q_ij: a BLAS product per row i
         d += self.b
-        d -= k[:, None]
-        ll = np.sqrt(np.einsum("im,im->m", d, d))
-        e = k[:, None] - self.h
-        lu = np.sqrt(np.einsum("im,im->m", e, e))
+        d -= k
+        ll = _lengths(d, self._scratch)
+        e = k - self.h
+        lu = _lengths(e, self._scratch)
         ll_mean = np.einsum("f->", ll) / m
-        dev = ll - ll_mean
-        off_up, off_low = lu - l_up, ll - l_low
-        value = float((np.einsum("f,f->", dev, dev)
-                       + w_l * (np.einsum("f,f->", off_up, off_up)
-                                + np.einsum("f,f->", off_low, off_low))) / m
+        offsets = self._scratch
+        np.subtract(ll, ll_mean, out=offsets[0])
+        np.subtract(lu, l_up, out=offsets[1])
+        np.subtract(ll, l_low, out=offsets[2])
+        # each row's sum in the order of a one-row einsum: the same bits
+        dev, off_up, off_low = np.einsum("if,if->i", offsets, offsets)
+        value = float((dev + w_l * (off_up + off_low)) / m
                       + self.w_s * np.einsum("i,i->", theta, theta))
         geometry = _Geometry(d, ll, e, lu, value, float(ll_mean))
         self._last = (point, geometry)
@@ -518,70 +578,70 @@ class _PaperTerms:
     def normal(self, theta: Float) -> Normal:
         """``(E, Jᵀr, JᵀJ[, K])`` at ``theta``."""
         geo = self.geometry(theta)
-        z = self._rows(geo)
+        if self._passes is None:
+            self._passes = _Passes(self.limb.n, self.exact)
+        p = self._passes
+        self._rows(geo, p)
         m, w_l = self.limb.n, self.w_l
         # every sum is an entry of one of two products of rows of z (see ``_rows``), 8 × 16
         # and 4 × 8 rows: shapes OpenBLAS's 4 × 8 kernels fill, 72 µs for 6,283 frames where
         # three products, (10, 14), (6, 6) and (3, 3) rows, took 131. A BLAS product adds
         # each entry's terms in the same order whatever the shapes: the same bits
-        by_j = z[:8] @ z[:16].T
-        by_e = z[16:20] @ z[16:24].T
-        g = _SIGN * by_j[:6, 7] + self.w_s * theta
-        g[:3] += by_e[:3, 3]
-        j_bar = _SIGN * by_j[:6, 6] / m
-        # j̄ j̄ᵀ as np.outer forms it, without its checks (µs a call)
-        h = (1.0 + w_l) / m * (_SIGN_OUTER * by_j[:6, :6]) - j_bar[:, None] * j_bar
-        h.flat[::7] += self.w_s  # + w_S I (no identity matrices: µs each, 23 passes a limb)
-        h[:3, :3] += w_l / m * by_e[:3, :3]
+        np.matmul(p.rows_j, p.cols_j, out=p.by_j)
+        np.matmul(p.rows_e, p.cols_e, out=p.by_e)
+        g = _SIGN * p.jc + self.w_s * theta
+        g[:3] += p.ec
+        j_bar = p.j_bar / self._signed_m
+        np.multiply(self._hessian_scale, p.jj, out=p.h)
+        p.h -= j_bar[:, None] * j_bar  # j̄ j̄ᵀ as np.outer forms it, without its checks
+        p.h_diagonal += self.w_s  # + w_S I (no identity matrices: µs each, 23 passes a limb)
+        p.h_kk += w_l / m * p.ee
+        h = p.h.copy()
         if not self.exact:
             return geo.value, g, h
-        return geo.value, g, h, h + self._second_order(z[14], by_j, by_e)
+        self._second_order(p)
+        return geo.value, g, h, p.h + p.second
 
-    def _rows(self, geo: _Geometry) -> Float:
-        """Rows (24, M) of z in two groups, the rows of ``normal``'s two products: 0–5 u, uᵀQ
-        (j up to the sign of its first block), 6 ones, 7 c, 8–13 u and uᵀQ times c/l (with
-        ``exact``), 14 c/l, 15 c_u/l_u; then 16–18 ê, 19 c_u, 20–22 ê times c_u/l_u (with
-        ``exact``), 23 zeros (the second product's fourth row of four).
+    def _rows(self, geo: _Geometry, p: _Passes) -> None:
+        """Rows (24, M) of ``p.z`` in two groups, the rows of ``normal``'s two products: 0–5
+        u, uᵀQ (j up to the sign of its first block), 6 ones, 7 c, 8–13 u and uᵀQ times c/l
+        (with ``exact``), 14 c/l, 15 c_u/l_u; then 16–18 ê, 19 c_u, 20–22 ê times c_u/l_u
+        (with ``exact``), 23 zeros (the second product's fourth row of four).
 
         Every sum of the normal equations is an entry of a product of rows of z. z is
         component-major so that numpy's loops run over frames, not over 3 components."""
-        m, (l_up, l_low), w_l, q = self.limb.n, self.lengths, self.w_l, self.q
+        m, (l_up, l_low), w_l = self.limb.n, self.lengths, self.w_l
         inv_l = 1.0 / geo.ll
         inv_lu = 1.0 / geo.lu
-        if self._z is None:
-            self._z = np.zeros((24, m))
-            self._z[6] = 1.0  # the ones, set once
-        z = self._z
-        np.multiply(geo.d, inv_l, out=z[:3])
-        np.einsum("im,ijm->jm", z[:3], q.reshape(3, 3, m), out=z[3:6])  # uᵀQ
-        np.multiply(geo.e, inv_lu, out=z[16:19])
-        c, cl, cul, cu = z[7], z[14], z[15], z[19]
+        np.multiply(geo.d, inv_l, out=p.u)
+        np.einsum("im,ijm->jm", p.u, self.q3, out=p.uq)  # uᵀQ
+        np.multiply(geo.e, inv_lu, out=p.e)
+        c, cu = p.c, p.cu
         np.multiply(geo.ll, (1.0 + w_l) / m, out=c)
         c -= (geo.ll_mean + w_l * l_low) / m
         np.subtract(geo.lu, l_up, out=cu)
         cu *= w_l / m
-        np.multiply(c, inv_l, out=cl)
-        np.multiply(cu, inv_lu, out=cul)
+        np.multiply(c, inv_l, out=p.cl)
+        np.multiply(cu, inv_lu, out=p.cul)
         if self.exact:
-            np.multiply(z[:6], cl, out=z[8:14])
-            np.multiply(z[16:19], cul, out=z[20:23])
-        return z
+            np.multiply(p.j, p.cl, out=p.second_j)
+            np.multiply(p.e, p.cul, out=p.second_e)
 
-    def _second_order(self, cl: Float, by_j: Float, by_e: Float) -> Float:
-        """``Σ r ∇²r`` (6, 6), from the row c/l and the two products of ``normal``."""
+    def _second_order(self, p: _Passes) -> None:
+        """``Σ r ∇²r`` (6, 6) into ``p.second``, from the row c/l and the two products of
+        ``normal``."""
         # Newton: add Σ r ∇²r. ∇²l = Dᵀ(I − uuᵀ)D/l with D = ∂d/∂θ = (−I, Q), and
         # QᵀQ = I, so Σ c ∇²l = (Σ c/l) I − Σ (c/l) j jᵀ with −Σ (c/l) Q in the (k, a)
         # block; ∇²l_{j−1,j} = (I − êêᵀ)/l_{j−1,j} on the k block.
         # a I − X as −X with a added to its diagonal: the same values, bit for bit
-        second = np.negative(_SIGN_OUTER * by_j[:6, 8:14])
-        second.flat[::7] += by_j[6, 14]
-        cross = (self.q @ cl).reshape(3, 3)
-        second[:3, 3:] -= cross
-        second[3:, :3] -= cross.T
-        upper = np.negative(by_e[:3, 4:7])
-        upper.flat[::4] += by_j[6, 15]
-        second[:3, :3] += upper
-        return np.asarray(second)
+        np.multiply(_NEGATIVE_SIGN_OUTER, p.jj_cl, out=p.second)
+        p.second_diagonal += p.by_j[6, 14]
+        np.matmul(self.q, p.cl, out=p.cross_flat)
+        p.second_ka -= p.cross
+        p.second_ak -= p.cross_t
+        np.negative(p.ee_cul, out=p.upper)
+        p.upper_diagonal += p.by_j[6, 15]
+        p.second_kk += p.upper
 
 
 def paper_cost(theta: ArrayLike, limb: LimbInUpperFrame, *,
