@@ -196,7 +196,8 @@ def _align_y(frames_q: Float, local: Float, out: Float) -> Float:
     norm = np.sqrt(hw * hw + hx * hx + hz * hz)
     # at θ = π the axis is undefined: any axis ⟂ y will do (z)
     flip = np.flatnonzero(norm <= _EPS)
-    hw[flip], hx[flip], hz[flip], norm[flip] = 0.0, 0.0, 1.0, 1.0
+    if flip.size:
+        hw[flip], hx[flip], hz[flip], norm[flip] = 0.0, 0.0, 1.0, 1.0
     # R ⊗ h (h's y component being zero), divided by |h| with the sign that makes w ≥ 0
     qw, qx, qy, qz = frames_q.T
     rows = np.empty((4, len(hw)))
