@@ -245,8 +245,11 @@ def _fill_positions(positions: NDArray[np.float64], gaps: _Gaps, t: NDArray[np.f
     of an interior gap where there are two."""
     n_frames = positions.shape[1]
     pos = positions.reshape(-1, 3)
+    # each sample's 3 floats gathered and scattered as one opaque item: a third less time
+    # than row indexing, the same bytes
+    items = pos.view(np.dtype((np.void, 24)))[:, 0]
     base = gaps.sensor * n_frames
-    p0, p1 = pos[base + gaps.i0], pos[base + gaps.i1]
+    p0, p1 = (items[base + i].view(np.float64).reshape(-1, 3) for i in (gaps.i0, gaps.i1))
     filled_pos = p0 + frac[:, None] * (p1 - p0)
     if method == "cubic":
         before, after = _outer_knots(gaps, n_frames)
@@ -254,9 +257,9 @@ def _fill_positions(positions: NDArray[np.float64], gaps: _Gaps, t: NDArray[np.f
         if cubic.any():
             knots = np.stack([before[cubic], gaps.i0[cubic], gaps.i1[cubic], after[cubic]],
                              axis=1)
-            filled_pos[cubic] = _lagrange(t[knots], pos[base[cubic, None] + knots],
-                                          t[gaps.frame[cubic]])
-    pos[gaps.bad] = filled_pos
+            knots_p = items[base[cubic, None] + knots].view(np.float64).reshape(-1, 4, 3)
+            filled_pos[cubic] = _lagrange(t[knots], knots_p, t[gaps.frame[cubic]])
+    items[gaps.bad] = filled_pos.view(items.dtype)[:, 0]
 
 
 def _outer_knots(gaps: _Gaps, n_frames: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -284,10 +287,16 @@ def _fill_quaternions(quaternions: NDArray[np.float64], norms2: NDArray[np.float
     """Fill the dropped quaternions (S, 4, F) in place by Slerp at ``frac`` between the
     bracketing samples, and their squared norms (S, F)."""
     sensor, frame = gaps.sensor, gaps.frame
-    q0, q1 = quaternions[sensor, :, gaps.i0], quaternions[sensor, :, gaps.i1]
-    q0 = q0 / rows.norms(q0)[:, None]
-    q1 = q1 / rows.norms(q1)[:, None]
-    filled_quat = multiply(q0, from_rotvec(frac[:, None] * as_rotvec(relative(q0, q1))))
+    # the bracketing quaternions gathered as (4, G) rows, on which the relative rotation
+    # and its rotation vector run without moving their components (the same arithmetic)
+    q0, q1 = (quaternions.transpose(1, 0, 2)[:, sensor, i] for i in (gaps.i0, gaps.i1))
+    q0 /= rows.norms(q0.T)
+    q1 /= rows.norms(q1.T)
+    rotvec = as_rotvec(relative(q0, q1, axis=0), axis=0)
+    # as C-contiguous (G, 3) rows: from_rotvec's einsum sums a transposed view otherwise,
+    # with other roundings
+    step = np.multiply(frac[:, None], rotvec.T, order="C")
+    filled_quat = multiply(q0.T, from_rotvec(step))
     quaternions[sensor, :, frame] = filled_quat
     norms2[sensor, frame] = _norms2(*filled_quat.T)
 
@@ -312,10 +321,10 @@ def _lagrange(knots_t: NDArray[np.float64], knots_p: NDArray[np.float64],
     ``knots_t`` (G, 4), ``knots_p`` (G, 4, 3), ``t`` (G,) → (G, 3).
     """
     out = np.zeros((t.size, knots_p.shape[-1]))
+    ahead = [t - knots_t[:, m] for m in range(4)]  # the same for every k: once each
     for k in range(4):
-        weight = np.ones(t.size)
-        for m in range(4):
-            if m != k:
-                weight *= (t - knots_t[:, m]) / (knots_t[:, k] - knots_t[:, m])
+        f0, f1, f2 = (ahead[m] / (knots_t[:, k] - knots_t[:, m]) for m in range(4) if m != k)
+        weight = f0 * f1  # = (1 · f0) · f1, bit for bit
+        weight *= f2
         out += weight[:, None] * knots_p[:, k]
     return out

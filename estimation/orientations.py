@@ -134,30 +134,37 @@ def quat_from_xy(x: Float, y: Float, out: Float) -> Float:
     y2, x2 = y[2], x[2]
     one_y = 1.0 + y1
     # sᵀ x = (x₀ − y₀ h, ·, x₂ − y₂ h) with h = x₁ + (y₀ x₀ + y₂ x₂) / (1 + y₁)
+    # (each step into a fresh array or in place: fewer temporaries, the same roundings)
     h = y0 * x0
-    h += y2 * x2
+    scratch = np.multiply(y2, x2)
+    h += scratch
     h /= one_y
     h += x1
-    a = x0 - y0 * h
-    c = x2 - y2 * h
-    r = np.sqrt(a * a + c * c)
+    a = np.multiply(y0, h)
+    np.subtract(x0, a, out=a)
+    c = np.multiply(y2, h, out=scratch)
+    np.subtract(x2, c, out=c)
+    r = a * a
+    r += np.multiply(c, c, out=h)
+    np.sqrt(r, out=r)
     zero = r <= _EPS
     if zero.any():  # x along the bone: any x ⟂ y will do
         a[zero], c[zero], r[zero] = 1.0, 0.0, 1.0
     # t ∝ (r + a, 0, −c, 0), or for a < 0 (where r + a cancels) the same rotation as
     # (−c, 0, r − a, 0); either way |t|² = 2 r (r + |a|)
-    turn = r + np.abs(a)
+    turn = np.abs(a)
+    turn += r
     ahead = a >= 0
-    c *= -1.0
+    c *= -1.0  # after the difference (an exact zero of it becomes −0, as q's signs need)
     tw = np.where(ahead, turn, c)
     ty = np.where(ahead, c, turn)
     q = np.empty((4, len(one_y)))
     np.multiply(one_y, tw, out=q[0])
     np.multiply(y2, tw, out=q[1])
-    q[1] += y0 * ty
+    q[1] += np.multiply(y0, ty, out=h)
     np.multiply(one_y, ty, out=q[2])
     np.multiply(y2, ty, out=q[3])
-    q[3] -= y0 * tw
+    q[3] -= np.multiply(y0, tw, out=h)
     q = down.turned(q)
     scale = one_y * r
     scale *= turn
@@ -189,14 +196,25 @@ def _align_y(frames_q: Float, local: Float, out: Float) -> Float:
     norm = np.sqrt(hw * hw + hx * hx + hz * hz)
     # at θ = π the axis is undefined: any axis ⟂ y will do (z)
     flip = np.flatnonzero(norm <= _EPS)
-    hw[flip], hx[flip], hz[flip], norm[flip] = 0.0, 0.0, 1.0, 1.0
+    if flip.size:
+        hw[flip], hx[flip], hz[flip], norm[flip] = 0.0, 0.0, 1.0, 1.0
     # R ⊗ h (h's y component being zero), divided by |h| with the sign that makes w ≥ 0
     qw, qx, qy, qz = frames_q.T
     rows = np.empty((4, len(hw)))
-    rows[0] = qw * hw - qx * hx - qz * hz
-    rows[1] = qw * hx + qx * hw + qy * hz
-    rows[2] = qy * hw - qx * hz + qz * hx
-    rows[3] = qw * hz - qy * hx + qz * hw
+    term = np.empty(len(hw))  # each row summed left to right in place, one scratch row
+    w, x, y, z = rows
+    np.multiply(qw, hw, out=w)
+    w -= np.multiply(qx, hx, out=term)
+    w -= np.multiply(qz, hz, out=term)
+    np.multiply(qw, hx, out=x)
+    x += np.multiply(qx, hw, out=term)
+    x += np.multiply(qy, hz, out=term)
+    np.multiply(qy, hw, out=y)
+    y -= np.multiply(qx, hz, out=term)
+    y += np.multiply(qz, hx, out=term)
+    np.multiply(qw, hz, out=z)
+    z -= np.multiply(qy, hx, out=term)
+    z += np.multiply(qz, hw, out=term)
     np.divide(rows, np.copysign(norm, rows[0], out=norm), out=out.T)
     return out
 

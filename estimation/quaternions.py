@@ -404,10 +404,20 @@ def as_rotvec(q: ArrayLike, axis: int = -1) -> Float:
     # atan2 keeps θ accurate; the sign turns q into the w ≥ 0 representative. Selected by
     # np.where rather than computed under ufuncs' ``where=`` masks, whose buffered loops took
     # a third of the function (the same values, bit for bit)
+    # (where every rotation turns, or every or no w < 0, as in most calls, a selection
+    # would pick one side only: skipped, the same values)
     turning = s > 0
-    np.divide(theta, np.where(turning, s, 1.0), out=theta)
-    scale = np.where(turning, theta, 2.0)
-    return _components_back(v * np.where(w < 0, -scale, scale), axis)
+    if turning.all():
+        scale = np.divide(theta, s, out=theta)
+    else:
+        np.divide(theta, np.where(turning, s, 1.0), out=theta)
+        scale = np.where(turning, theta, 2.0)
+    negative = w < 0
+    if negative.all():
+        np.negative(scale, out=scale)
+    elif negative.any():
+        scale = np.where(negative, -scale, scale)
+    return _components_back(v * scale, axis)
 
 
 def from_rotvec(v: ArrayLike) -> Float:
@@ -427,10 +437,13 @@ def from_rotvec(v: ArrayLike) -> Float:
     if vec.shape[-1:] != (3,):
         raise ValueError(f"rotation vectors must have shape (..., 3), got {vec.shape}")
     theta = np.sqrt(np.einsum("...i,...i->...", vec, vec))
-    # sin(θ/2)/θ, with its series below 1e-4 rad
+    # sin(θ/2)/θ, with its series below 1e-4 rad (the selection skipped without any)
     small = theta < 1e-4
-    safe = np.where(small, 1.0, theta)
-    scale = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * theta) / safe)
+    if small.any():
+        safe = np.where(small, 1.0, theta)
+        scale = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * theta) / safe)
+    else:
+        scale = np.sin(0.5 * theta) / theta
     return np.concatenate([np.cos(0.5 * theta)[..., None], vec * scale[..., None]], axis=-1)
 
 

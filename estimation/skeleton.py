@@ -127,11 +127,16 @@ def estimate_chest(waist: NDArray[np.float64], neck: NDArray[np.float64],
     d1, d2, r = n - w, rs - ls, w - ls
     a, b, c = rows.dots(d1, d1), rows.dots(d1, d2), rows.dots(d2, d2)
     d, e = rows.dots(d1, r), rows.dots(d2, r)
-    den = a * c - b * b
-    parallel = den <= 1e-12 * np.maximum(a * c, 1e-300)
-    safe = np.where(parallel, 1.0, den)
-    s = np.where(parallel, 0.0, (b * e - c * d) / safe)
-    t = np.where(parallel, e / np.where(c > 0, c, 1.0), (a * e - b * d) / safe)
+    ac = a * c
+    den = ac - b * b
+    parallel = den <= 1e-12 * np.maximum(ac, 1e-300)
+    if parallel.any():
+        safe = np.where(parallel, 1.0, den)
+        s = np.where(parallel, 0.0, (b * e - c * d) / safe)
+        t = np.where(parallel, e / np.where(c > 0, c, 1.0), (a * e - b * d) / safe)
+    else:  # the selections would pick the general case everywhere: the same values
+        s = (b * e - c * d) / den
+        t = (a * e - b * d) / den
     # v = q'_C − W = 0.5 ((W + s d1) + (LS + t d2)) − W, the same operations in place
     # (fewer new (F, 3) arrays, whose first touch costs as much as the arithmetic); d1
     # and d2 are spent
@@ -144,7 +149,7 @@ def estimate_chest(waist: NDArray[np.float64], neck: NDArray[np.float64],
     v -= w
     dist = rows.norms(v)
     alpha = float(np.mean(dist))
-    v /= np.where(dist > 0, dist, 1.0)[:, None]
+    v /= (dist if (dist > 0).all() else np.where(dist > 0, dist, 1.0))[:, None]
     v *= alpha
     v += w
     return v
