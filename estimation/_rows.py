@@ -99,7 +99,6 @@ def apply_each(m: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.flo
     return out
 
 
-
 def copy_into(out: NDArray[np.float64], v: NDArray[np.float64]) -> None:
     """``out[...] = v`` for (N, K) float64 rows whose entries are contiguous, one row at a
     time as a K × 8-byte item: a copy from a strided column of an (F, S, 3) recording runs

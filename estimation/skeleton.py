@@ -959,8 +959,8 @@ class SkeletonContext:
     motion: JointMotion
     shared: SharedSlip | None
     highpass: int  # frames
-    # rotation matrices (F, 3, 3) of the torso joints' sensors, each shared by up to three
-    # joints: converted once (``locate_torso``), dropped after the torso (``derived_torso``)
+    # rotation matrices (F, 3, 3) of sensors that several joints of a stage share, converted
+    # once for it (``locate_torso``'s own context); empty otherwise
     matrices: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
 
@@ -1219,7 +1219,9 @@ def locate_torso(ctx: SkeletonContext, located: LocatedJoints, report: Progress)
     ``report(fraction, "torso")`` as they are located."""
     first = [name for name in _TORSO_JOINTS if name not in _MIDLINE]
     rotations = ctx.sensors.rotations
-    ctx.matrices.update({s: rotations[s].as_matrix() for s in dict.fromkeys(
+    # each torso sensor serves up to three joints: its matrices converted once, held only
+    # while the torso is located (7 × F × 72 bytes)
+    ctx = replace(ctx, matrices={s: rotations[s].as_matrix() for s in dict.fromkeys(
         s for name in _TORSO_JOINTS for s in JOINT_SEGMENTS[name])})
 
     def locate_alone(name: str) -> Callable[[Report], LocatedJoints]:
@@ -1263,8 +1265,7 @@ def mirror_torso(ctx: SkeletonContext, located: LocatedJoints,
 
 
 def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
-    """Root and chest from the torso joints (Miura et al. 2015, §2.1 and eq. 1); the torso's
-    rotation matrices are dropped after."""
+    """Root and chest from the torso joints (Miura et al. 2015, §2.1 and eq. 1)."""
     joints, offsets = located.joints, located.offsets
     joints["root"] = estimate_root(joints["waist"], joints["l_hip"], joints["r_hip"])
     joints["chest"] = estimate_chest(joints["waist"], joints["neck"], joints["l_shoulder"],
@@ -1273,10 +1274,8 @@ def derived_torso(ctx: SkeletonContext, located: LocatedJoints) -> None:
                                              + offsets["r_hip"].local) / 3.0)
     # the mean of R_tᵀ (C − p) over the frames: the chest joint in the chest sensor's frame
     sensors = ctx.sensors
-    chest = ctx.matrices.pop("chest", None)
-    ctx.matrices.clear()
-    chest_local = rows.sum_transposed(sensors.rotations["chest"].as_matrix() if chest is None
-                                      else chest, joints["chest"] - sensors.positions["chest"]
+    chest_local = rows.sum_transposed(sensors.rotations["chest"].as_matrix(),
+                                      joints["chest"] - sensors.positions["chest"]
                                       ) / joints["chest"].shape[0]
     offsets["chest"] = JointOffset("chest", chest_local)
     located.quality["root"] = {"estimator": "centroid of waist and hips (paper §2.1)"}
