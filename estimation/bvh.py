@@ -1021,8 +1021,10 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
     rests: list[Future[NDArray[np.float64]]] = [Future() for _ in rotations]
     choose = _NodeChoice(tuple(parents), rotations, orders, centre, values, rests)
     if n_frames >= MIN_FRAMES and workers() > 1 and len(rotations) > 1:
+        by_depth = _by_depth(parents)
         with ThreadPoolExecutor(workers(), thread_name_prefix="bonefit-euler") as pool:
-            chosen = list(pool.map(choose, range(len(rotations))))
+            found = dict(zip(by_depth, pool.map(choose, by_depth), strict=True))
+        chosen = [found[n] for n in range(len(rotations))]
     else:
         chosen = [choose(n) for n in range(len(rotations))]
     return NodeChannels(channels=tuple(tuple(f"{axis}rotation" for axis in o) for o in chosen),
@@ -1030,11 +1032,21 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
                         rest=np.array([r.result() for r in rests]).reshape(-1, 4))
 
 
+def _by_depth(parents: tuple[int, ...] | list[int]) -> list[int]:
+    """Nodes (parents before children) ordered by depth in their tree, then index: on two
+    threads taking them in turn, a node's parent is chosen by the time it is reached more
+    often than in tree order, where a node mostly follows its parent."""
+    depth: list[int] = []
+    for p in parents:
+        depth.append(depth[p] + 1 if p >= 0 else 0)
+    return sorted(range(len(parents)), key=depth.__getitem__)
+
+
 @dataclass(frozen=True, eq=False)
 class _NodeChoice:
     """:func:`rest_euler_channels` node by node: each node's rest rotation and order are
     chosen once its parent's rest rotation is known (``rests``, futures set by the parent's
-    call), then its channels are written into ``values``. Called in node order, on a pool
+    call), then its channels are written into ``values``. Called parents first, on a pool
     whose threads take the calls in that order, a call waits only for a parent's that is
     running: on a long take the nodes of different branches overlap."""
 
