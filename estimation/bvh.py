@@ -966,7 +966,8 @@ def _least_option(steps: list[_Steps], orders: tuple[str, ...]) -> int:
 
 def rest_euler_channels(parents: tuple[int, ...] | list[int],
                         rotations: list[Rotation] | list[NDArray[np.float64]],
-                        order: str | None = None, *, centre: bool = True) -> NodeChannels:
+                        order: str | None = None, *, centre: bool = True,
+                        out: NDArray[np.float64] | None = None) -> NodeChannels:
     """BVH rotation channels of a tree of nodes, with an Euler order and a constant rest
     rotation per node chosen so that players interpolating the channels follow the motion.
 
@@ -994,6 +995,9 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
         One intrinsic order for every node instead of the choice per node.
     centre : bool
         Whether rest rotations other than identity may be chosen.
+    out : ndarray, shape (F, N, 3), optional
+        Where to write the channel values (every one is written), e.g. a view of a BVH's
+        table of values; by default a new array.
 
     Returns
     -------
@@ -1017,7 +1021,7 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
     if any(not -1 <= p < n for n, p in enumerate(parents)):
         raise InputError("each node's parent must come before it (or be -1)", field="parents")
     n_frames = len(rotations[0]) if rotations else 0
-    values = np.zeros((n_frames, len(rotations), 3))
+    values = np.zeros((n_frames, len(rotations), 3)) if out is None else out
     rests: list[Future[NDArray[np.float64]]] = [Future() for _ in rotations]
     choose = _NodeChoice(tuple(parents), rotations, orders, centre, values, rests)
     if n_frames >= MIN_FRAMES and workers() > 1 and len(rotations) > 1:

@@ -754,8 +754,12 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     turning = [j for j, name in enumerate(nodes.names) if name in nodes.local]
     tree = tuple(turning.index(nodes.parents[j]) if nodes.parents[j] >= 0 else -1
                  for j in turning)
+    # the MOTION table: root positions, then the nodes' rotation channels written in place
+    table = np.empty((result.n_frames, 3 + 3 * len(turning)))
+    np.multiply(_joint(result, "root"), per_m, out=table[:, :3])
     chans = rest_euler_channels(tree, [nodes.local[nodes.names[j]] for j in turning],
-                                euler_order, centre=rest == "auto")
+                                euler_order, centre=rest == "auto",
+                                out=table[:, 3:].reshape(result.n_frames, len(turning), 3))
     frame = np.tile([0.0, 0.0, 0.0, 1.0], (len(nodes.names), 1))
     frame[turning] = chans.rest
     above = frame[[max(p, 0) for p in nodes.parents]]
@@ -766,8 +770,9 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     slips = _slips(nodes, frame, offsets) if slip_chains else {}
     out = _with_slips(nodes, offsets * per_m, slips, per_m, channels=channels,
                       values=(turning, chans.values))
+    values = np.concatenate([table[:, :3], *out.columns], axis=1) if slips else table
     return BvhMotion(out.names, out.parents, out.offsets, out.channels, 1.0 / float(result.fps),
-                     np.concatenate([_joint(result, "root") * per_m, *out.columns], axis=1))
+                     values)
 
 
 def _slips(nodes: _Nodes, frame: NDArray[np.float64], offsets: NDArray[np.float64]
@@ -821,7 +826,7 @@ def _with_slips(nodes: _Nodes, offsets: NDArray[np.float64], slips: dict[int, Sl
                                   chain.values[:, k])
             offset = np.zeros(3)
         placed[j] = tree.add(name, parent, offset, channels[j], columns.get(j))
-    # without chains the columns are the (F, N, 3) block as it is: one copy, not N
+    # without chains the columns are the (F, N, 3) block as it is (no copy)
     return _Tree(tuple(tree.names), tuple(tree.parents), np.asarray(tree.offsets, dtype=float),
                  tuple(tree.channels),
                  tuple(tree.columns) if slips else (block.reshape(len(block), -1),))
