@@ -966,7 +966,8 @@ def _least_option(steps: list[_Steps], orders: tuple[str, ...]) -> int:
 
 def rest_euler_channels(parents: tuple[int, ...] | list[int],
                         rotations: list[Rotation] | list[NDArray[np.float64]],
-                        order: str | None = None, *, centre: bool = True) -> NodeChannels:
+                        order: str | None = None, *, centre: bool = True,
+                        out: NDArray[np.float64] | None = None) -> NodeChannels:
     """BVH rotation channels of a tree of nodes, with an Euler order and a constant rest
     rotation per node chosen so that players interpolating the channels follow the motion.
 
@@ -980,7 +981,8 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
     channel swing beyond the node's turn, over the steps of the take that are not jumps
     (:data:`JUMP_DEG`; at most :data:`MAX_CHOICE_STEPS` steps, evenly sampled); ties within
     0.1 % go to the given frame and the first order listed. From ``threads.MIN_FRAMES``
-    frames a second thread writes each node's channels while the next node is chosen.
+    frames the nodes are handled on ``threads.workers()`` threads, each node once its
+    parent's rest rotation is chosen.
 
     Parameters
     ----------
@@ -993,10 +995,19 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
         One intrinsic order for every node instead of the choice per node.
     centre : bool
         Whether rest rotations other than identity may be chosen.
+    out : ndarray, shape (F, N, 3), optional
+        Where to write the channel values (every one is written), e.g. a view of a BVH's
+        table of values; by default a new array.
 
     Returns
     -------
     NodeChannels
+
+    Raises
+    ------
+    InputError
+        If ``order`` is not one of :data:`EULER_ORDERS`, or a parent does not come before
+        its node.
 
     Notes
     -----
@@ -1007,38 +1018,76 @@ def rest_euler_channels(parents: tuple[int, ...] | list[int],
     pose) moves the take into the well-conditioned part of the chart.
     """
     orders = _orders(order)
+    if any(not -1 <= p < n for n, p in enumerate(parents)):
+        raise InputError("each node's parent must come before it (or be -1)", field="parents")
     n_frames = len(rotations[0]) if rotations else 0
-    values = np.zeros((n_frames, len(rotations), 3))
-    rests: list[NDArray[np.float64]] = []
-    chosen: list[str] = []
-    pending: list[Future[None]] = []
-    # on a long take a second thread writes each node's channels while the next is chosen
-    overlap = n_frames >= MIN_FRAMES and workers() > 1
-    with ThreadPoolExecutor(1, thread_name_prefix="bonefit-euler") as side:
-        for n, rotation in enumerate(rotations):
-            above = rests[parents[n]] if parents[n] >= 0 else np.array([0.0, 0.0, 0.0, 1.0])
+    values = np.zeros((n_frames, len(rotations), 3)) if out is None else out
+    rests: list[Future[NDArray[np.float64]]] = [Future() for _ in rotations]
+    choose = _NodeChoice(tuple(parents), rotations, orders, centre, values, rests)
+    if n_frames >= MIN_FRAMES and workers() > 1 and len(rotations) > 1:
+        by_depth = _by_depth(parents)
+        with ThreadPoolExecutor(workers(), thread_name_prefix="bonefit-euler") as pool:
+            found = dict(zip(by_depth, pool.map(choose, by_depth), strict=True))
+        chosen = [found[n] for n in range(len(rotations))]
+    else:
+        chosen = [choose(n) for n in range(len(rotations))]
+    return NodeChannels(channels=tuple(tuple(f"{axis}rotation" for axis in o) for o in chosen),
+                        values=values,
+                        rest=np.array([r.result() for r in rests]).reshape(-1, 4))
+
+
+def _by_depth(parents: tuple[int, ...] | list[int]) -> list[int]:
+    """Nodes (parents before children) ordered by depth in their tree, then index: on two
+    threads taking them in turn, a node's parent is chosen by the time it is reached more
+    often than in tree order, where a node mostly follows its parent."""
+    depth: list[int] = []
+    for p in parents:
+        depth.append(depth[p] + 1 if p >= 0 else 0)
+    return sorted(range(len(parents)), key=depth.__getitem__)
+
+
+@dataclass(frozen=True, eq=False)
+class _NodeChoice:
+    """:func:`rest_euler_channels` node by node: each node's rest rotation and order are
+    chosen once its parent's rest rotation is known (``rests``, futures set by the parent's
+    call), then its channels are written into ``values``. Called parents first, on a pool
+    whose threads take the calls in that order, a call waits only for a parent's that is
+    running: on a long take the nodes of different branches overlap."""
+
+    parents: tuple[int, ...]
+    rotations: list[Rotation] | list[NDArray[np.float64]]
+    orders: tuple[str, ...]
+    centre: bool
+    values: NDArray[np.float64]
+    rests: list[Future[NDArray[np.float64]]]
+
+    def __call__(self, n: int) -> str:
+        """Choose node ``n``'s rest rotation (setting ``rests[n]``) and order, write its
+        channels; returns the order."""
+        try:
+            parent = self.parents[n]
+            above = self.rests[parent].result() if parent >= 0 else np.array(
+                [0.0, 0.0, 0.0, 1.0])
+            rotation = self.rotations[n]
             given = rotation if isinstance(rotation, np.ndarray) else rotation.as_quat()
             seen = _quat_multiply(_conjugate(above)[None], given)
-            rest, best = _best_channels(seen, orders, centre)
-            rests.append(rest)
-            chosen.append(best)
-            task = (values[:, n], _quat_multiply(seen, rest[None]), best)
-            if overlap:
-                pending.append(side.submit(_put_channels, *task))
-            else:
-                _put_channels(*task)
-        for done in pending:
-            done.result()
-    return NodeChannels(channels=tuple(tuple(f"{axis}rotation" for axis in o) for o in chosen),
-                        values=values, rest=np.array(rests).reshape(-1, 4))
+            rest, best = _best_channels(seen, self.orders, self.centre)
+        except BaseException as error:  # the children waiting for this rest fail too
+            self.rests[n].set_exception(error)
+            raise
+        self.rests[n].set_result(rest)
+        _put_channels(self.values[:, n], seen, rest, best)
+        return best
 
 
-def _put_channels(out: NDArray[np.float64], local: NDArray[np.float64], order: str) -> None:
+def _put_channels(out: NDArray[np.float64], seen: NDArray[np.float64],
+                  rest: NDArray[np.float64], order: str) -> None:
     """Write into ``out`` (F, 3) the continuous channels of ``order`` of the rotations
-    ``local`` (F, 4), scalar-last quaternions."""
+    ``seen · rest`` (``seen`` (F, 4) and ``rest`` (4,), scalar-last quaternions)."""
     from scipy.spatial.transform import Rotation
 
-    out[...] = continuous_euler(euler_degrees(Rotation.from_quat(local), order))
+    local = Rotation.from_quat(_quat_multiply(seen, rest[None]))
+    out[...] = continuous_euler(euler_degrees(local, order))
 
 
 def euler_channels(rotations: list[Rotation], order: str | None = None

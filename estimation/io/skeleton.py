@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,6 +52,7 @@ from ..numtext import (
 from ..progress import Progress, no_progress
 from ..results import JointOffset, SkeletonResult, timings_document
 from ..rigid import clavicle_heights, clavicle_points
+from ..threads import MIN_FRAMES, workers
 from .outputs import SkeletonOutputs
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
@@ -60,6 +61,7 @@ from .result_npz import read_document_npz, write_document_npz
 from .sensor_common import unit_scale
 
 PathLike = str | os.PathLike[str]
+_T = TypeVar("_T")
 
 BVH_NODES: Final[tuple[tuple[str, str | None, str], ...]] = BVH_TREE
 """BVH joints as (node, parent node, segment whose orientation drives it), parents first."""
@@ -564,27 +566,83 @@ def _node_positions(result: SkeletonResult) -> dict[str, NDArray[np.float64]]:
     return positions
 
 
+_DRIVERS: Final[dict[str, str]] = {node: seg for node, _, seg in BVH_NODES}
+"""The segment each joint's node turns with (a clavicle node has none: its parent's)."""
+
+
+def _each_node(task: Callable[[str], _T], nodes: list[str], frames: int) -> dict[str, _T]:
+    """``task(node)`` per node, on ``threads.workers()`` threads from ``threads.MIN_FRAMES``
+    frames (numpy releases the interpreter lock on a long take's arrays: the nodes'
+    products overlap), else one after the other."""
+    if frames < MIN_FRAMES or workers() == 1 or len(nodes) < 2:
+        return {node: task(node) for node in nodes}
+    with ThreadPoolExecutor(workers(), thread_name_prefix="bonefit-bvh-nodes") as pool:
+        return dict(zip(nodes, pool.map(task, nodes), strict=True))
+
+
+@dataclass(frozen=True, eq=False)
+class _FrameTask:
+    """What a node's frame (:func:`_node_frames`) is made of: the result, the node paths,
+    the children per node and the frames already known (a clavicle's parent's)."""
+
+    result: SkeletonResult
+    positions: Mapping[str, NDArray[np.float64]]
+    children: Mapping[str, list[str]]
+    quats: Mapping[str, NDArray[np.float64]]
+
+    def __call__(self, node: str) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """The node's frame and, when it was not turned, its first child's path in it."""
+        base = (_rotation(self.result, _DRIVERS[node]).as_quat() if node in _DRIVERS
+                else self.quats[str(dict(skeleton_tree())[node])])
+        if not self.children[node]:
+            return base, None
+        child = self.children[node][0]
+        local = _in_frame(base, self.positions[child] - self.positions[node])
+        turned = _swung(base, local)
+        return turned, local if turned is base else None
+
+
 def _node_frames(result: SkeletonResult, positions: Mapping[str, NDArray[np.float64]],
                  children: Mapping[str, list[str]]
                  ) -> tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.float64]]]:
     """Per node of ``skeleton_tree``, its frame (scalar-last quaternions, F × 4): its
     segment's (a clavicle's: its parent's) turned by ``_swung`` toward its first child;
     and per first child whose parent's frame was not turned (most limb nodes), its path
-    from the parent in that frame (F × 3), which the child's OFFSET reuses."""
-    driver = {node: seg for node, _, seg in BVH_NODES}
+    from the parent in that frame (F × 3), which the child's OFFSET reuses. The nodes with
+    a segment first, then the clavicles (:func:`_each_node`)."""
     quats: dict[str, NDArray[np.float64]] = {}
     seen: dict[str, NDArray[np.float64]] = {}
-    for node, parent in skeleton_tree():
-        base = (_rotation(result, driver[node]).as_quat() if node in driver
-                else quats[str(parent)])
-        quats[node] = base
-        if children[node]:
-            child = children[node][0]
-            local = _in_frame(base, positions[child] - positions[node])
-            quats[node] = _swung(base, local)
-            if quats[node] is base:
-                seen[child] = local
+    nodes = [node for node, _ in skeleton_tree()]
+    for group in ([n for n in nodes if n in _DRIVERS], [n for n in nodes if n not in _DRIVERS]):
+        frames = _each_node(_FrameTask(result, positions, children, dict(quats)), group,
+                            result.n_frames)
+        for node, (quat, local) in frames.items():
+            quats[node] = quat
+            if local is not None:
+                seen[children[node][0]] = local
     return quats, seen
+
+
+@dataclass(frozen=True, eq=False)
+class _LinkTask:
+    """What a node's link to its parent (:func:`_skeleton_nodes`) is made of: the node
+    paths, the parent per node, the frames and the paths already seen in them."""
+
+    positions: Mapping[str, NDArray[np.float64]]
+    parent: Mapping[str, str]
+    quats: Mapping[str, NDArray[np.float64]]
+    seen: Mapping[str, NDArray[np.float64]]
+
+    def __call__(self, node: str
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The node's path in its parent's frame, its mean (the OFFSET) and the node's
+        rotation relative to that frame."""
+        parent = self.parent[node]
+        bone = self.seen[node] if node in self.seen else _in_frame(
+            self.quats[parent], self.positions[node] - self.positions[parent])
+        turn = compose_quaternions(self.quats[parent] * [-1.0, -1.0, -1.0, 1.0],
+                                   self.quats[node])
+        return bone, bone.mean(axis=0), turn
 
 
 def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
@@ -594,10 +652,11 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     toward its first child, which it then holds exactly along its OFFSET's direction."""
     positions = _node_positions(result)
     children: dict[str, list[str]] = {node: [] for node, _ in skeleton_tree()}
-    for node, parent in skeleton_tree():
-        if parent is not None:
-            children[parent].append(node)
+    above = {node: parent for node, parent in skeleton_tree() if parent is not None}
+    for node, holder in above.items():
+        children[holder].append(node)
     quats, seen = _node_frames(result, positions, children)
+    links = _each_node(_LinkTask(positions, above, quats, seen), list(above), result.n_frames)
     names: list[str] = []
     parents: list[int] = []
     offsets: list[NDArray[np.float64]] = []
@@ -616,11 +675,8 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
         if parent is None:
             offsets.append(np.zeros(3))
         else:
-            bones[node] = seen[node] if node in seen else _in_frame(
-                quats[parent], positions[node] - positions[parent])
-            offsets.append(bones[node].mean(axis=0))
-            local[node] = compose_quaternions(quats[parent] * [-1.0, -1.0, -1.0, 1.0],
-                                              quats[node])
+            bones[node], offset, local[node] = links[node]
+            offsets.append(offset)
         after = [*children[node], *([f"{node}_end"] if node in END_SITES else [])]
         stack.extend((child, node) for child in reversed(after))
     return _Nodes(tuple(names), tuple(parents), np.asarray(offsets, dtype=float), local,
@@ -698,8 +754,12 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     turning = [j for j, name in enumerate(nodes.names) if name in nodes.local]
     tree = tuple(turning.index(nodes.parents[j]) if nodes.parents[j] >= 0 else -1
                  for j in turning)
+    # the MOTION table: root positions, then the nodes' rotation channels written in place
+    table = np.empty((result.n_frames, 3 + 3 * len(turning)))
+    np.multiply(_joint(result, "root"), per_m, out=table[:, :3])
     chans = rest_euler_channels(tree, [nodes.local[nodes.names[j]] for j in turning],
-                                euler_order, centre=rest == "auto")
+                                euler_order, centre=rest == "auto",
+                                out=table[:, 3:].reshape(result.n_frames, len(turning), 3))
     frame = np.tile([0.0, 0.0, 0.0, 1.0], (len(nodes.names), 1))
     frame[turning] = chans.rest
     above = frame[[max(p, 0) for p in nodes.parents]]
@@ -710,8 +770,9 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     slips = _slips(nodes, frame, offsets) if slip_chains else {}
     out = _with_slips(nodes, offsets * per_m, slips, per_m, channels=channels,
                       values=(turning, chans.values))
+    values = np.concatenate([table[:, :3], *out.columns], axis=1) if slips else table
     return BvhMotion(out.names, out.parents, out.offsets, out.channels, 1.0 / float(result.fps),
-                     np.concatenate([_joint(result, "root") * per_m, *out.columns], axis=1))
+                     values)
 
 
 def _slips(nodes: _Nodes, frame: NDArray[np.float64], offsets: NDArray[np.float64]
@@ -765,7 +826,7 @@ def _with_slips(nodes: _Nodes, offsets: NDArray[np.float64], slips: dict[int, Sl
                                   chain.values[:, k])
             offset = np.zeros(3)
         placed[j] = tree.add(name, parent, offset, channels[j], columns.get(j))
-    # without chains the columns are the (F, N, 3) block as it is: one copy, not N
+    # without chains the columns are the (F, N, 3) block as it is (no copy)
     return _Tree(tuple(tree.names), tuple(tree.parents), np.asarray(tree.offsets, dtype=float),
                  tuple(tree.channels),
                  tuple(tree.columns) if slips else (block.reshape(len(block), -1),))
