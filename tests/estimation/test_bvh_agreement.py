@@ -9,6 +9,7 @@ the midpoint of the JSON's neighbouring frames.
 
 from __future__ import annotations
 
+import io
 import itertools
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from bonefit.estimation.bvh import (
     jump_steps,
     point_joint_bvh,
     read_bvh,
+    rest_euler_channels,
     slip_chain,
     write_bvh,
 )
@@ -632,3 +634,31 @@ def test_half_frames_of_an_estimated_skeleton_stay_within_10_mm(
     rec, _ = sim15
     result = estimate_skeleton(rec, method="auto")
     assert half_frame_error_mm(result) < 10.0
+
+
+def test_a_long_takes_bvh_built_on_threads_is_the_text_of_one_thread(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # from threads.MIN_FRAMES frames the node frames, links and Euler choices run per node
+    # on the worker threads, children waiting for their parents' rest rotations
+    from bonefit.estimation.io import skeleton as skeleton_io
+
+    def bvh_text(motion: BvhMotion) -> str:
+        out = io.StringIO()
+        write_bvh(motion, out, precision=6)
+        return out.getvalue()
+
+    result = flexing_result(600, fps=240.0)
+    for module in (bvh_module, skeleton_io):
+        monkeypatch.setattr(module, "MIN_FRAMES", 10**9)
+    one = bvh_text(skeleton_to_bvh(result))
+    for module in (bvh_module, skeleton_io):
+        monkeypatch.setattr(module, "MIN_FRAMES", 1)
+        monkeypatch.setattr(module, "workers", lambda: 2)
+    assert bvh_text(skeleton_to_bvh(result)) == one
+
+
+def test_rest_euler_channels_refuses_a_parent_after_its_node() -> None:
+    turns = [Rotation.random(5, rng=k) for k in range(2)]
+    with pytest.raises(InputError, match="parent must come before") as err:
+        rest_euler_channels((1, -1), turns)
+    assert err.value.field == "parents"
