@@ -26,7 +26,7 @@ from bonefit.estimation.threads import limit_blas_threads
 limit_blas_threads()  # as the CLI and the workers run
 
 import numpy as np  # noqa: E402
-from long_take import cache_dir, numbers, take_path  # noqa: E402
+from long_take import cache_dir, numbers, take_arguments, take_path  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from service_common import machine, median, table  # noqa: E402
 
@@ -91,10 +91,8 @@ def rows_for(rec: SensorRecording, frames: int, sensors: int, pairs: int) -> lis
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frames", default="144000", help="take lengths, comma-separated")
-    parser.add_argument("--sensors", default="15,11", help="suits: 15 and/or 11")
+    take_arguments(parser, "144000")
     parser.add_argument("--pairs", type=int, default=3, help="alternating 1/2-thread pairs")
-    parser.add_argument("--cache", help="folder of long_take.py's generated takes")
     args = parser.parse_args(argv)
     print(machine(), flush=True)
     header = ["frames", "sensors", "threads", "wall (median)", "CPU", "µs/frame",

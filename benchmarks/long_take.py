@@ -400,17 +400,23 @@ def cache_dir(path: str | None) -> Iterator[Path]:
     yield folder
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frames", default="6000,36000,144000,576000",
+def take_arguments(parser: argparse.ArgumentParser, frames: str) -> None:
+    """``--frames`` (default ``frames``), ``--sensors`` and ``--cache``: the takes of this
+    benchmark and of those that reuse its cache."""
+    parser.add_argument("--frames", default=frames,
                         help="take lengths, comma-separated (default %(default)s)")
     parser.add_argument("--sensors", default="15,11", help="suits: 15 and/or 11")
+    parser.add_argument("--cache", help="folder of the generated takes (long_take.py's)")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    take_arguments(parser, "6000,36000,144000,576000")
     parser.add_argument("--repeats", type=int, default=3, help="runs per measure (median)")
     parser.add_argument("--drop-fraction", type=float, default=0.0,
                         help="dropped samples in the takes (default none)")
     parser.add_argument("--no-cli", dest="cli", action="store_false")
     parser.add_argument("--no-service", dest="service", action="store_false")
-    parser.add_argument("--cache", help="folder of the generated takes")
     parser.add_argument("--baseline-cli", nargs="+", metavar="COMMAND",
                         help="the bonefit command of another checkout (e.g. "
                              "/path/to/base/.venv/bin/bonefit): its CLI runs interleaved "

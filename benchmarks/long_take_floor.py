@@ -46,7 +46,13 @@ limit_blas_threads()  # as the CLI: before numpy loads BLAS
 retain_freed_memory()
 
 import numpy as np  # noqa: E402
-from long_take import cache_dir, loadtxt_seconds, numbers, take_path  # noqa: E402
+from long_take import (  # noqa: E402
+    cache_dir,
+    loadtxt_seconds,
+    numbers,
+    take_arguments,
+    take_path,
+)
 from service_common import machine, table  # noqa: E402
 
 from bonefit.estimation.io.sensors import read_recording  # noqa: E402
@@ -156,10 +162,8 @@ def row(frames: int, sensors: int, yard: float, parts: dict[str, float | None]
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frames", default="144000", help="take lengths, comma-separated")
-    parser.add_argument("--sensors", default="15,11", help="suits: 15 and/or 11")
+    take_arguments(parser, "144000")
     parser.add_argument("--repeats", type=int, default=3, help="runs per measure (median)")
-    parser.add_argument("--cache", help="folder of the generated takes (long_take.py's)")
     args = parser.parse_args(argv)
     print(machine())
     rows = []
