@@ -32,6 +32,7 @@ from ..bvh import (
     SLIP_NODES,
     SLIP_TOL_M,
     BvhMotion,
+    NodeChannels,
     SlipChain,
     compose_quaternions,
     rest_euler_channels,
@@ -752,14 +753,8 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     per_m = 1.0 / unit_scale(units)
     nodes = _skeleton_nodes(result)
     turning = [j for j, name in enumerate(nodes.names) if name in nodes.local]
-    tree = tuple(turning.index(nodes.parents[j]) if nodes.parents[j] >= 0 else -1
-                 for j in turning)
-    # the MOTION table: root positions, then the nodes' rotation channels written in place
-    table = np.empty((result.n_frames, 3 + 3 * len(turning)))
-    np.multiply(_joint(result, "root"), per_m, out=table[:, :3])
-    chans = rest_euler_channels(tree, [nodes.local[nodes.names[j]] for j in turning],
-                                euler_order, centre=rest == "auto",
-                                out=table[:, 3:].reshape(result.n_frames, len(turning), 3))
+    table, chans = _motion_table(result, nodes, turning, per_m, euler_order,
+                                 centre=rest == "auto")
     frame = np.tile([0.0, 0.0, 0.0, 1.0], (len(nodes.names), 1))
     frame[turning] = chans.rest
     above = frame[[max(p, 0) for p in nodes.parents]]
@@ -773,6 +768,22 @@ def skeleton_to_bvh(result: SkeletonResult, *, units: str = "cm",
     values = np.concatenate([table[:, :3], *out.columns], axis=1) if slips else table
     return BvhMotion(out.names, out.parents, out.offsets, out.channels, 1.0 / float(result.fps),
                      values)
+
+
+def _motion_table(result: SkeletonResult, nodes: _Nodes, turning: list[int], per_m: float,
+                  euler_order: str | None, *, centre: bool
+                  ) -> tuple[NDArray[np.float64], NodeChannels]:
+    """The MOTION table (F, 3 + 3N) without slip chains: the root's positions (file units,
+    ``per_m`` per metre), then the rotation channels of the N ``turning`` nodes, which
+    ``rest_euler_channels`` writes in place; and those channels."""
+    tree = tuple(turning.index(nodes.parents[j]) if nodes.parents[j] >= 0 else -1
+                 for j in turning)
+    table = np.empty((result.n_frames, 3 + 3 * len(turning)))
+    np.multiply(_joint(result, "root"), per_m, out=table[:, :3])
+    chans = rest_euler_channels(tree, [nodes.local[nodes.names[j]] for j in turning],
+                                euler_order, centre=centre,
+                                out=table[:, 3:].reshape(result.n_frames, len(turning), 3))
+    return table, chans
 
 
 def _slips(nodes: _Nodes, frame: NDArray[np.float64], offsets: NDArray[np.float64]
