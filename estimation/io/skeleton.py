@@ -9,6 +9,7 @@ each shoulder.
 
 from __future__ import annotations
 
+import functools
 import io
 import itertools
 import json
@@ -53,7 +54,7 @@ from ..numtext import (
 from ..progress import Progress, no_progress
 from ..results import JointOffset, SkeletonResult, timings_document
 from ..rigid import clavicle_heights, clavicle_points
-from ..threads import MIN_FRAMES, workers
+from ..threads import Report, run_each
 from .outputs import SkeletonOutputs
 from .result_json import SKELETON_KIND, offsets_to_dict
 from .result_json import offsets_from_dict as offsets_from_dict  # documented here too
@@ -572,29 +573,34 @@ _DRIVERS: Final[dict[str, str]] = {node: seg for node, _, seg in BVH_NODES}
 
 
 def _each_node(task: Callable[[str], _T], nodes: list[str], frames: int) -> dict[str, _T]:
-    """``task(node)`` per node, on ``threads.workers()`` threads from ``threads.MIN_FRAMES``
-    frames (numpy releases the interpreter lock on a long take's arrays: the nodes'
-    products overlap), else one after the other."""
-    if frames < MIN_FRAMES or workers() == 1 or len(nodes) < 2:
-        return {node: task(node) for node in nodes}
-    with ThreadPoolExecutor(workers(), thread_name_prefix="bonefit-bvh-nodes") as pool:
-        return dict(zip(nodes, pool.map(task, nodes), strict=True))
+    """``task(node)`` per node, as independent pieces of ``threads.run_each``: on its
+    threads from ``threads.MIN_FRAMES`` frames (numpy releases the interpreter lock on a
+    long take's arrays: the nodes' products overlap), else one after the other."""
+    pieces = [functools.partial(_for_node, task, node) for node in nodes]
+    return dict(zip(nodes, run_each(pieces, no_progress, "writing", frames=frames),
+                    strict=True))
+
+
+def _for_node(task: Callable[[str], _T], node: str, _report: Report) -> _T:
+    """``task(node)`` as a piece of ``threads.run_each`` (it reports no progress)."""
+    return task(node)
 
 
 @dataclass(frozen=True, eq=False)
 class _FrameTask:
     """What a node's frame (:func:`_node_frames`) is made of: the result, the node paths,
-    the children per node and the frames already known (a clavicle's parent's)."""
+    the parent and children per node and the frames already known (a clavicle's parent's)."""
 
     result: SkeletonResult
     positions: Mapping[str, NDArray[np.float64]]
+    parent: Mapping[str, str]
     children: Mapping[str, list[str]]
     quats: Mapping[str, NDArray[np.float64]]
 
     def __call__(self, node: str) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
         """The node's frame and, when it was not turned, its first child's path in it."""
         base = (_rotation(self.result, _DRIVERS[node]).as_quat() if node in _DRIVERS
-                else self.quats[str(dict(skeleton_tree())[node])])
+                else self.quats[self.parent[node]])
         if not self.children[node]:
             return base, None
         child = self.children[node][0]
@@ -604,7 +610,7 @@ class _FrameTask:
 
 
 def _node_frames(result: SkeletonResult, positions: Mapping[str, NDArray[np.float64]],
-                 children: Mapping[str, list[str]]
+                 parent: Mapping[str, str], children: Mapping[str, list[str]]
                  ) -> tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.float64]]]:
     """Per node of ``skeleton_tree``, its frame (scalar-last quaternions, F × 4): its
     segment's (a clavicle's: its parent's) turned by ``_swung`` toward its first child;
@@ -615,7 +621,7 @@ def _node_frames(result: SkeletonResult, positions: Mapping[str, NDArray[np.floa
     seen: dict[str, NDArray[np.float64]] = {}
     nodes = [node for node, _ in skeleton_tree()]
     for group in ([n for n in nodes if n in _DRIVERS], [n for n in nodes if n not in _DRIVERS]):
-        frames = _each_node(_FrameTask(result, positions, children, dict(quats)), group,
+        frames = _each_node(_FrameTask(result, positions, parent, children, dict(quats)), group,
                             result.n_frames)
         for node, (quat, local) in frames.items():
             quats[node] = quat
@@ -656,7 +662,7 @@ def _skeleton_nodes(result: SkeletonResult) -> _Nodes:
     above = {node: parent for node, parent in skeleton_tree() if parent is not None}
     for node, holder in above.items():
         children[holder].append(node)
-    quats, seen = _node_frames(result, positions, children)
+    quats, seen = _node_frames(result, positions, above, children)
     links = _each_node(_LinkTask(positions, above, quats, seen), list(above), result.n_frames)
     names: list[str] = []
     parents: list[int] = []

@@ -640,7 +640,7 @@ def test_a_long_takes_bvh_built_on_threads_is_the_text_of_one_thread(
         monkeypatch: pytest.MonkeyPatch) -> None:
     # from threads.MIN_FRAMES frames the node frames, links and Euler choices run per node
     # on the worker threads, children waiting for their parents' rest rotations
-    from bonefit.estimation.io import skeleton as skeleton_io
+    from bonefit.estimation import threads
 
     def bvh_text(motion: BvhMotion) -> str:
         out = io.StringIO()
@@ -648,10 +648,10 @@ def test_a_long_takes_bvh_built_on_threads_is_the_text_of_one_thread(
         return out.getvalue()
 
     result = flexing_result(600, fps=240.0)
-    for module in (bvh_module, skeleton_io):
+    for module in (bvh_module, threads):
         monkeypatch.setattr(module, "MIN_FRAMES", 10**9)
     one = bvh_text(skeleton_to_bvh(result))
-    for module in (bvh_module, skeleton_io):
+    for module in (bvh_module, threads):
         monkeypatch.setattr(module, "MIN_FRAMES", 1)
         monkeypatch.setattr(module, "workers", lambda: 2)
     assert bvh_text(skeleton_to_bvh(result)) == one
